@@ -1,0 +1,96 @@
+"""Consistent initial conditions and the rank of the constraints.
+
+Positions given as estimates are corrected by Newton's method with the smallest
+mass-weighted change, ``dq = -M^-1 Psi_q^T (Psi_q M^-1 Psi_q^T)^+ Psi``; velocities are
+projected onto ``Psi_q q' = nu`` with the smallest change in kinetic energy. The same two
+projections keep integrators on the constraint manifold (coordinate projection).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from .errors import AssemblyError, SolverError
+from .system import RANK_TOLERANCE, System, solve_spd
+
+# Newton iterations allowed when assembling from rough estimates, and while projecting.
+ASSEMBLY_MAX_ITER = 60
+PROJECTION_MAX_ITER = 8
+# Residual (relative to the mechanism's length scale) at which positions count as assembled.
+ASSEMBLY_TOL = 1e-12
+
+
+def project_positions(system: System, t: float, q: np.ndarray, *, tol: float,
+                      max_iter: int = PROJECTION_MAX_ITER) -> tuple[np.ndarray, int]:
+    """Closest q (mass-weighted) with Psi(q, t) = 0; returns (q, iterations).
+
+    Raises SolverError when Newton does not converge to ``tol`` (max-norm of Psi).
+    """
+    q = q.copy()
+    for it in range(max_iter + 1):
+        Psi, J = system.constraints(t, q)
+        if not np.all(np.isfinite(Psi)):
+            raise SolverError("non-finite constraint residual while projecting positions", t)
+        err = np.max(np.abs(Psi)) if Psi.size else 0.0
+        if err <= tol:
+            return q, it
+        if it == max_iter:
+            break
+        JMi = J * system.minv
+        q -= JMi.T @ solve_spd(JMi @ J.T, Psi)
+    worst = int(np.argmax(np.abs(Psi)))
+    raise SolverError(f"position projection did not converge: {system.row_labels[worst]} "
+                      f"violated by {err:.3g} after {max_iter} iterations", t)
+
+
+def project_velocities(system: System, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+    """Closest q' in kinetic energy with Psi_q q' = nu."""
+    if system.m == 0:
+        return qd.copy()
+    _, J, nu, _ = system.constraints(t, q, qd)
+    JMi = J * system.minv
+    return qd - JMi.T @ solve_spd(JMi @ J.T, J @ qd - nu)
+
+
+@dataclass(frozen=True)
+class RankReport:
+    """Degrees of freedom and redundant constraint rows at one configuration."""
+
+    dof: int
+    rank: int
+    redundant: tuple[str, ...]
+
+
+def rank_report(system: System, t: float, q: np.ndarray) -> RankReport:
+    """Rank of Psi_q by QR with column pivoting on Psi_q^T: rows left out are redundant."""
+    if system.m == 0:
+        return RankReport(system.n, 0, ())
+    _, J = system.constraints(t, q)
+    _, R, perm = scipy.linalg.qr(J.T, mode="economic", pivoting=True)
+    d = np.abs(np.diag(R))
+    rank = int(np.sum(d > RANK_TOLERANCE ** 0.5 * max(d.max(), 1e-300)))
+    redundant = tuple(system.row_labels[k] for k in sorted(perm[rank:]))
+    return RankReport(system.n - rank, rank, redundant)
+
+
+def assemble(system: System, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Consistent (q, q') at time t from the scene's estimates; AssemblyError if impossible."""
+    scene = system.scene
+    q = np.array([[*b.position, b.angle] for b in scene.bodies], dtype=float).ravel()
+    qd = np.array([[*b.velocity, b.angular_velocity] for b in scene.bodies], dtype=float).ravel()
+    tol = ASSEMBLY_TOL * system.length_scale
+    try:
+        q, _ = project_positions(system, t, q, tol=tol, max_iter=ASSEMBLY_MAX_ITER)
+    except SolverError:
+        Psi, _ = system.constraints(t, q)
+        report = rank_report(system, t, q)
+        worst = int(np.argmax(np.abs(Psi)))
+        what = (f"{system.row_labels[worst]} stays violated by {abs(Psi[worst]):.3g}")
+        if report.redundant:
+            what += (" (the constraints are redundant and inconsistent: "
+                     + ", ".join(report.redundant) + " repeat others)")
+        raise AssemblyError(f"{scene.source}: cannot be assembled at t = {t:g}: {what}") from None
+    return q, project_velocities(system, t, q, qd)

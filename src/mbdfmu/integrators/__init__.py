@@ -1,0 +1,32 @@
+"""Integrators: one small class per method behind one stepping interface (``base.py``).
+
+``METHODS`` maps each name to its class; ``make_integrator`` also accepts a class.
+"""
+
+from __future__ import annotations
+
+from ..errors import SolverError
+from .base import Integrator
+from .projected_rk import DOP853P, RK45P
+from .taylor import Taylor
+
+METHODS: dict[str, type[Integrator]] = {cls.name: cls for cls in (DOP853P, RK45P, Taylor)}
+DEFAULT_METHOD = "dop853p"
+
+
+def method_class(method: str | type[Integrator] | None) -> type[Integrator]:
+    """The class of a method given by name (None: the default) or as a class."""
+    if method is None:
+        return METHODS[DEFAULT_METHOD]
+    if isinstance(method, type) and issubclass(method, Integrator):
+        return method
+    if method not in METHODS:
+        raise SolverError(f'unknown method "{method}"; expected one of {", ".join(METHODS)}')
+    return METHODS[method]
+
+
+def make_integrator(method, system, t0, q0, qd0, *, step=None, rtol=None, atol=None) -> Integrator:
+    return method_class(method)(system, t0, q0, qd0, step=step, rtol=rtol, atol=atol)
+
+
+__all__ = ["METHODS", "DEFAULT_METHOD", "Integrator", "make_integrator", "method_class"]

@@ -1,0 +1,127 @@
+"""Index-1 form integrated by an embedded Runge-Kutta pair, with coordinate projection.
+
+The state y = (q, q') follows y' = (q', q''(t, q, q')) with q'' from the seed's eq. (14)
+(the index-1 form). After every accepted step, q is projected onto Psi(q, t) = 0 and q'
+onto Psi_q q' = nu, each with the smallest mass-weighted change (``assembly.py``), which
+removes the drift of the index-1 form without changing its order. The Butcher tableaux are
+scipy's (``scipy.integrate.RK45`` and ``DOP853``): a method here is a tableau plus a name.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.integrate import DOP853, RK45
+
+from ..assembly import project_positions, project_velocities
+from ..errors import SolverError
+from .base import Integrator
+
+SAFETY = 0.9       # Multiply the optimal step by this, to be likely accepted.
+MIN_FACTOR = 0.2   # Minimum allowed decrease of the step after a rejection.
+MAX_FACTOR = 10.0  # Maximum allowed increase of the step after an acceptance.
+# Projection tolerance, relative to atol and to the mechanism's size, with a floor near
+# rounding so that Newton always converges.
+PROJECTION_TOL_FACTOR = 1e-2
+PROJECTION_TOL_FLOOR = 1e-13
+
+
+class ProjectedRK(Integrator):
+    """Base of the embedded pairs: subclasses give the tableau (A, B, C, error weights)."""
+
+    adaptive = True
+    default_rtol = 1e-6
+    default_atol = 1e-8
+    state_fields = ("f",)
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    order: int            # order of the error estimator, for the step controller
+    n_stages: int
+
+    def restart(self):
+        self.f = self._rhs(self.t, self.q, self.qd)
+        if self.h is None:
+            self.h = self._initial_step()
+
+    def _rhs(self, t, q, qd):
+        qdd, _ = self.accelerations(t, q, qd)
+        return np.concatenate((qd, qdd))
+
+    def _scale(self, y, y_new):
+        return self.atol + self.rtol * np.maximum(np.abs(y), np.abs(y_new))
+
+    def _initial_step(self) -> float:
+        """Hairer, Norsett and Wanner's starting step (Solving ODEs I, II.4)."""
+        y = np.concatenate((self.q, self.qd))
+        scale = self.atol + self.rtol * np.abs(y)
+        d0 = np.sqrt(np.mean((y / scale) ** 2))
+        d1 = np.sqrt(np.mean((self.f / scale) ** 2))
+        h0 = 1e-6 if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
+        h0 = min(h0, self.max_step)
+        n = self.q.size
+        f1 = self._rhs(self.t + h0, *np.split(y + h0 * self.f, [n]))
+        d2 = np.sqrt(np.mean(((f1 - self.f) / scale) ** 2)) / h0
+        h1 = (max(1e-6, h0 * 1e-3) if d1 <= 1e-15 and d2 <= 1e-15
+              else (0.01 / max(d1, d2)) ** (1.0 / (self.order + 1)))
+        return min(100 * h0, h1, self.max_step)
+
+    def _error_norm(self, K, h, scale):
+        raise NotImplementedError
+
+    def _step_impl(self, h):
+        t, n = self.t, self.q.size
+        y = np.concatenate((self.q, self.qd))
+        K = np.empty((self.n_stages + 1, y.size))
+        K[0] = self.f
+        for s in range(1, self.n_stages):
+            dy = h * (K[:s].T @ self.A[s, :s])
+            K[s] = self._rhs(t + self.C[s] * h, *np.split(y + dy, [n]))
+        y_new = y + h * (K[:-1].T @ self.B)
+        K[-1] = self._rhs(t + h, *np.split(y_new, [n]))
+        if not (np.all(np.isfinite(y_new)) and np.all(np.isfinite(K[-1]))):
+            return False, h * MIN_FACTOR
+        err = self._error_norm(K, h, self._scale(y, y_new))
+        if not err < 1.0:
+            return False, h * max(MIN_FACTOR, SAFETY * err ** (-1.0 / (self.order + 1)))
+        t_new = t + h
+        tol = max(PROJECTION_TOL_FACTOR * self.atol, PROJECTION_TOL_FLOOR) * self.system.length_scale
+        try:
+            q, _ = project_positions(self.system, t_new, y_new[:n], tol=tol)
+            qd = project_velocities(self.system, t_new, q, y_new[n:])
+        except SolverError:
+            return False, h * 0.5  # a projection that fails is an error too large
+        self.stats.nprojections += 1
+        self.q, self.qd = q, qd
+        self.f = self._rhs(t_new, q, qd)
+        factor = MAX_FACTOR if err == 0 else min(MAX_FACTOR, SAFETY * err ** (-1.0 / (self.order + 1)))
+        return True, h * factor
+
+
+class RK45P(ProjectedRK):
+    """Dormand-Prince 5(4) with coordinate projection."""
+
+    name = "rk45p"
+    summary = "index-1, Dormand-Prince 5(4), adaptive, mass-weighted coordinate projection"
+    A, B, C, E, n_stages, order = RK45.A, RK45.B, RK45.C, RK45.E, RK45.n_stages, 4
+
+    def _error_norm(self, K, h, scale):
+        return float(np.sqrt(np.mean((h * (K.T @ self.E) / scale) ** 2)))
+
+
+class DOP853P(ProjectedRK):
+    """Dormand-Prince 8(5,3) with coordinate projection: the default for smooth scenes."""
+
+    name = "dop853p"
+    summary = "index-1, Dormand-Prince 8(5,3), adaptive, mass-weighted coordinate projection"
+    A, B, C, n_stages, order = DOP853.A, DOP853.B, DOP853.C, DOP853.n_stages, 7
+    E3, E5 = DOP853.E3, DOP853.E5
+
+    def _error_norm(self, K, h, scale):
+        # Hairer's combined 5th/3rd order estimate, as in scipy's DOP853.
+        err5 = np.linalg.norm((K.T @ self.E5) / scale) ** 2
+        err3 = np.linalg.norm((K.T @ self.E3) / scale) ** 2
+        if err5 == 0.0 and err3 == 0.0:
+            return 0.0
+        return float(abs(h) * err5 / math.sqrt((err5 + 0.01 * err3) * scale.size))

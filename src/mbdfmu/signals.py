@@ -1,0 +1,107 @@
+"""Run-time inputs as functions of time: held values, tables, and sampled driver positions.
+
+Every signal is a small picklable object called as ``signal(t)``. Driver signals return
+``(f, f', f'')``; force signals return the force components.
+
+Sampled driver positions (an FMU's inputs, set once per communication step): when the
+master gives position, velocity and acceleration at t_n, the motion over the next step is
+their Taylor polynomial ``p + v tau + a tau^2 / 2``. When it gives positions only, the
+motion is the cubic through the last four samples, extrapolated over the step: position,
+velocity and acceleration then carry errors of order h^4, h^3 and h^2 in the communication
+step h (lower for the first three steps, while the history fills).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.polynomial import polynomial as P
+from scipy.interpolate import BPoly, CubicSpline
+
+# Samples of driver position kept to derive its velocity and acceleration.
+HISTORY_LENGTH = 4
+
+
+class Held:
+    """A value held constant until replaced (zero-order hold)."""
+
+    def __init__(self, value):
+        self.value = np.atleast_1d(np.asarray(value, dtype=float))
+
+    def __call__(self, t):
+        return self.value
+
+
+class LinearTable:
+    """Linear interpolation in a table (values held beyond its ends), as fmpy does."""
+
+    def __init__(self, times, values):
+        self.times = np.asarray(times, dtype=float)
+        self.values = np.asarray(values, dtype=float).reshape(len(self.times), -1)
+
+    def __call__(self, t):
+        return np.array([np.interp(t, self.times, col) for col in self.values.T])
+
+
+class DriverTable:
+    """A driver position from a table: a C2 cubic spline, or a quintic Hermite spline that
+    honours velocity and acceleration columns when the table has them."""
+
+    def __init__(self, times, positions, velocities=None, accelerations=None):
+        times = np.asarray(times, dtype=float)
+        if velocities is not None and accelerations is not None:
+            derivs = np.stack([positions, velocities, accelerations], axis=1)
+            self.curve = BPoly.from_derivatives(times, derivs)
+        else:
+            self.curve = CubicSpline(times, positions)
+
+    def __call__(self, t):
+        c = self.curve
+        return float(c(t)), float(c(t, 1)), float(c(t, 2))
+
+
+class SampledDriver:
+    """A driver position set at discrete times; derivatives given or from the history."""
+
+    def __init__(self, initial: float):
+        self.times = [0.0]
+        self.positions = [float(initial)]
+        self.velocity = None
+        self.acceleration = None
+        self.fresh = False  # no sample set yet: the initial value stands still
+
+    def set(self, t: float, position=None, velocity=None, acceleration=None):
+        """Record what the master set at time t (a repeated time replaces the last sample)."""
+        if position is not None:
+            if not self.fresh:
+                self.times, self.positions = [t], [float(position)]
+                self.fresh = True
+            elif t == self.times[-1]:
+                self.positions[-1] = float(position)
+            else:
+                self.times = (self.times + [t])[-HISTORY_LENGTH:]
+                self.positions = (self.positions + [float(position)])[-HISTORY_LENGTH:]
+        if velocity is not None:
+            self.velocity = float(velocity)
+        if acceleration is not None:
+            self.acceleration = float(acceleration)
+
+    def __call__(self, t):
+        tn = self.times[-1]
+        tau = t - tn
+        k = len(self.times)
+        if k > 1:
+            span = tn - self.times[0]
+            x = (np.asarray(self.times) - tn) / span  # scaled for conditioning
+            c = P.polyfit(x, self.positions, k - 1)
+            d1, d2 = P.polyder(c, 1), P.polyder(c, 2)
+            s = tau / span
+            poly = (P.polyval(s, c), P.polyval(s, d1) / span, P.polyval(s, d2) / span ** 2)
+            v0, a0 = P.polyval(0.0, d1) / span, P.polyval(0.0, d2) / span ** 2
+        else:
+            poly, v0, a0 = (self.positions[-1], 0.0, 0.0), 0.0, 0.0
+        if self.velocity is None and self.acceleration is None:
+            return tuple(float(v) for v in poly)
+        v = self.velocity if self.velocity is not None else v0
+        a = self.acceleration if self.acceleration is not None else a0
+        p = self.positions[-1]
+        return p + v * tau + 0.5 * a * tau * tau, v + a * tau, a

@@ -1,0 +1,467 @@
+"""The equations of a scene: constraints, Jacobian, gamma, forces, accelerations, reactions.
+
+Coordinates are the seed's absolute coordinates: ``q = [x_1, y_1, phi_1, x_2, ...]``, the
+centre of mass and rotation angle of each body (``3 * nb`` entries). The ground is not in
+``q``; internally it is a virtual last body at the origin so that one formula serves every
+joint, and its three columns are dropped from the Jacobian.
+
+Every joint and driver is built from three constraint primitives, each vectorised over all
+its rows (no Python loop per joint):
+
+* ``coincidence`` (2 rows): ``r_i + A_i s_i - r_j - A_j s_j = 0``  (revolute joint);
+* ``line`` (1 row): ``u_i . (r_j + A_j s_j - r_i - A_i s_i) - c(t) = 0`` with ``u_i`` a
+  body_i-fixed unit vector (translational joint's normal with c = 0; slide driver with the
+  axis and c = f(t); body x / y drivers with body_i = ground);
+* ``angle`` (1 row): ``phi_j - phi_i - c(t) = 0`` (translational joint's rotation lock;
+  revolute driver; body angle driver).
+
+Sign convention (seed eq. 14): ``M q'' + Psi_q^T lam = F``, so the constraint force on the
+bodies is ``-Psi_q^T lam``; velocity equation ``Psi_q q' = nu`` (``nu = -Psi_t``);
+acceleration equation ``Psi_q q'' = gamma``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from .errors import SolverError
+from .motion import InputMotion
+from .scene import (GROUND, PointForce, RotationalSpringDamper, Scene, SpringDamper, Torque,
+                    _driver_unit)
+
+
+@dataclass(frozen=True)
+class Variable:
+    """A named scalar of a simulation: an output or an input, with unit and meaning."""
+
+    name: str
+    unit: str
+    description: str
+
+
+def _rot90(v: np.ndarray) -> np.ndarray:
+    """Rotate 2-vectors (k, 2) by +90 degrees: B s = rot90(A s)."""
+    out = np.empty_like(v)
+    out[:, 0] = -v[:, 1]
+    out[:, 1] = v[:, 0]
+    return out
+
+
+def _rotate(v: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """A(phi) v for stacked 2-vectors v (k, 2) and angles given by c = cos, s = sin (k,)."""
+    out = np.empty_like(v)
+    out[:, 0] = c * v[:, 0] - s * v[:, 1]
+    out[:, 1] = s * v[:, 0] + c * v[:, 1]
+    return out
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot products of (k, 2) arrays."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]
+
+
+class _Rows:
+    """Index arrays of one constraint primitive: bodies, body-fixed data, global rows."""
+
+    def __init__(self):
+        self.bi, self.bj, self.si, self.sj, self.u, self.rows = [], [], [], [], [], []
+
+    def add(self, row, bi, bj, si=(0.0, 0.0), sj=(0.0, 0.0), u=(0.0, 0.0)):
+        self.rows.append(row), self.bi.append(bi), self.bj.append(bj)
+        self.si.append(si), self.sj.append(sj), self.u.append(u)
+
+    def freeze(self):
+        self.rows = np.array(self.rows, dtype=int)
+        self.bi = np.array(self.bi, dtype=int)
+        self.bj = np.array(self.bj, dtype=int)
+        self.si = np.array(self.si, dtype=float).reshape(-1, 2)
+        self.sj = np.array(self.sj, dtype=float).reshape(-1, 2)
+        self.u = np.array(self.u, dtype=float).reshape(-1, 2)
+        self.n = len(self.bi)
+
+
+class System:
+    """Equations of motion of a scene in the seed's absolute coordinates.
+
+    Attributes: ``n`` coordinates, ``m`` constraint rows, ``mass`` (n,) diagonal of M,
+    ``row_labels`` naming each constraint row, ``outputs`` / ``inputs`` variable tables.
+    Run-time inputs are callables set in ``driver_signals[name](t) -> (f, f', f'')`` and
+    ``force_signals[name](t) -> values``.
+    """
+
+    def __init__(self, scene: Scene):
+        self.scene = scene
+        nb = len(scene.bodies)
+        self.nb, self.n = nb, 3 * nb
+        idx = {b.name: k for k, b in enumerate(scene.bodies)}
+        idx[GROUND] = nb  # the virtual ground body
+        self._idx = idx
+        angle0 = {b.name: b.angle for b in scene.bodies} | {GROUND: 0.0}
+
+        self.mass = np.array([[b.mass, b.mass, b.inertia] for b in scene.bodies]).ravel()
+        self.minv = 1.0 / self.mass
+        g = np.asarray(scene.gravity, dtype=float)
+        self.gravity = g
+        self.F_gravity = np.array([[b.mass * g[0], b.mass * g[1], 0.0] for b in scene.bodies]).ravel()
+
+        # Constraint rows, in scene order: each joint, then each driver.
+        self.coincidence, self.line, self.angle = _Rows(), _Rows(), _Rows()
+        self.row_labels: list[str] = []
+        self.joint_rows = []           # (nj, 2) rows of each joint
+        self.joint_frame = []          # (body index defining the frame, constant angle)
+        self.joint_bj = []
+        c_const = []                   # constant offsets c of each row
+        m = 0
+        for j in scene.joints:
+            bi, bj = idx[j.body_i], idx[j.body_j]
+            if j.type == "revolute":
+                self.coincidence.add((m, m + 1), bi, bj, j.point_i, j.point_j)
+                self.joint_frame.append((bj, j.frame_angle))
+            else:
+                axis = np.asarray(j.axis_i) / math.hypot(*j.axis_i)
+                normal = (-axis[1], axis[0])
+                self.line.add(m, bi, bj, j.point_i, j.point_j, normal)
+                self.angle.add(m + 1, bi, bj)
+                self.joint_frame.append((bi, math.atan2(axis[1], axis[0]) + j.frame_angle))
+            c_const += [0.0, 0.0 if j.type == "revolute" else angle0[j.body_j] - angle0[j.body_i]]
+            self.row_labels += [f'joint "{j.name}" ({k})' for k in
+                                (("x", "y") if j.type == "revolute" else ("normal", "rotation"))]
+            self.joint_rows.append((m, m + 1))
+            self.joint_bj.append(bj)
+            m += 2
+        self.driver_rows, self.driver_motions = [], []
+        for d in scene.drivers:
+            if d.joint is not None:
+                jt = scene.joint(d.joint)
+                bi, bj = idx[jt.body_i], idx[jt.body_j]
+                if jt.type == "revolute":
+                    self.angle.add(m, bi, bj)
+                else:
+                    axis = np.asarray(jt.axis_i) / math.hypot(*jt.axis_i)
+                    self.line.add(m, bi, bj, jt.point_i, jt.point_j, tuple(axis))
+            elif d.coordinate == "angle":
+                self.angle.add(m, nb, idx[d.body])
+            else:
+                self.line.add(m, nb, idx[d.body], u=(1.0, 0.0) if d.coordinate == "x" else (0.0, 1.0))
+            c_const.append(0.0)
+            self.row_labels.append(f'driver "{d.name}"')
+            self.driver_rows.append(m)
+            self.driver_motions.append(d.motion)
+            m += 1
+        self.m = m
+        for prim in (self.coincidence, self.line, self.angle):
+            prim.freeze()
+        self.c_const = np.array(c_const, dtype=float)
+        self.joint_rows = np.array(self.joint_rows, dtype=int).reshape(-1, 2)
+        self.joint_bj = np.array(self.joint_bj, dtype=int)
+        self.joint_frame_body = np.array([b for b, _ in self.joint_frame], dtype=int)
+        self.joint_frame_angle = np.array([a for _, a in self.joint_frame], dtype=float)
+        self.driver_rows = np.array(self.driver_rows, dtype=int)
+        self._build_jacobian_template()
+
+        self.driver_signals: dict[str, object] = {}
+        self.force_signals: dict[str, object] = {}
+        self._forces = [(f, idx.get(getattr(f, "body", None) or "", -1)) for f in scene.forces]
+        self.length_scale = max([1.0] + [abs(v) for b in scene.bodies for v in b.position])
+        self.outputs = self._output_table()
+        self.inputs = self._input_table()
+
+    # ------------------------------------------------------------------ Jacobian layout
+
+    def _build_jacobian_template(self):
+        """Constant entries once; index arrays for the entries that depend on q."""
+        ne = self.n + 3  # with the ground's three columns, dropped on return
+        T = np.zeros((self.m, ne))
+        c, l, a = self.coincidence, self.line, self.angle
+        if c.n:
+            r0, r1 = c.rows[:, 0], c.rows[:, 1]
+            T[r0, 3 * c.bi], T[r1, 3 * c.bi + 1] = 1.0, 1.0
+            T[r0, 3 * c.bj], T[r1, 3 * c.bj + 1] = -1.0, -1.0
+        if a.n:
+            T[a.rows, 3 * a.bj + 2] = 1.0
+            T[a.rows, 3 * a.bi + 2] = -1.0
+        self._J_template = T
+        # q-dependent entries: coincidence phi columns (4 per joint), line: 6 per row
+        if c.n:
+            r0, r1 = c.rows[:, 0], c.rows[:, 1]
+            self._c_idx = (np.concatenate([r0, r1, r0, r1]),
+                           np.concatenate([3 * c.bi + 2, 3 * c.bi + 2, 3 * c.bj + 2, 3 * c.bj + 2]))
+        if l.n:
+            self._l_idx = (np.tile(l.rows, 6),
+                           np.concatenate([3 * l.bi, 3 * l.bi + 1, 3 * l.bi + 2,
+                                           3 * l.bj, 3 * l.bj + 1, 3 * l.bj + 2]))
+
+    # ------------------------------------------------------------------ kinematics
+
+    def _poses(self, q):
+        """Positions (nb+1, 2), cos and sin of angles (nb+1,), ground last."""
+        Q = np.zeros((self.nb + 1, 3))
+        Q[: self.nb] = q.reshape(-1, 3)
+        return Q[:, :2], np.cos(Q[:, 2]), np.sin(Q[:, 2]), Q[:, 2]
+
+    def _velocities(self, qd):
+        V = np.zeros((self.nb + 1, 3))
+        V[: self.nb] = qd.reshape(-1, 3)
+        return V[:, :2], V[:, 2]
+
+    def motion_values(self, t: float):
+        """(c, c', c'') of every constraint row at time t (seed: Psi depends on t by drivers)."""
+        c = self.c_const.copy()
+        cd = np.zeros(self.m)
+        cdd = np.zeros(self.m)
+        for row, motion, d in zip(self.driver_rows, self.driver_motions, self.scene.drivers):
+            if isinstance(motion, InputMotion):
+                signal = self.driver_signals.get(d.name)
+                f = signal(t) if signal is not None else (motion.initial, 0.0, 0.0)
+            else:
+                f = motion.evaluate(t)
+            c[row], cd[row], cdd[row] = f
+        return c, cd, cdd
+
+    def constraints(self, t: float, q: np.ndarray, qd: np.ndarray | None = None,
+                    *, extended: bool = False):
+        """Psi (m,), Psi_q (m, n) and, with qd, nu (m,) and gamma (m,) (seed eq. 14 rhs).
+
+        With ``extended`` the Jacobian keeps the ground's three columns (for reactions).
+        """
+        r, cs, sn, phi = self._poses(q)
+        Psi = np.zeros(self.m)
+        J = self._J_template.copy()
+        with_v = qd is not None
+        gamma = np.zeros(self.m)
+        if with_v:
+            v, w = self._velocities(qd)
+        c, l, a = self.coincidence, self.line, self.angle
+        if c.n:
+            Asi = _rotate(c.si, cs[c.bi], sn[c.bi])
+            Asj = _rotate(c.sj, cs[c.bj], sn[c.bj])
+            Psi[c.rows] = r[c.bi] + Asi - r[c.bj] - Asj
+            # d(A s)/dphi = B s = rot90(A s)
+            J[self._c_idx] = np.concatenate([-Asi[:, 1], Asi[:, 0], Asj[:, 1], -Asj[:, 0]])
+            if with_v:
+                gamma[c.rows] = Asi * (w[c.bi] ** 2)[:, None] - Asj * (w[c.bj] ** 2)[:, None]
+        if l.n:
+            Asi = _rotate(l.si, cs[l.bi], sn[l.bi])
+            Asj = _rotate(l.sj, cs[l.bj], sn[l.bj])
+            u = _rotate(l.u, cs[l.bi], sn[l.bi])
+            d = r[l.bj] + Asj - r[l.bi] - Asi
+            Psi[l.rows] = _dot(u, d)
+            ru = _rot90(u)
+            J[self._l_idx] = np.concatenate([
+                -u[:, 0], -u[:, 1],
+                _dot(ru, d) - _dot(u, _rot90(Asi)),
+                u[:, 0], u[:, 1], _dot(u, _rot90(Asj))])
+            if with_v:
+                wi, wj = w[l.bi], w[l.bj]
+                dd = v[l.bj] + wj[:, None] * _rot90(Asj) - v[l.bi] - wi[:, None] * _rot90(Asi)
+                gamma[l.rows] = (wi ** 2 * _dot(u, d)
+                                 - 2.0 * wi * _dot(ru, dd)
+                                 + _dot(u, Asj * (wj ** 2)[:, None]
+                                             - Asi * (wi ** 2)[:, None]))
+        if a.n:
+            Psi[a.rows] = phi[a.bj] - phi[a.bi]
+        cval, cd, cdd = self.motion_values(t)
+        Psi -= cval
+        if not extended:
+            J = J[:, : self.n]
+        if not with_v:
+            return Psi, J
+        return Psi, J, cd, gamma + cdd
+
+    # ------------------------------------------------------------------ forces
+
+    def _signal(self, name: str, t: float, size: int):
+        signal = self.force_signals.get(name)
+        if signal is None:
+            return np.zeros(size)
+        return np.atleast_1d(np.asarray(signal(t), dtype=float))
+
+    def forces(self, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """Generalized applied forces F (n,): gravity, point forces, torques, springs."""
+        F = np.zeros(self.n + 3)
+        F[: self.n] = self.F_gravity
+        r, cs, sn, phi = self._poses(q)
+        v, w = self._velocities(qd)
+        idx = self._idx
+        for f, b in self._forces:
+            if isinstance(f, PointForce):
+                fx, fy = self._signal(f.name, t, 2) if f.input else f.value
+                As = _rotate(np.array([f.point]), cs[b:b + 1], sn[b:b + 1])[0]
+                F[3 * b: 3 * b + 3] += (fx, fy, As[0] * fy - As[1] * fx)
+            elif isinstance(f, Torque):
+                F[3 * b + 2] += self._signal(f.name, t, 1)[0] if f.input else f.value
+            elif isinstance(f, SpringDamper):
+                bi, bj = idx[f.body_i], idx[f.body_j]
+                Asi = _rotate(np.array([f.point_i]), cs[bi:bi + 1], sn[bi:bi + 1])[0]
+                Asj = _rotate(np.array([f.point_j]), cs[bj:bj + 1], sn[bj:bj + 1])[0]
+                d = r[bj] + Asj - r[bi] - Asi
+                length = math.hypot(d[0], d[1])
+                if length < 1e-12:
+                    raise SolverError(f'spring "{f.name}" has zero length: its direction is undefined', t)
+                u = d / length
+                vrel = v[bj] + w[bj] * _rot90(Asj) - v[bi] - w[bi] * _rot90(Asi)
+                tension = f.stiffness * (length - f.rest_length) + f.damping * (u @ vrel)
+                if f.actuator_input:
+                    tension -= self._signal(f.name, t, 1)[0]
+                fj = -tension * u  # pulls body_j towards body_i when stretched
+                F[3 * bj: 3 * bj + 3] += (fj[0], fj[1], Asj[0] * fj[1] - Asj[1] * fj[0])
+                F[3 * bi: 3 * bi + 3] -= (fj[0], fj[1], Asi[0] * fj[1] - Asi[1] * fj[0])
+            elif isinstance(f, RotationalSpringDamper):
+                jt = self.scene.joint(f.joint)
+                bi, bj = idx[jt.body_i], idx[jt.body_j]
+                torque = (-f.stiffness * (phi[bj] - phi[bi] - f.rest_angle)
+                          - f.damping * (w[bj] - w[bi]))
+                F[3 * bj + 2] += torque
+                F[3 * bi + 2] -= torque
+        return F[: self.n]
+
+    # ------------------------------------------------------------------ dynamics
+
+    def accelerations(self, t: float, q: np.ndarray, qd: np.ndarray):
+        """Solve the seed's eq. (14) for q'' (n,) and lam (m,).
+
+        Uses the Schur complement of the diagonal mass matrix,
+        ``(Psi_q M^-1 Psi_q^T) lam = Psi_q M^-1 F - gamma``, ``q'' = M^-1 (F - Psi_q^T lam)``;
+        at singular configurations or with redundant constraints the minimum-norm lam.
+        """
+        F = self.forces(t, q, qd)
+        if self.m == 0:
+            return self.minv * F, np.zeros(0)
+        _, J, _, gamma = self.constraints(t, q, qd)
+        JMi = J * self.minv
+        lam = solve_spd(JMi @ J.T, JMi @ F - gamma)
+        return self.minv * (F - J.T @ lam), lam
+
+    def kinetic_energy(self, qd: np.ndarray) -> float:
+        return 0.5 * float(qd @ (self.mass * qd))
+
+    def potential_energy(self, q: np.ndarray) -> float:
+        """Gravity plus springs (J); zero at the origin for gravity."""
+        r, cs, sn, phi = self._poses(q)
+        energy = -float(self.F_gravity @ q)
+        idx = self._idx
+        for f, _ in self._forces:
+            if isinstance(f, SpringDamper):
+                bi, bj = idx[f.body_i], idx[f.body_j]
+                Asi = _rotate(np.array([f.point_i]), cs[bi:bi + 1], sn[bi:bi + 1])[0]
+                Asj = _rotate(np.array([f.point_j]), cs[bj:bj + 1], sn[bj:bj + 1])[0]
+                stretch = np.linalg.norm(r[bj] + Asj - r[bi] - Asi) - f.rest_length
+                energy += 0.5 * f.stiffness * stretch ** 2
+            elif isinstance(f, RotationalSpringDamper):
+                jt = self.scene.joint(f.joint)
+                bi, bj = idx[jt.body_i], idx[jt.body_j]
+                energy += 0.5 * f.stiffness * (phi[bj] - phi[bi] - f.rest_angle) ** 2
+        return energy
+
+    def reactions(self, q: np.ndarray, lam: np.ndarray, t: float = 0.0) -> np.ndarray:
+        """Force and torque each joint exerts on its body_j, in the joint frame (nj, 3).
+
+        Seed eqs. (9), (10): F = -C^T A^T [Psi_r rows]^T lam, T = -Psi_phi lam - (A s) x F,
+        here with the body_j blocks of the joint's two Jacobian rows. Revolute joints give
+        T = 0; translational joints K1 = 0 along the axis, K2 normal, K3 torque.
+        """
+        nj = len(self.joint_rows)
+        if nj == 0:
+            return np.zeros((0, 3))
+        _, J = self.constraints(t, q, extended=True)
+        rows = self.joint_rows
+        cols = 3 * self.joint_bj[:, None, None] + np.arange(3)[None, None, :]
+        G = J[rows[:, :, None], cols]               # (nj, 2, 3): body_j blocks
+        gen = -np.einsum("kab,ka->kb", G, lam[rows])  # generalized force on body_j
+        r, cs, sn, phi = self._poses(q)
+        sj = np.array([j.point_j for j in self.scene.joints], dtype=float)
+        Asj = _rotate(sj, cs[self.joint_bj], sn[self.joint_bj])
+        torque = gen[:, 2] - (Asj[:, 0] * gen[:, 1] - Asj[:, 1] * gen[:, 0])
+        theta = phi[self.joint_frame_body] + self.joint_frame_angle
+        c, s = np.cos(theta), np.sin(theta)
+        fx = c * gen[:, 0] + s * gen[:, 1]
+        fy = -s * gen[:, 0] + c * gen[:, 1]
+        return np.stack((fx, fy, torque), axis=1)
+
+    def driver_efforts(self, lam: np.ndarray) -> np.ndarray:
+        """Generalized force each driver applies to its body_j: -lam of its row."""
+        return -lam[self.driver_rows]
+
+    # ------------------------------------------------------------------ variables
+
+    def _output_table(self) -> list[Variable]:
+        out = []
+        for b in self.scene.bodies:
+            out += [Variable(f"{b.name}.x", "m", f"x of {b.name}'s centre of mass, ground frame"),
+                    Variable(f"{b.name}.y", "m", f"y of {b.name}'s centre of mass, ground frame"),
+                    Variable(f"{b.name}.phi", "rad", f"rotation angle of {b.name}"),
+                    Variable(f"{b.name}.vx", "m/s", f"x velocity of {b.name}'s centre of mass"),
+                    Variable(f"{b.name}.vy", "m/s", f"y velocity of {b.name}'s centre of mass"),
+                    Variable(f"{b.name}.omega", "rad/s", f"angular velocity of {b.name}")]
+        for j in self.scene.joints:
+            frame = f"{j.name}'s joint frame"
+            out += [Variable(f"{j.name}.Fx", "N", f"force of joint {j.name} on {j.body_j}, x in {frame}"),
+                    Variable(f"{j.name}.Fy", "N", f"force of joint {j.name} on {j.body_j}, y in {frame}"),
+                    Variable(f"{j.name}.Tz", "N.m", f"torque of joint {j.name} on {j.body_j}")]
+        for d in self.scene.drivers:
+            _, unit = _driver_unit(self.scene, d)
+            target = d.body if d.body is not None else self.scene.joint(d.joint).body_j
+            out.append(Variable(f"{d.name}.effort", unit,
+                                f"generalized force driver {d.name} applies to {target}"))
+        out += [Variable("energy.kinetic", "J", "kinetic energy"),
+                Variable("energy.potential", "J", "potential energy of gravity and springs"),
+                Variable("constraint.position_error", "1", "norm of Psi(q, t)"),
+                Variable("constraint.velocity_error", "1", "norm of Psi_q q' - nu")]
+        return out
+
+    def _input_table(self) -> list[Variable]:
+        out = []
+        for d in self.scene.drivers:
+            if isinstance(d.motion, InputMotion):
+                unit, _ = _driver_unit(self.scene, d)
+                out += [Variable(f"{d.name}.position", unit, f"prescribed position of {d.name}"),
+                        Variable(f"{d.name}.velocity", f"{unit}/s", f"its rate (optional)"),
+                        Variable(f"{d.name}.acceleration", f"{unit}/s2", f"its second rate (optional)")]
+        for f in self.scene.forces:
+            if isinstance(f, PointForce) and f.input:
+                out += [Variable(f"{f.name}.fx", "N", f"{f.name}, x component, ground frame"),
+                        Variable(f"{f.name}.fy", "N", f"{f.name}, y component, ground frame")]
+            elif isinstance(f, Torque) and f.input:
+                out.append(Variable(f"{f.name}.torque", "N.m", f"torque {f.name} on {f.body}"))
+            elif isinstance(f, SpringDamper) and f.actuator_input:
+                out.append(Variable(f"{f.name}.actuator", "N",
+                                    f"actuator force along {f.name}, positive pushing apart"))
+        return out
+
+    def output_values(self, t, q, qd, qdd, lam) -> np.ndarray:
+        """Every output of ``self.outputs`` at one instant, in that order."""
+        Psi, J, nu, _ = self.constraints(t, q, qd)
+        parts = [np.concatenate((q.reshape(-1, 3), qd.reshape(-1, 3)), axis=1).ravel(),
+                 self.reactions(q, lam, t).ravel(), self.driver_efforts(lam),
+                 [self.kinetic_energy(qd), self.potential_energy(q),
+                  float(np.linalg.norm(Psi)), float(np.linalg.norm(J @ qd - nu))]]
+        return np.concatenate([np.asarray(p, dtype=float) for p in parts])
+
+
+# Relative size of the smallest singular value kept in minimum-norm solves.
+RANK_TOLERANCE = 1e-10
+_potrf, _potrs = scipy.linalg.lapack.dpotrf, scipy.linalg.lapack.dpotrs
+
+
+def solve_spd(S: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve S x = b for symmetric positive semi-definite S.
+
+    Cholesky when S is well conditioned; otherwise (singular configurations, redundant
+    constraints) the minimum-norm least-squares solution.
+    """
+    # LAPACK directly: the scipy wrappers cost more than the factorisation at these sizes.
+    factor, info = _potrf(S, lower=False, clean=False)
+    if info == 0:
+        diag = np.abs(np.diag(factor))
+        if diag.min() > math.sqrt(RANK_TOLERANCE) * diag.max():
+            x, info = _potrs(factor, b, lower=False)
+            if info == 0:
+                return x
+    if not np.all(np.isfinite(S)) or not np.all(np.isfinite(b)):
+        raise SolverError("non-finite values in the constraint equations")
+    x, *_ = scipy.linalg.lstsq(S, b, cond=RANK_TOLERANCE, check_finite=False)
+    return x
