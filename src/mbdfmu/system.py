@@ -44,10 +44,10 @@ class Variable:
 
 
 def _rot90(v: np.ndarray) -> np.ndarray:
-    """Rotate 2-vectors (k, 2) by +90 degrees: B s = rot90(A s)."""
+    """Rotate 2-vectors (..., 2) by +90 degrees: B s = rot90(A s)."""
     out = np.empty_like(v)
-    out[:, 0] = -v[:, 1]
-    out[:, 1] = v[:, 0]
+    out[..., 0] = -v[..., 1]
+    out[..., 1] = v[..., 0]
     return out
 
 

@@ -1,0 +1,1 @@
+"""The scenes shipped with mbdfmu (TOML files; see the README for the format)."""

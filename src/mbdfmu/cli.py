@@ -1,0 +1,213 @@
+"""The command line: subcommands whose flags mirror the Python API.
+
+Every failure the project expects (bad scene, failed solve, bad input) ends with exit
+status 2 and one line on stderr, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .errors import InputError, MbdfmuError
+from .integrators import DEFAULT_METHOD, METHODS
+
+EXAMPLES = """examples:
+  mbdfmu demo                                   slider-crank: CSV, plot and animation
+  mbdfmu check scenes/slider_crank.toml         bodies, joints, degrees of freedom
+  mbdfmu simulate scenes/pendulum.toml --t-end 10 --rtol 1e-10 --out pendulum.csv
+  mbdfmu plot pendulum.csv "bob.*" -o pendulum.png
+  mbdfmu animate scenes/pendulum.toml pendulum.csv -o pendulum.gif
+  mbdfmu build scenes/slider_crank.toml -o SliderCrank.fmu
+"""
+
+
+def bundled_scene(name: str) -> Path:
+    """A scene shipped with the package (scenes/ of the source tree)."""
+    return Path(str(resources.files("mbdfmu.scenes").joinpath(f"{name}.toml")))
+
+
+def _methods_help() -> str:
+    return "; ".join(f"{n}: {c.summary}" for n, c in METHODS.items())
+
+
+def cmd_check(args) -> int:
+    from .assembly import assemble, rank_report
+    from .scene import load_scene
+    from .system import System
+
+    scene = load_scene(args.scene)
+    system = System(scene)
+    q_est = np.array([[*b.position, b.angle] for b in scene.bodies], dtype=float).ravel()
+    residual0 = float(np.linalg.norm(system.constraints(0.0, q_est)[0])) if system.m else 0.0
+    q, qd = assemble(system)
+    residual = float(np.linalg.norm(system.constraints(0.0, q)[0])) if system.m else 0.0
+    report = rank_report(system, 0.0, q)
+    print(f"scene {scene.name}: {scene.description}")
+    print(f"  bodies ({len(scene.bodies)}):")
+    for b in scene.bodies:
+        print(f"    {b.name}: mass {b.mass:g} kg, inertia {b.inertia:g} kg.m2")
+    print(f"  joints ({len(scene.joints)}):")
+    for j in scene.joints:
+        print(f"    {j.name}: {j.type} {j.body_i} - {j.body_j}")
+    print(f"  drivers ({len(scene.drivers)}):")
+    for d in scene.drivers:
+        target = f"joint {d.joint}" if d.joint else f"{d.body}.{d.coordinate}"
+        print(f"    {d.name}: {type(d.motion).__name__} on {target}")
+    print(f"  forces ({len(scene.forces)}): " + ", ".join(f"{f.name} ({type(f).__name__})"
+                                                      for f in scene.forces))
+    print(f"  coordinates {system.n}, constraints {system.m}, rank {report.rank}, "
+          f"degrees of freedom {report.dof}")
+    print("  redundant constraints: " + (", ".join(report.redundant) or "none"))
+    print(f"  assembly residual: {residual0:.3g} as given, {residual:.3g} after assembly")
+    print(f"  inputs: {', '.join(v.name for v in system.inputs) or 'none'}")
+    return 0
+
+
+def _read_inputs(path: str):
+    try:
+        table = np.genfromtxt(path, delimiter=",", names=True, dtype=float,
+                              deletechars="", ndmin=1)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: cannot read the input table: {exc}") from None
+    if table.dtype.names is None:
+        raise InputError(f"{path}: the input table needs a header row")
+    return table
+
+
+def cmd_simulate(args) -> int:
+    from .scene import load_scene
+    from .simulation import simulate
+
+    scene = load_scene(args.scene)
+    inputs = _read_inputs(args.input) if args.input else None
+    result = simulate(scene, args.t_end, method=args.method, step=args.step, rtol=args.rtol,
+                      atol=args.atol, output_interval=args.output_interval, inputs=inputs)
+    out = Path(args.out or f"{scene.name}.csv")
+    result.to_csv(out)
+    print(f"{scene.name}: {len(result.time)} points to t = {result.time[-1]:g} s with "
+          f"{result.method} ({result.stats['nsteps']} steps) -> {out}")
+    return 0
+
+
+def cmd_plot(args) -> int:
+    from .plotting import plot_result
+    from .result import read_csv
+
+    result = read_csv(args.result)
+    out = plot_result(result, args.variables, args.output, title=Path(args.result).stem)
+    print(out)
+    return 0
+
+
+def cmd_animate(args) -> int:
+    from .plotting import animate
+    from .result import read_csv
+    from .scene import load_scene
+
+    out = animate(load_scene(args.scene), read_csv(args.result), args.output)
+    print(out)
+    return 0
+
+
+def cmd_demo(args) -> int:
+    from .plotting import animate, plot_result
+    from .scene import load_scene
+    from .simulation import simulate
+
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    scene = load_scene(bundled_scene("slider_crank"))
+    result = simulate(scene, t_end=0.04, output_interval=2e-4)
+    csv = result.to_csv(out / "slider_crank.csv")
+    result.units = {**result.units}
+    png = plot_result(result, ["slider.x", "motor.effort", "B.Fx", "B.Fy"], out / "slider_crank.png",
+                      title="Slider-crank at 3000 rpm")
+    gif = animate(scene, result, out / "slider_crank.gif")
+    effort = result["motor.effort"]
+    print(f"slider-crank, {result.method}, {result.stats['nsteps']} steps to t = 0.04 s "
+          f"(two crank turns): motor torque {effort.min():.1f} .. {effort.max():.1f} N.m, "
+          f"max constraint error {result['constraint.position_error'].max():.2g}")
+    for p in (csv, png, gif):
+        print(f"  {p}")
+    return 0
+
+
+def cmd_build(args) -> int:
+    from fmu_build.build import build_fmu
+
+    path = build_fmu(args.scene, output=args.output)
+    print(path)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="mbdfmu", description="Planar multibody mechanisms as FMI 2.0 co-simulation FMUs.",
+        epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"mbdfmu {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("check", help="load, validate and assemble a scene; print its structure")
+    p.add_argument("scene")
+    p.set_defaults(func=cmd_check)
+
+    p = sub.add_parser("simulate", help="simulate a scene and write a CSV",
+                       epilog=f"methods: {_methods_help()}")
+    p.add_argument("scene")
+    p.add_argument("--t-end", type=float, default=None, help="end time (s); default from the scene")
+    p.add_argument("--method", choices=list(METHODS), default=None,
+                   help=f"integration method (default {DEFAULT_METHOD})")
+    p.add_argument("--step", type=float, default=None,
+                   help="fixed step (s) of fixed-step methods; the largest step of adaptive ones")
+    p.add_argument("--rtol", type=float, default=None, help="relative tolerance (adaptive methods)")
+    p.add_argument("--atol", type=float, default=None, help="absolute tolerance (adaptive methods)")
+    p.add_argument("--output-interval", type=float, default=None, help="time between output rows (s)")
+    p.add_argument("--input", default=None,
+                   help="CSV of inputs: time, then input names (e.g. motor.position)")
+    p.add_argument("--out", default=None, help="output CSV (default <scene name>.csv)")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("plot", help="plot variables of a result CSV")
+    p.add_argument("result")
+    p.add_argument("variables", nargs="*", help="names or glob patterns (default *.x *.y *.phi)")
+    p.add_argument("-o", "--output", required=True)
+    p.set_defaults(func=cmd_plot)
+
+    p = sub.add_parser("animate", help="animate a result CSV of a scene as a GIF")
+    p.add_argument("scene")
+    p.add_argument("result")
+    p.add_argument("-o", "--output", required=True)
+    p.set_defaults(func=cmd_animate)
+
+    p = sub.add_parser("demo", help="the slider-crank: simulate, write CSV, plot and animation")
+    p.add_argument("-o", "--output", default="mbdfmu-demo", help="output folder")
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("build", help="build a scene's FMI 2.0 co-simulation FMU")
+    p.add_argument("scene")
+    p.add_argument("-o", "--output", default=None, help="FMU file (default <scene name>.fmu)")
+    p.set_defaults(func=cmd_build)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except MbdfmuError as exc:
+        print(f"mbdfmu {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except (OSError, ValueError) as exc:  # files that cannot be written, bad numbers
+        print(f"mbdfmu {args.command}: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
