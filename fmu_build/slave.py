@@ -157,21 +157,21 @@ class MbdfmuSlave(Fmi2Slave):
 
     # ------------------------------------------------------------------ the one error path
 
-    def _guard(self, call: str, action) -> bool:
+    def _guard(self, call: str, action, retryable: bool = True) -> bool:
         """Run ``action``; turn any exception into a logged reason and False.
 
         Retryable failures (a failed Newton iteration, a step the method cannot pass, a
         non-finite input) log with fmi2Discard and leave the FMU at the last communication
-        point. Anything else logs with fmi2Error and makes the FMU refuse every later step.
+        point: the master may retry, with a smaller step or other inputs. Anything else, and
+        any failure of a call that is not ``retryable``, logs with fmi2Error and makes the
+        FMU refuse every later step until fmi2Reset.
         """
-        core = self._core
+        errors = self._core.errors
         try:
             action()
             return True
-        except (core.errors.SolverError, core.errors.InputError) as exc:
-            self.log(f"{call} discarded at t = {self._sim.t!r}: {exc}", Fmi2Status.discard)
-        except Failure as exc:
-            if exc.retry:
+        except (errors.SolverError, errors.InputError, Failure) as exc:
+            if retryable and getattr(exc, "retry", True):
                 self.log(f"{call} discarded at t = {self._sim.t!r}: {exc}", Fmi2Status.discard)
             else:
                 self._fail(call, str(exc))
@@ -200,7 +200,7 @@ class MbdfmuSlave(Fmi2Slave):
                 raise Failure(f"start time {start_time!r} is not finite")
             if start_time != self._t0:
                 self._t0, self._changed = float(start_time), True
-        self._guard("fmi2SetupExperiment", start)
+        self._guard("fmi2SetupExperiment", start, retryable=False)
 
     def exit_initialization_mode(self):
         def build():
@@ -209,12 +209,13 @@ class MbdfmuSlave(Fmi2Slave):
                 self._changed = False
             self._push_inputs()
             self._out = self._sim.outputs()
-        self._initialized = self._guard("fmi2ExitInitializationMode", build)
+        self._initialized = self._guard("fmi2ExitInitializationMode", build, retryable=False)
 
     def _push_inputs(self):
-        bad = [f"{n} = {v!r}" for n, v in self._inputs_set.items() if not math.isfinite(v)]
+        bad = [f'input "{n}" is not finite ({v!r})' for n, v in self._inputs_set.items()
+               if not math.isfinite(v)]
         if bad:
-            raise Failure(f"non-finite input {', '.join(bad)}", retry=True)
+            raise Failure("; ".join(bad), retry=True)
         for name, value in self._inputs_set.items():
             self._sim.set_input(name, value)
         self._inputs_set.clear()
@@ -279,7 +280,7 @@ class MbdfmuSlave(Fmi2Slave):
             self._out = dict(state["out"])
             self._changed, self._initialized = state["changed"], state["initialized"]
             self._failed = state["failed"]
-        self._guard("fmi2SetFMUstate", restore)
+        self._guard("fmi2SetFMUstate", restore, retryable=False)
 
     @staticmethod
     def _fmu_state_to_bytes(state):
