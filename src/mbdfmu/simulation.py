@@ -31,7 +31,7 @@ class Simulation:
     """
 
     def __init__(self, scene: Scene, method=None, step=None, rtol=None, atol=None,
-                 t0: float = 0.0):
+                 t0: float = 0.0, method_options: dict | None = None):
         settings = scene.simulation
         self.scene = scene
         self.system = System(scene)
@@ -57,7 +57,8 @@ class Simulation:
             self.method, self.system, t0, q0, qd0,
             step=step if step is not None else settings.step,
             rtol=rtol if rtol is not None else settings.rtol,
-            atol=atol if atol is not None else settings.atol)
+            atol=atol if atol is not None else settings.atol,
+            options=method_options)
         self._cache = None
 
     @property
@@ -206,11 +207,13 @@ def output_times(t_end: float, interval: float) -> np.ndarray:
 
 
 def simulate(scene: Scene | str | Path, t_end: float | None = None, method=None, step=None,
-             rtol=None, atol=None, output_interval=None, inputs=None) -> Result:
+             rtol=None, atol=None, output_interval=None, inputs=None,
+             method_options: dict | None = None) -> Result:
     """Simulate a scene (or a scene file) from 0 to ``t_end`` and return every variable.
 
     ``inputs``: a structured array with ``time`` first and input names as columns (forces
     interpolated linearly; driver positions by splines), or a dict ``{item: signal(t)}``.
+    ``method_options``: the method's own settings (see ``METHODS[name].option_names``).
     """
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
@@ -218,7 +221,8 @@ def simulate(scene: Scene | str | Path, t_end: float | None = None, method=None,
     if not (math.isfinite(t_end) and t_end > 0):
         raise InputError(f"t_end must be positive and finite, got {t_end}")
     interval = output_interval or scene.simulation.output_interval or t_end / DEFAULT_OUTPUT_POINTS
-    sim = Simulation(scene, method=method, step=step, rtol=rtol, atol=atol)
+    sim = Simulation(scene, method=method, step=step, rtol=rtol, atol=atol,
+                     method_options=method_options)
     if isinstance(inputs, dict):
         for item, signal in inputs.items():
             sim.set_input_signal(item, signal)

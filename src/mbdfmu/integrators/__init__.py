@@ -25,8 +25,18 @@ def method_class(method: str | type[Integrator] | None) -> type[Integrator]:
     return METHODS[method]
 
 
-def make_integrator(method, system, t0, q0, qd0, *, step=None, rtol=None, atol=None) -> Integrator:
-    return method_class(method)(system, t0, q0, qd0, step=step, rtol=rtol, atol=atol)
+def make_integrator(method, system, t0, q0, qd0, *, step=None, rtol=None, atol=None,
+                    options: dict | None = None) -> Integrator:
+    """An integrator of ``method``; ``options`` are its own keyword settings (e.g. Baumgarte's
+    alpha and beta), rejected with a clear error when the method has no such setting."""
+    cls = method_class(method)
+    options = dict(options or {})
+    unknown = sorted(set(options) - set(cls.option_names))
+    if unknown:
+        allowed = ", ".join(cls.option_names) or "none"
+        raise SolverError(f'method "{cls.name}" has no option {", ".join(unknown)} '
+                          f"(its options: {allowed})")
+    return cls(system, t0, q0, qd0, step=step, rtol=rtol, atol=atol, **options)
 
 
 __all__ = ["METHODS", "DEFAULT_METHOD", "Integrator", "make_integrator", "method_class"]

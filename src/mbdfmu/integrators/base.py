@@ -7,7 +7,8 @@ A method is a subclass of ``Integrator`` that
    acceptance updates ``self.q``, ``self.qd`` and any private state, and on rejection
    changes nothing (the base class then retries with ``h_next``); the base class moves
    ``self.t``;
-3. lists in ``state_fields`` any private attribute that must be saved with the state;
+3. lists in ``state_fields`` any private attribute that must be saved with the state, and
+   in ``option_names`` the keyword settings its ``__init__`` takes beyond the common ones;
 4. may override ``restart()``, called when (q, q') or the inputs change from outside.
 
 The public ``advance(t_target)`` does the bookkeeping: it lands exactly on ``t_target``,
@@ -53,6 +54,7 @@ class Integrator:
     default_rtol = 1e-6
     default_atol = 1e-8
     state_fields: tuple[str, ...] = ()
+    option_names: tuple[str, ...] = ()
 
     def __init__(self, system: System, t0: float, q0: np.ndarray, qd0: np.ndarray, *,
                  step: float | None = None, rtol: float | None = None,
