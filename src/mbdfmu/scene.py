@@ -25,8 +25,11 @@ from .motion import MOTION_TYPES, InputMotion, Motion
 
 if sys.version_info >= (3, 11):
     import tomllib
-else:  # pragma: no cover - Python 3.10 hosts running a shipped FMU
-    import tomli as tomllib
+else:  # pragma: no cover - Python 3.10 (FMUs read their scene as JSON and need no TOML)
+    try:
+        import tomli as tomllib
+    except ModuleNotFoundError:
+        tomllib = None
 
 GROUND = "ground"
 RESERVED_NAMES = {GROUND, "energy", "constraint", "time", "gravity", "solver"}
@@ -495,6 +498,8 @@ def load_scene(path: str | Path) -> Scene:
     """Read and check a scene file (TOML). Raises SceneError naming file, item and problem."""
     path = Path(path)
     source = path.name
+    if tomllib is None:  # pragma: no cover
+        raise SceneError(f"{source}: reading TOML needs Python 3.11 or the tomli package")
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
