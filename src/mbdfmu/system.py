@@ -296,17 +296,8 @@ class System:
                 F[3 * b + 2] += self._signal(f.name, t, 1)[0] if f.input else f.value
             elif isinstance(f, SpringDamper):
                 bi, bj = idx[f.body_i], idx[f.body_j]
-                Asi = _rotate(np.array([f.point_i]), cs[bi:bi + 1], sn[bi:bi + 1])[0]
-                Asj = _rotate(np.array([f.point_j]), cs[bj:bj + 1], sn[bj:bj + 1])[0]
-                d = r[bj] + Asj - r[bi] - Asi
-                length = math.hypot(d[0], d[1])
-                if length < 1e-12:
-                    raise SolverError(f'spring "{f.name}" has zero length: its direction is undefined', t)
-                u = d / length
-                vrel = v[bj] + w[bj] * _rot90(Asj) - v[bi] - w[bi] * _rot90(Asi)
-                tension = f.stiffness * (length - f.rest_length) + f.damping * (u @ vrel)
-                if f.actuator_input:
-                    tension -= self._signal(f.name, t, 1)[0]
+                length, rate, u, Asi, Asj = self._spring_geometry(f, t, r, cs, sn, v, w)
+                tension = self._spring_tension(f, t, length, rate)
                 fj = -tension * u  # pulls body_j towards body_i when stretched
                 F[3 * bj: 3 * bj + 3] += (fj[0], fj[1], Asj[0] * fj[1] - Asj[1] * fj[0])
                 F[3 * bi: 3 * bi + 3] -= (fj[0], fj[1], Asi[0] * fj[1] - Asi[1] * fj[0])
@@ -318,6 +309,37 @@ class System:
                 F[3 * bj + 2] += torque
                 F[3 * bi + 2] -= torque
         return F[: self.n]
+
+    def _spring_geometry(self, f: SpringDamper, t, r, cs, sn, v, w):
+        """Length, its rate, unit vector i->j and the two arms (A s) of a spring-damper."""
+        bi, bj = self._idx[f.body_i], self._idx[f.body_j]
+        Asi = _rotate(np.array([f.point_i]), cs[bi:bi + 1], sn[bi:bi + 1])[0]
+        Asj = _rotate(np.array([f.point_j]), cs[bj:bj + 1], sn[bj:bj + 1])[0]
+        d = r[bj] + Asj - r[bi] - Asi
+        length = math.hypot(d[0], d[1])
+        if length < 1e-12:
+            raise SolverError(f'spring "{f.name}" has zero length: its direction is undefined', t)
+        u = d / length
+        vrel = v[bj] + w[bj] * _rot90(Asj) - v[bi] - w[bi] * _rot90(Asi)
+        return length, float(u @ vrel), u, Asi, Asj
+
+    def _spring_tension(self, f: SpringDamper, t, length, rate) -> float:
+        """k (L - L0) + c L' minus the actuator input (which pushes the points apart)."""
+        tension = f.stiffness * (length - f.rest_length) + f.damping * rate
+        if f.actuator_input:
+            tension -= self._signal(f.name, t, 1)[0]
+        return tension
+
+    def spring_states(self, t, q, qd) -> np.ndarray:
+        """(length, rate, tension) of every spring-damper, (ns, 3)."""
+        r, cs, sn, _ = self._poses(q)
+        v, w = self._velocities(qd)
+        rows = []
+        for f, _ in self._forces:
+            if isinstance(f, SpringDamper):
+                length, rate, *_ = self._spring_geometry(f, t, r, cs, sn, v, w)
+                rows.append((length, rate, self._spring_tension(f, t, length, rate)))
+        return np.array(rows, dtype=float).reshape(-1, 3)
 
     # ------------------------------------------------------------------ dynamics
 
@@ -407,6 +429,12 @@ class System:
             target = d.body if d.body is not None else self.scene.joint(d.joint).body_j
             out.append(Variable(f"{d.name}.effort", unit,
                                 f"generalized force driver {d.name} applies to {target}"))
+        for f in self.scene.forces:
+            if isinstance(f, SpringDamper):
+                out += [Variable(f"{f.name}.length", "m", f"distance between {f.name}'s points"),
+                        Variable(f"{f.name}.velocity", "m/s", f"rate of {f.name}'s length"),
+                        Variable(f"{f.name}.tension", "N",
+                                 f"force of {f.name} along its line, positive pulling together")]
         out += [Variable("energy.kinetic", "J", "kinetic energy"),
                 Variable("energy.potential", "J", "potential energy of gravity and springs"),
                 Variable("constraint.position_error", "1", "norm of Psi(q, t)"),
@@ -437,6 +465,7 @@ class System:
         Psi, J, nu, _ = self.constraints(t, q, qd)
         parts = [np.concatenate((q.reshape(-1, 3), qd.reshape(-1, 3)), axis=1).ravel(),
                  self.reactions(q, lam, t).ravel(), self.driver_efforts(lam),
+                 self.spring_states(t, q, qd).ravel(),
                  [self.kinetic_energy(qd), self.potential_energy(q),
                   float(np.linalg.norm(Psi)), float(np.linalg.norm(J @ qd - nu))]]
         return np.concatenate([np.asarray(p, dtype=float) for p in parts])
