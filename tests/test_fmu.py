@@ -659,3 +659,24 @@ def test_the_model_description_parses_as_xml_with_unit_definitions_first(fmu):
     tags = [child.tag for child in root]
     assert tags.index("UnitDefinitions") < tags.index("LogCategories") < tags.index(
         "DefaultExperiment") < tags.index("ModelVariables") < tags.index("ModelStructure")
+
+
+def test_the_start_time_of_setup_experiment_is_honoured(fmu, slave):
+    s = slave(fmu("slider_crank"))
+    s.init(t0=0.25)
+    names = ["crank.phi", "motor.effort", "slider.x"]
+    got = s.run([1e-3] * 5, names)
+    sim = mbdfmu.Simulation(mbdfmu.load_scene(SCENES / "slider_crank.toml"), t0=0.25)
+    expected = []
+    for k in range(1, 6):
+        sim.advance(0.25 + k * 1e-3)
+        expected.append([sim.outputs()[n] for n in names])
+    np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12)
+
+
+def test_setting_an_output_is_ignored_with_an_error(fmu, slave):
+    s = slave(fmu("slider_force"))
+    s.init()
+    s.set(slider__x=3.0)
+    assert s.messages[-1][0] == ERROR and "slider.x" in s.messages[-1][2]
+    assert s.get("slider.x")[0] == 0.0
