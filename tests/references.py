@@ -205,7 +205,11 @@ def slider_crank(theta, w, *, r, l, crank_mass, crank_inertia, rod_mass, rod_ine
     (force on the slider) as 2-vectors in the ground frame. Returns a dict of arrays: ``phi``,
     ``phi_d``, ``phi_dd``, ``xB``, ``xB_d``, ``xB_dd``; per body ``<b>_x``, ``<b>_y``, ``<b>_vx``,
     ``<b>_vy``, ``<b>_ax``, ``<b>_ay``, ``<b>_omega`` for b in crank, rod, slider; ``kinetic``
-    (J), ``power_gravity`` and ``power_load`` (W, on the mechanism), ``torque`` (N m).
+    (J), ``power_gravity`` and ``power_load`` (W, on the mechanism), ``torque`` (N m);
+    joint forces in the ground frame from Newton-Euler, each shaped (2, ...): ``force_O`` (ground
+    on crank), ``force_A`` (crank on rod), ``force_B`` (rod on slider); ``guide_normal`` (guide on
+    slider, along +y) and ``torque_newton_euler``, the torque again from the crank's moment
+    balance (it must equal ``torque``).
     """
     th = np.asarray(theta, dtype=float)
     st, ct = np.sin(th), np.cos(th)
@@ -253,6 +257,33 @@ def slider_crank(theta, w, *, r, l, crank_mass, crank_inertia, rod_mass, rod_ine
     out["power_gravity"] = p_grav
     out["power_load"] = p_load
     out["torque"] = (dT - p_grav - p_load) / w
+
+    # Joint forces by Newton-Euler, from the slider inwards (ground frame, N):
+    # slider along x: m_s xB'' = F_Bx + load_x (the guide takes no force along the guide);
+    # rod moment about its centre: d x F_B = -J_r alpha_r - (d/2) x m_r (a_G - g), d = B - A;
+    # rod: F_A = m_r (a_G - g) + F_B; crank: F_O = m_c (a_c - g) + F_A;
+    # slider across the guide: N = m_s (0 - g_y) - F_By.
+    def cross(ux, uy, vx, vy):
+        return ux * vy - uy * vx
+
+    dx, dy = l * cphi, l * sphi
+    mr_ax, mr_ay = rod_mass * (rod["ax"] - gx), rod_mass * (rod["ay"] - gy)
+    fbx = slider_mass * xB_dd - load[0]
+    rhs = -rod_inertia * phi_dd - cross(0.5 * dx, 0.5 * dy, mr_ax, mr_ay)
+    fby = (rhs + dy * fbx) / dx
+    fax, fay = mr_ax + fbx, mr_ay + fby
+    fox = crank_mass * (crank["ax"] - gx) + fax
+    foy = crank_mass * (crank["ay"] - gy) + fay
+    out["force_B"] = np.array([fbx, fby])      # on the slider, from the rod
+    out["force_A"] = np.array([fax, fay])      # on the rod, from the crank
+    out["force_O"] = np.array([fox, foy])      # on the crank, from the ground
+    out["guide_normal"] = -slider_mass * gy - load[1] - fby   # on the slider, +y
+    # the same torque from the crank's moment balance about O (alpha = 0):
+    # tau = r_A x F_A + r_c x m_c (a_c - g)
+    out["torque_newton_euler"] = (cross(r * ct, r * st, fax, fay)
+                                  + cross(crank["x"], crank["y"],
+                                          crank_mass * (crank["ax"] - gx),
+                                          crank_mass * (crank["ay"] - gy)))
     return out
 
 

@@ -152,6 +152,31 @@ def test_p4_slider_crank_kinematics_and_motor_torque():
                                atol=1e-6 * np.abs(ex["torque"]).max())
 
 
+def _in_frame(force, angle):
+    """Ground-frame force components (2, n) resolved in a frame turned by ``angle`` (n,)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return c * force[0] + s * force[1], -s * force[0] + c * force[1]
+
+
+def test_p4_slider_crank_joint_reactions():
+    """Reactions on each body_j in its joint frame against the Newton-Euler chain of P4."""
+    res = run("slider_crank", 0.02, output_interval=2.5e-4, **TIGHT)
+    ex = ref.slider_crank(W * res.time, W, **SC)
+    scale = np.abs(ex["force_O"]).max()          # about 4.5 kN
+    for joint, force, angle in (("O", ex["force_O"], res["crank.phi"]),
+                                ("A", ex["force_A"], res["rod.phi"]),
+                                ("B", ex["force_B"], res["slider.phi"])):
+        fx, fy = _in_frame(force, angle)
+        np.testing.assert_allclose(res[f"{joint}.Fx"], fx, atol=1e-7 * scale, err_msg=joint)
+        np.testing.assert_allclose(res[f"{joint}.Fy"], fy, atol=1e-7 * scale, err_msg=joint)
+        np.testing.assert_allclose(res[f"{joint}.Tz"], 0.0, atol=1e-7 * scale, err_msg=joint)
+    # the guide: nothing along the sliding axis, the normal force across it, no torque
+    # (all forces on the slider act at its centre)
+    np.testing.assert_allclose(res["guide.Fx"], 0.0, atol=1e-7 * scale)
+    np.testing.assert_allclose(res["guide.Fy"], ex["guide_normal"], atol=1e-7 * scale)
+    np.testing.assert_allclose(res["guide.Tz"], 0.0, atol=1e-7 * scale)
+
+
 def test_p4_slider_crank_accelerations():
     res = run("slider_crank", 0.02, output_interval=5e-4, **TIGHT)
     ex = ref.slider_crank(W * res.time, W, **SC)

@@ -206,6 +206,16 @@ def test_p4_torque_by_virtual_work_of_inertia_forces():
     np.testing.assert_allclose(o["torque"], tau, atol=1e-9 * np.abs(tau).max())
 
 
+def test_p4_newton_euler_torque_equals_power_balance_torque():
+    """The reaction chain (slider -> rod -> crank) reproduces the energy-balance torque."""
+    th = np.linspace(0, 2 * np.pi, 61)
+    o = ref.slider_crank(th, W, **SC)
+    np.testing.assert_allclose(o["torque_newton_euler"], o["torque"],
+                               atol=1e-10 * np.abs(o["torque"]).max())
+    # slider at rest at a dead centre with the crank at 0: B carries the load plus inertia
+    assert o["force_B"][0][0] == pytest.approx(0.4 * o["xB_dd"][0] + 10.0)
+
+
 # ------------------------------------------------------------------------------------ P5 ---
 
 FB = dict(a=0.1, b=0.35, c=0.3, d=0.4)
