@@ -55,6 +55,8 @@ UNITS: dict = {}
 NOT_SHIPPED = ("cli", "plotting")
 # Relative tolerance between the master's communication point and the FMU's own time.
 TIME_TOLERANCE = 1e-9
+# Key of a state that could not be taken or read (its value says why).
+INVALID_STATE = "invalid"
 
 
 def _load_core(resources: Path):
@@ -264,16 +266,24 @@ class MbdfmuSlave(Fmi2Slave):
     def _get_fmu_state(self):
         # The whole instance, deep: the simulation's own state (time, q, q', integrator,
         # input history) plus what this wrapper holds. Values only, no references.
-        return {"sim": self._sim.get_state(), "params": dict(self._params),
-                "solver": dict(self._solver), "inputs": dict(self._inputs),
-                "inputs_set": dict(self._inputs_set), "out": dict(self._out),
-                "changed": self._changed, "initialized": self._initialized,
-                "failed": self._failed}
+        try:
+            return {"sim": self._sim.get_state(), "params": dict(self._params),
+                    "solver": dict(self._solver), "t0": self._t0,
+                    "inputs": dict(self._inputs), "inputs_set": dict(self._inputs_set),
+                    "out": dict(self._out), "changed": self._changed,
+                    "initialized": self._initialized, "failed": self._failed}
+        except Exception as exc:  # noqa: BLE001 - the FMI boundary: nothing may escape
+            self._fail("fmi2GetFMUstate", f"{type(exc).__name__}: {exc}")
+            return {INVALID_STATE: self._failed}
 
     def _set_fmu_state(self, state):
         def restore():
-            if state["params"] != self._params or state["solver"] != self._solver:
+            if INVALID_STATE in state:
+                raise Failure(f"the state is not usable ({state[INVALID_STATE]})")
+            if (state["params"], state["solver"], state["t0"]) != (
+                    self._params, self._solver, self._t0):
                 self._params, self._solver = dict(state["params"]), dict(state["solver"])
+                self._t0 = state["t0"]
                 self._sim = self._new_simulation()
             self._sim.set_state(state["sim"])
             self._inputs, self._inputs_set = dict(state["inputs"]), dict(state["inputs_set"])
@@ -288,7 +298,12 @@ class MbdfmuSlave(Fmi2Slave):
 
     @staticmethod
     def _fmu_state_from_bytes(data):
-        return pickle.loads(data)
+        # Called on the class (no instance to log through): a bad blob becomes a state
+        # that fmi2SetFMUstate reports.
+        try:
+            return pickle.loads(data)
+        except Exception as exc:  # noqa: BLE001 - the FMI boundary: nothing may escape
+            return {INVALID_STATE: f"cannot deserialize: {type(exc).__name__}: {exc}"}
 
     # ------------------------------------------------------------------ model description
 

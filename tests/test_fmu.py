@@ -689,3 +689,13 @@ def test_setting_an_output_is_ignored_with_an_error(fmu, slave):
     s.set(slider__x=3.0)
     assert s.messages[-1][0] == ERROR and "slider.x" in s.messages[-1][2]
     assert s.get("slider.x")[0] == 0.0
+
+
+def test_a_corrupt_serialized_state_is_refused_with_a_reason(fmu, slave):
+    s = slave(fmu("slider_force"))
+    s.init()
+    state = s.fmu.deSerializeFMUstate(b"not a state")
+    s.fmu.setFMUstate(state)
+    s.fmu.freeFMUstate(state)
+    assert s.messages[-1][0] == ERROR and "cannot deserialize" in s.messages[-1][2]
+    assert s.step(1e-3) == DISCARD and "refused" in s.messages[-1][2]
