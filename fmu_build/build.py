@@ -206,7 +206,9 @@ def build_fmu(scene_path, output=None) -> Path:
         shutil.copyfile(scene_path, stage / "scene.toml")
         # pythonfmu imports the script (and so the core copy) in this process and leaves
         # its folder on sys.path: undo both, so this process later loads the FMU's own copy.
+        # (Only those modules: third-party modules imported on the way stay.)
         saved_path, saved_modules = list(sys.path), set(sys.modules)
+        ours = {module, model["core_package"]}
         try:
             fmu = FmuBuilder.build_FMU(
                 script, dest=output,
@@ -217,5 +219,6 @@ def build_fmu(scene_path, output=None) -> Path:
         finally:
             sys.path[:] = saved_path
             for m in set(sys.modules) - saved_modules:
-                del sys.modules[m]
+                if m.split(".")[0] in ours:
+                    del sys.modules[m]
     return Path(fmu)
