@@ -44,6 +44,8 @@ TEMPLATE_CLASS = "MbdfmuSlave"
 GENERATED = re.compile(r"# >>> GENERATED.*?\n(.*?)# <<< GENERATED\n", re.S)
 # Modules of mbdfmu an FMU does not need (they would pull in matplotlib).
 NOT_SHIPPED = {"cli.py", "plotting.py", "__main__.py"}
+# Subpackages an FMU does not need: the co-simulation masters (they import fmpy, libcosimpy).
+NOT_SHIPPED_PACKAGES = {"cosim"}
 # Output points of the DefaultExperiment when the scene gives no output interval.
 DEFAULT_OUTPUT_POINTS = 500
 
@@ -124,7 +126,8 @@ def variable_table(scene) -> tuple[list[tuple], dict]:
 def _package_files(package_dir: Path) -> list[Path]:
     return sorted(p for p in package_dir.rglob("*.py")
                   if "__pycache__" not in p.parts and p.relative_to(package_dir).as_posix()
-                  not in NOT_SHIPPED)
+                  not in NOT_SHIPPED and p.relative_to(package_dir).parts[0]
+                  not in NOT_SHIPPED_PACKAGES)
 
 
 def _digest(*chunks: bytes) -> str:
