@@ -1,0 +1,100 @@
+"""Build a companion FMU from its Python source, and the one entry point of ``mbdfmu build``.
+
+``build(path, output)`` dispatches by file type: a scene (``.toml``) goes to
+``fmu_build.build_fmu``; a pythonfmu slave source (``.py``) to ``build_companion``.
+
+A companion source imports its base class as
+
+    from mbdfmu.cosim import companion_base as base
+
+so it runs and can be tested in Python as it is. The FMU ships a copy of that base under a
+name unique to its content (``_mbdfmu_companion_base_<hash>``) with the import rewritten, and
+the source itself as ``mbdfmu_<stem>_<hash>``: pythonfmu caches an FMU's module by name in
+the host, so two companions (or two versions of one) never share a module, and neither
+depends on an mbdfmu installed in the host (see ../shared/FMI_NOTES.md).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import sys
+import tempfile
+from pathlib import Path
+
+from ..errors import MbdfmuError
+
+BASE = Path(__file__).resolve().parent / "companion_base.py"
+# The import line a companion source uses for its base class (rewritten in the FMU).
+BASE_IMPORT = re.compile(r"^from mbdfmu\.cosim import companion_base as base[ \t]*$", re.M)
+# What every companion FMU advertises: masters may roll back and vary the step.
+CAPABILITIES = dict(needsExecutionTool=True, canHandleVariableCommunicationStepSize=True,
+                    canGetAndSetFMUstate=True, canSerializeFMUstate=True,
+                    canInterpolateInputs=False, canBeInstantiatedOnlyOncePerProcess=False)
+
+
+class CompanionBuildError(MbdfmuError):
+    """A companion source that cannot be turned into an FMU (the message says why)."""
+
+
+def _digest(*chunks: bytes) -> str:
+    h = hashlib.sha256()
+    for c in chunks:
+        h.update(len(c).to_bytes(8, "little"))
+        h.update(c)
+    return h.hexdigest()[:12]
+
+
+def build_companion(source, output=None) -> Path:
+    """Build the FMU of a companion source; returns its path (default ``<Class>.fmu`` in
+    the cwd, the class name being the model identifier)."""
+    from pythonfmu.builder import FmuBuilder
+
+    source = Path(source)
+    if not source.is_file():
+        raise CompanionBuildError(f"{source}: no such file")
+    text = source.read_text(encoding="utf-8")
+    base_text = BASE.read_bytes()
+    base_module = f"_mbdfmu_companion_base_{_digest(base_text)}"
+    text, uses_base = BASE_IMPORT.subn(f"import {base_module} as base", text)
+    module = f"mbdfmu_{re.sub(r'[^A-Za-z0-9_]', '_', source.stem)}_" \
+             f"{_digest(text.encode(), base_text)}"
+    if output is not None:
+        output = Path(output)
+        if output.suffix != ".fmu":
+            raise CompanionBuildError(f"{output}: an FMU file name must end in .fmu")
+        output.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="mbdfmu_companion_") as tmp:
+        stage = Path(tmp)
+        script = stage / f"{module}.py"
+        script.write_text(text, encoding="utf-8")
+        project_files = []
+        if uses_base:
+            (stage / f"{base_module}.py").write_bytes(base_text)
+            project_files.append(stage / f"{base_module}.py")
+        # pythonfmu imports the script in this process and leaves its folder on sys.path:
+        # undo both (for the FMU's own modules only: third-party ones imported on the way
+        # stay), so this process later loads the FMU's own copy.
+        saved_path, saved_modules = list(sys.path), set(sys.modules)
+        ours = {module, base_module}
+        try:
+            fmu = FmuBuilder.build_FMU(script, dest=output if output is not None else Path.cwd(),
+                                       project_files=project_files, **CAPABILITIES)
+        except (ValueError, TypeError, AttributeError, ImportError, SyntaxError) as exc:
+            raise CompanionBuildError(f"{source}: {type(exc).__name__}: {exc}") from None
+        finally:
+            sys.path[:] = saved_path
+            for m in set(sys.modules) - saved_modules:
+                if m.split(".")[0] in ours:
+                    del sys.modules[m]
+    return Path(fmu)
+
+
+def build(path, output=None) -> Path:
+    """``mbdfmu build``: a scene (``.toml``) or a companion source (``.py``) into an FMU."""
+    path = Path(path)
+    if path.suffix == ".py":
+        return build_companion(path, output)
+    from fmu_build.build import build_fmu
+
+    return build_fmu(path, output)
