@@ -24,6 +24,7 @@ EXAMPLES = """examples:
   mbdfmu plot pendulum.csv "bob.*" -o pendulum.png
   mbdfmu animate scenes/pendulum.toml pendulum.csv -o pendulum.gif
   mbdfmu build scenes/slider_crank.toml -o SliderCrank.fmu
+  mbdfmu build scenarios/dc_motor_slider_crank/dc_motor.py -o DCMotor.fmu
 """
 
 
@@ -139,9 +140,9 @@ def cmd_demo(args) -> int:
 
 
 def cmd_build(args) -> int:
-    from fmu_build.build import build_fmu
+    from .cosim.companion import build  # a scene (.toml) or a companion source (.py)
 
-    path = build_fmu(args.scene, output=args.output)
+    path = build(args.scene, output=args.output)
     print(path)
     return 0
 
@@ -189,8 +190,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", default="mbdfmu-demo", help="output folder")
     p.set_defaults(func=cmd_demo)
 
-    p = sub.add_parser("build", help="build a scene's FMI 2.0 co-simulation FMU")
-    p.add_argument("scene")
+    p = sub.add_parser("build", help="build the FMI 2.0 co-simulation FMU of a scene (.toml) "
+                       "or of a companion source (.py, see scenarios/)")
+    p.add_argument("scene", help="scene file (.toml) or companion FMU source (.py)")
     p.add_argument("-o", "--output", default=None, help="FMU file (default <scene name>.fmu)")
     p.set_defaults(func=cmd_build)
     return parser
