@@ -51,8 +51,6 @@ VARIABLES: tuple = ()
 UNITS: dict = {}
 # <<< GENERATED
 
-# Modules of the core that an FMU never needs (and that would pull in matplotlib).
-NOT_SHIPPED = ("cli", "plotting")
 # Relative tolerance between the master's communication point and the FMU's own time.
 TIME_TOLERANCE = 1e-9
 # Key of a state that could not be taken or read (its value says why).
@@ -63,7 +61,9 @@ def _load_core(resources: Path):
     """The shipped mbdfmu copy, imported once per process under ``CORE_PACKAGE``.
 
     Every submodule is imported at once: a master may delete an FMU's extracted files
-    while its modules stay cached (fmpy does, between two ``simulate_fmu`` calls).
+    while its modules stay cached (fmpy does, between two ``simulate_fmu`` calls). A
+    submodule that cannot be imported here (it needs a package the host lacks) is not one
+    the simulation uses: the package itself imported without it.
     """
     if CORE_PACKAGE not in sys.modules:
         root = resources / CORE_PACKAGE
@@ -73,8 +73,12 @@ def _load_core(resources: Path):
         sys.modules[CORE_PACKAGE] = module
         try:
             spec.loader.exec_module(module)
-            for info in pkgutil.walk_packages(module.__path__, CORE_PACKAGE + "."):
-                importlib.import_module(info.name)
+            for info in pkgutil.walk_packages(module.__path__, CORE_PACKAGE + ".",
+                                              onerror=lambda name: None):
+                try:
+                    importlib.import_module(info.name)
+                except ImportError:
+                    pass
         except BaseException:
             for name in [n for n in sys.modules if n.split(".")[0] == CORE_PACKAGE]:
                 del sys.modules[name]
