@@ -6,7 +6,7 @@ The FMU holds, under ``resources/``:
   variable table, units) and its class renamed; ``<module>`` is
   ``mbdfmu_<Model>_<hash>``, unique to the model and to everything shipped, so two
   different mbdfmu FMUs never share a module in one process;
-* ``_mbdfmu_<hash>/``: a copy of the mbdfmu package (without ``cli`` and ``plotting``),
+* ``_mbdfmu_<hash>/``: a copy of the mbdfmu package (without ``cli``, ``plotting``, ``cosim``),
   imported under that name, so the FMU never uses (and is never shadowed by) an mbdfmu
   installed in the host;
 * ``scene.json`` (the scene as read, what the FMU loads: no TOML reader needed at run
