@@ -99,6 +99,20 @@ class Simulation:
         self._inputs_changed = True
         self._cache = None
 
+    def input_values(self) -> dict[str, float]:
+        """The current value of every input at ``t`` (driver velocity and acceleration as
+        the motion over the next step has them, given or derived from the history)."""
+        values = {}
+        for item, driver in self._drivers.items():
+            f = self.system.driver_signals[item](self.t)
+            for field, value in zip(("position", "velocity", "acceleration"), f):
+                values[f"{item}.{field}"] = float(value)
+        for item, (fields, _) in self._force_items.items():
+            current = self.system.force_signals[item](self.t)
+            for field, value in zip(fields, current):
+                values[f"{item}.{field}"] = float(value)
+        return values
+
     def set_input_signal(self, item: str, signal) -> None:
         """Drive a force item or a driver with a function of time (see ``signals``)."""
         if item in self._drivers:
@@ -133,7 +147,12 @@ class Simulation:
         self._cache = None
 
     def accelerations(self) -> tuple[np.ndarray, np.ndarray]:
-        """q'' and lam at the current state (cached until the state or an input changes)."""
+        """q'' and lam at the current state and inputs (cached until either changes).
+
+        Inputs set since the last step take effect here already (direct feedthrough): the
+        state is first made consistent with new driver positions, as ``advance`` would."""
+        if self._inputs_changed:
+            self._reinitialize()
         if self._cache is None:
             self._cache = self.system.accelerations(self.t, self.q, self.qd)
         return self._cache
