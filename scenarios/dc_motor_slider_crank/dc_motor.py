@@ -1,0 +1,46 @@
+"""DC motor (armature circuit only): a companion FMU of the dc_motor_slider_crank scenario.
+
+    L di/dt = V - R i - ke w,        torque = kt i
+
+Inputs: the supply voltage V and the shaft speed w (from the mechanism). Output: the torque
+on the shaft and the current. The rotor's inertia belongs to the mechanism (lumped into the
+crank), so the torque is the electromagnetic torque; no direct feedthrough (the torque is
+a function of the state i only).
+
+Over a communication step the inputs hold (zero-order hold), so the current follows the
+exact solution of the linear equation, ``i(t + h) = i_inf + (i - i_inf) exp(-R h / L)`` with
+``i_inf = (V - ke w) / R``: the FMU adds no integration error, only the coupling's.
+"""
+
+import math
+
+from mbdfmu.cosim import companion_base as base
+
+
+class DCMotor(base.CompanionSlave):
+    DESCRIPTION = "DC motor armature: voltage and speed in, torque out (exact over each step)"
+    VARIABLES = (
+        base.Var("R", "parameter", "Ohm", 0.5, "armature resistance"),
+        base.Var("L", "parameter", "H", 2.0e-3, "armature inductance"),
+        base.Var("kt", "parameter", "N.m/A", 0.1, "torque constant"),
+        base.Var("ke", "parameter", "V.s/rad", 0.1, "back-EMF constant"),
+        base.Var("i0", "parameter", "A", 0.0, "current at the start time"),
+        base.Var("voltage", "input", "V", 12.0, "supply voltage"),
+        base.Var("speed", "input", "rad/s", 0.0, "shaft speed"),
+        base.Var("torque", "output", "N.m", 0.0, "electromagnetic torque on the shaft, kt i"),
+        base.Var("current", "output", "A", 0.0, "armature current"),
+    )
+
+    def initial_state(self):
+        if not (self.values["R"] > 0 and self.values["L"] > 0):
+            raise ValueError(f"R and L must be positive, got R = {self.values['R']}, "
+                             f"L = {self.values['L']}")
+        return {"i": self.values["i0"]}
+
+    def step(self, t, h, state):
+        p = self.values
+        i_inf = (p["voltage"] - p["ke"] * p["speed"]) / p["R"]
+        return {"i": i_inf + (state["i"] - i_inf) * math.exp(-p["R"] * h / p["L"])}
+
+    def outputs(self, state):
+        return {"torque": self.values["kt"] * state["i"], "current": state["i"]}

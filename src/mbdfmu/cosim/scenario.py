@@ -1,0 +1,374 @@
+"""A co-simulation scenario: which FMUs, how they connect, and how the run is set up.
+
+A scenario is a folder under ``scenarios/`` holding a connections file (TOML):
+
+```toml
+name = "dc_motor_slider_crank"
+description = "A DC motor drives a slider-crank through its crank torque"
+t_end = 0.5                      # s
+step = 1e-3                      # communication step (s)
+algorithm = "gauss-seidel"       # jacobi | gauss-seidel (the default of `mbdfmu cosim`)
+order = ["mechanism", "motor"]   # Gauss-Seidel order (default: the instances as listed)
+record = ["mechanism.slider.x"]  # outputs written besides the connected ones
+plot = ["mechanism.crank.omega", "motor.torque"]
+compare = ["mechanism.crank.omega"]   # coupling error: these against the reference
+reference = "reference.py"       # optional: reference(scenario, times) -> {name: values}
+
+[instances]
+mechanism = "slider_crank.toml"  # a scene: built by fmu_build
+motor = "dc_motor.py"            # a companion source: built by mbdfmu.cosim.companion
+
+[[connections]]
+from = "motor.torque"            # <instance>.<output>
+to = "mechanism.drive.torque"    # <instance>.<input>
+
+[parameters]                     # start values set before initialization (numbers only)
+"motor.R" = 0.5
+"motor.voltage" = 12.0           # an input nobody drives holds this value
+
+[variable_step]                  # the error-controlled master (all optional)
+rtol = 1e-2                      # allowed change of a coupled variable over one step
+atol = 1e-6
+h_min = 1e-6
+h_max = 1e-2
+```
+
+Names are ``<instance>.<variable>``: instance names are identifiers (no dots), so the first
+dot separates them. ``load_scenario`` checks everything it can without the FMUs and raises
+one ``ScenarioError`` listing every problem; ``check_variables`` checks names, causalities
+and units once the model descriptions are known.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..errors import MbdfmuError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+# Where `mbdfmu cosim NAME` looks: scenarios/ of the source tree.
+SCENARIOS = Path(__file__).resolve().parents[3] / "scenarios"
+CONNECTIONS_FILE = "connections.toml"
+ALGORITHMS = ("jacobi", "gauss-seidel")
+IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+TOP_KEYS = {"name", "description", "t_end", "step", "algorithm", "order", "record", "plot",
+            "compare", "reference", "instances", "connections", "parameters", "variable_step"}
+VARIABLE_STEP_KEYS = {"rtol", "atol", "h_min", "h_max", "h_initial"}
+
+
+class ScenarioError(MbdfmuError):
+    """A connections file that cannot be read or does not fit its FMUs (every problem)."""
+
+    def __init__(self, problems: list[str] | str):
+        self.problems = [problems] if isinstance(problems, str) else list(problems)
+        super().__init__("; ".join(self.problems))
+
+
+@dataclass(frozen=True)
+class Instance:
+    """One FMU of the scenario: ``source`` is a scene (.toml) or a companion source (.py)."""
+
+    name: str
+    source: Path
+
+
+@dataclass(frozen=True)
+class Connection:
+    """An output of one instance feeding an input of another (``instance.variable``)."""
+
+    source: str
+    target: str
+
+    @property
+    def source_instance(self) -> str:
+        return self.source.split(".", 1)[0]
+
+    @property
+    def source_variable(self) -> str:
+        return self.source.split(".", 1)[1]
+
+    @property
+    def target_instance(self) -> str:
+        return self.target.split(".", 1)[0]
+
+    @property
+    def target_variable(self) -> str:
+        return self.target.split(".", 1)[1]
+
+
+@dataclass(frozen=True)
+class VariableStepSettings:
+    """The error-controlled master's settings (see ``master.VariableStep``)."""
+
+    rtol: float = 1e-2
+    atol: float = 1e-6
+    h_min: float = 1e-7
+    h_max: float | None = None      # default: 10 times the scenario's step
+    h_initial: float | None = None  # default: the scenario's step
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A parsed connections file; paths are absolute."""
+
+    name: str
+    description: str
+    path: Path
+    instances: tuple[Instance, ...]
+    connections: tuple[Connection, ...]
+    parameters: dict[str, float]
+    t_end: float
+    step: float
+    algorithm: str = "jacobi"
+    order: tuple[str, ...] = ()
+    record: tuple[str, ...] = ()
+    plot: tuple[str, ...] = ()
+    compare: tuple[str, ...] = ()
+    reference: Path | None = None
+    variable_step: VariableStepSettings = field(default_factory=VariableStepSettings)
+
+    @property
+    def folder(self) -> Path:
+        return self.path.parent
+
+    def instance(self, name: str) -> Instance:
+        for i in self.instances:
+            if i.name == name:
+                return i
+        raise KeyError(name)
+
+    def instance_parameters(self, instance: str) -> dict[str, float]:
+        """``{variable: value}`` of one instance's start values."""
+        prefix = instance + "."
+        return {k[len(prefix):]: v for k, v in self.parameters.items() if k.startswith(prefix)}
+
+    def recorded(self) -> list[str]:
+        """The outputs a run records: every connected output, then ``record``, then
+        ``compare`` and ``plot`` (each once, in that order)."""
+        names = [c.source for c in self.connections] + list(self.record) + list(self.compare) \
+            + list(self.plot)
+        return list(dict.fromkeys(names))
+
+
+def resolve(name_or_path: str | Path) -> Path:
+    """A connections file from ``NAME`` (scenarios/NAME/connections.toml), ``NAME:VARIANT``
+    (scenarios/NAME/connections_VARIANT.toml), a folder or a file."""
+    text = str(name_or_path)
+    path = Path(text)
+    if path.is_file():
+        return path.resolve()
+    if path.is_dir():
+        return (path / CONNECTIONS_FILE).resolve()
+    name, _, variant = text.partition(":")
+    folder = SCENARIOS / name
+    file = folder / (f"connections_{variant}.toml" if variant else CONNECTIONS_FILE)
+    if file.is_file():
+        return file
+    known = sorted(p.parent.name for p in SCENARIOS.glob(f"*/{CONNECTIONS_FILE}"))
+    variants = sorted(f"{p.parent.name}:{p.stem.removeprefix('connections_')}"
+                      for p in SCENARIOS.glob("*/connections_*.toml"))
+    hint = difflib.get_close_matches(text, known + variants, n=1)
+    raise ScenarioError(f'no scenario "{text}"' + (f' (did you mean "{hint[0]}"?)' if hint else "")
+                        + f"; scenarios: {', '.join(known + variants) or 'none'} "
+                        f"(or give a folder or a connections file)")
+
+
+def _positive(value, where: str, problems: list[str]) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+            not (math.isfinite(value) and value > 0):
+        problems.append(f"{where} must be a positive number, got {value!r}")
+        return None
+    return float(value)
+
+
+def _names(value, where: str, problems: list[str]) -> tuple[str, ...]:
+    if value is None:
+        return ()
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        problems.append(f"{where} must be a list of names, got {value!r}")
+        return ()
+    return tuple(value)
+
+
+def load_scenario(name_or_path: str | Path) -> Scenario:
+    """Read and check a connections file (see the module docstring for the format)."""
+    path = resolve(name_or_path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise ScenarioError(f"{path}: {exc}") from None
+    where = path.name
+    problems: list[str] = []
+
+    def problem(text: str) -> None:
+        problems.append(f"{where}: {text}")
+
+    for key in sorted(set(data) - TOP_KEYS):
+        hint = difflib.get_close_matches(key, TOP_KEYS, n=1)
+        problem(f'unknown key "{key}"' + (f' (did you mean "{hint[0]}"?)' if hint else ""))
+
+    raw_instances = data.get("instances")
+    instances: list[Instance] = []
+    if not isinstance(raw_instances, dict) or not raw_instances:
+        problem('[instances] must map instance names to FMU sources (scene .toml or companion .py)')
+        raw_instances = {}
+    for name, source in raw_instances.items():
+        if not IDENTIFIER.fullmatch(name):
+            problem(f'instance "{name}": a name must be an identifier (no dots)')
+        if not isinstance(source, str):
+            problem(f'instance "{name}": the source must be a file name, got {source!r}')
+            continue
+        file = (path.parent / source).resolve()
+        if file.suffix not in (".toml", ".py"):
+            problem(f'instance "{name}": "{source}" is neither a scene (.toml) nor a companion '
+                    "source (.py)")
+        elif not file.is_file():
+            problem(f'instance "{name}": no file "{source}" next to {path.name}')
+        instances.append(Instance(name, file))
+    names = [i.name for i in instances]
+    for a in names:
+        for b in names:
+            if a != b and b.startswith(a):
+                problem(f'instance "{a}" is a prefix of instance "{b}": fmpy\'s SSP runner '
+                        "would give one's parameters to the other; rename one")
+
+    def variable(ref, where_: str) -> str | None:
+        if not isinstance(ref, str) or "." not in ref:
+            problem(f"{where_}: {ref!r} is not <instance>.<variable>")
+            return None
+        inst = ref.split(".", 1)[0]
+        if inst not in names:
+            hint = difflib.get_close_matches(inst, names, n=1)
+            problem(f'{where_}: unknown instance "{inst}" in "{ref}"'
+                    + (f' (did you mean "{hint[0]}"?)' if hint else ""))
+            return None
+        return ref
+
+    connections: list[Connection] = []
+    raw_connections = data.get("connections", [])
+    if not isinstance(raw_connections, list):
+        problem("[[connections]] must be an array of tables")
+        raw_connections = []
+    targets: dict[str, str] = {}
+    for k, c in enumerate(raw_connections):
+        label = f"connection {k + 1}"
+        if not isinstance(c, dict) or set(c) != {"from", "to"}:
+            problem(f"{label}: needs exactly the keys from and to, got {c!r}")
+            continue
+        src, dst = variable(c["from"], label), variable(c["to"], label)
+        if src is None or dst is None:
+            continue
+        if src.split(".", 1)[0] == dst.split(".", 1)[0]:
+            problem(f'{label}: "{src}" -> "{dst}" connects an instance to itself')
+        if dst in targets:
+            problem(f'{label}: input "{dst}" is already driven by "{targets[dst]}"')
+        targets[dst] = src
+        connections.append(Connection(src, dst))
+
+    parameters: dict[str, float] = {}
+    raw_parameters = data.get("parameters", {})
+    if not isinstance(raw_parameters, dict):
+        problem("[parameters] must be a table")
+        raw_parameters = {}
+    for key, value in raw_parameters.items():
+        if variable(key, "parameters") is None:
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            problem(f'parameter "{key}" = {value!r}: only finite numbers (set strings such as '
+                    "solver.method in the scene file: fmpy's SSP runner sets Reals only)")
+            continue
+        if key in targets:
+            problem(f'parameter "{key}" is an input driven by "{targets[key]}"')
+        parameters[key] = float(value)
+
+    t_end = _positive(data.get("t_end"), f"{where}: t_end", problems)
+    step = _positive(data.get("step"), f"{where}: step", problems)
+    algorithm = data.get("algorithm", "jacobi")
+    if algorithm not in ALGORITHMS:
+        problem(f'algorithm "{algorithm}" is not one of {", ".join(ALGORITHMS)}')
+    order = _names(data.get("order"), f"{where}: order", problems) or tuple(names)
+    if sorted(order) != sorted(names):
+        problem(f"order {list(order)} must list every instance once: {names}")
+    lists = {}
+    for key in ("record", "plot", "compare"):
+        lists[key] = _names(data.get(key), f"{where}: {key}", problems)
+        for ref in lists[key]:
+            variable(ref, key)
+    reference = None
+    if data.get("reference") is not None:
+        reference = (path.parent / str(data["reference"])).resolve()
+        if not reference.is_file():
+            problem(f'reference "{data["reference"]}": no such file next to {path.name}')
+
+    raw_vs = data.get("variable_step", {})
+    vs = VariableStepSettings()
+    if not isinstance(raw_vs, dict):
+        problem("[variable_step] must be a table")
+    else:
+        for key in sorted(set(raw_vs) - VARIABLE_STEP_KEYS):
+            problem(f'[variable_step]: unknown key "{key}" (known: {", ".join(sorted(VARIABLE_STEP_KEYS))})')
+        values = {k: _positive(v, f"{where}: variable_step.{k}", problems)
+                  for k, v in raw_vs.items() if k in VARIABLE_STEP_KEYS}
+        vs = VariableStepSettings(**{k: v for k, v in values.items() if v is not None})
+
+    name = data.get("name", path.parent.name)
+    if not isinstance(name, str) or not name:
+        problem(f"name must be a non-empty string, got {name!r}")
+    if problems:
+        raise ScenarioError(problems)
+    return Scenario(name=name, description=str(data.get("description", "")), path=path,
+                    instances=tuple(instances), connections=tuple(connections),
+                    parameters=parameters, t_end=t_end, step=step, algorithm=algorithm,
+                    order=tuple(order), record=lists["record"], plot=lists["plot"],
+                    compare=lists["compare"], reference=reference, variable_step=vs)
+
+
+def check_variables(scenario: Scenario, descriptions: dict) -> None:
+    """Check names and causalities against the FMUs' model descriptions (fmpy's
+    ``ModelDescription`` per instance); raise one ``ScenarioError`` with every problem."""
+    where = scenario.path.name
+    problems: list[str] = []
+    variables = {inst: {v.name: v for v in md.modelVariables} for inst, md in descriptions.items()}
+
+    def lookup(ref: str, causalities: tuple[str, ...], what: str):
+        inst, var = ref.split(".", 1)
+        table = variables[inst]
+        if var not in table:
+            hint = difflib.get_close_matches(var, list(table), n=1)
+            problems.append(f'{where}: {what} "{ref}": {inst} has no variable "{var}"'
+                            + (f' (did you mean "{inst}.{hint[0]}"?)' if hint else ""))
+            return None
+        v = table[var]
+        if v.causality not in causalities:
+            problems.append(f'{where}: {what} "{ref}" is a {v.causality}, not '
+                            f"{' or '.join(causalities)}")
+        return v
+
+    for c in scenario.connections:
+        a = lookup(c.source, ("output",), "connection from")
+        b = lookup(c.target, ("input",), "connection to")
+        if a is not None and b is not None:
+            if a.type != "Real" or b.type != "Real":
+                problems.append(f'{where}: connection "{c.source}" -> "{c.target}": only Real '
+                                "variables are connected")
+            elif (a.unit or "") != (b.unit or "") and a.unit and b.unit:
+                problems.append(f'{where}: connection "{c.source}" ({a.unit}) -> "{c.target}" '
+                                f"({b.unit}): units differ")
+    for key in scenario.parameters:
+        v = lookup(key, ("parameter", "input"), "parameter")
+        if v is not None and v.type != "Real":
+            problems.append(f'{where}: parameter "{key}" is a {v.type}; set it in the scene file')
+    for key in ("record", "plot", "compare"):
+        for ref in getattr(scenario, key):
+            lookup(ref, ("output", "input", "parameter", "local"), key)
+    if problems:
+        raise ScenarioError(problems)

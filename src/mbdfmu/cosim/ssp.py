@@ -1,0 +1,184 @@
+"""A scenario as an SSP 1.0 file (``.ssp``), run with fmpy's SSP runner.
+
+``export_ssp`` writes a zip holding ``SystemStructure.ssd`` and the FMUs under
+``resources/``. The system description carries
+
+* one component per instance, with a connector for each connected input and for each
+  output the scenario records (fmpy's runner records connectors only);
+* the connections;
+* the scenario's start values as a system-level parameter binding (inline
+  ``ssv:ParameterSet``, names ``<instance>.<variable>``);
+* the units of the connectors, a DefaultExperiment (0 to ``t_end``) and, for OSP libcosim,
+  the communication step as its ``FixedStepAlgorithm`` annotation.
+
+fmpy's runner (``fmpy.ssp.simulation.simulate_ssp``, fmpy 0.3.32) is a fixed-step Jacobi
+master with two habits this module accounts for: its connectors start at 0.0, so every
+connected input sees 0.0 over the first step (the fmpy master reproduces this with
+``start="zero"``); and each result row is stamped with the start of its step while holding
+the outputs of its end, so ``run`` re-stamps rows with the end times ``k h``. It also never
+reads the SSD's parameter bindings: ``run`` reads them from the SSP and passes them on.
+"""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+from xml.etree.ElementTree import Element, SubElement, indent, register_namespace, tostring
+
+import numpy as np
+
+from .. import __version__
+from ..result import Result
+from .master import CosimError
+from .scenario import Scenario, check_variables
+
+NS = {
+    "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
+    "ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
+    "ssv": "http://ssp-standard.org/SSP1/SystemStructureParameterValues",
+    "osp": "https://opensimulationplatform.com/SSP/OSPAnnotations",
+}
+FMU_TYPE = "application/x-fmu-sharedlibrary"
+BASE_UNITS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
+
+
+def _q(prefix: str, tag: str) -> str:
+    return f"{{{NS[prefix]}}}{tag}"
+
+
+def _number(value: float) -> str:
+    return repr(float(value))
+
+
+def system_structure(scenario: Scenario, descriptions: dict, step: float, t_end: float,
+                     record: list[str]) -> bytes:
+    """The ``SystemStructure.ssd`` of a scenario (``descriptions``: fmpy model descriptions
+    by instance; sources under ``resources/<source stem>.fmu``)."""
+    for prefix, uri in NS.items():
+        register_namespace(prefix, uri)
+    root = Element(_q("ssd", "SystemStructureDescription"),
+                   {"version": "1.0", "name": scenario.name,
+                    "generationTool": f"mbdfmu {__version__}"})
+    system = SubElement(root, _q("ssd", "System"), {"name": scenario.name})
+    if scenario.description:
+        system.set("description", scenario.description)
+    if scenario.parameters:
+        binding = SubElement(SubElement(system, _q("ssd", "ParameterBindings")),
+                             _q("ssd", "ParameterBinding"))
+        pset = SubElement(SubElement(binding, _q("ssd", "ParameterValues")),
+                          _q("ssv", "ParameterSet"), {"version": "1.0", "name": "start values"})
+        params = SubElement(pset, _q("ssv", "Parameters"))
+        for name, value in scenario.parameters.items():
+            p = SubElement(params, _q("ssv", "Parameter"), {"name": name})
+            SubElement(p, _q("ssv", "Real"), {"value": _number(value)})
+    elements = SubElement(system, _q("ssd", "Elements"))
+    units: dict[str, object] = {}
+    for inst in scenario.instances:
+        md = descriptions[inst.name]
+        variables = {v.name: v for v in md.modelVariables}
+        definitions = {u.name: u for u in md.unitDefinitions}
+        comp = SubElement(elements, _q("ssd", "Component"),
+                          {"name": inst.name, "type": FMU_TYPE,
+                           "source": f"resources/{inst.source.stem}.fmu"})
+        connectors = SubElement(comp, _q("ssd", "Connectors"))
+        inputs = [c.target_variable for c in scenario.connections if c.target_instance == inst.name]
+        outputs = [r.split(".", 1)[1] for r in record if r.split(".", 1)[0] == inst.name]
+        for kind, names in (("input", inputs), ("output", outputs)):
+            for name in dict.fromkeys(names):
+                con = SubElement(connectors, _q("ssd", "Connector"), {"name": name, "kind": kind})
+                real = SubElement(con, _q("ssc", "Real"))
+                unit = variables[name].unit
+                if unit:
+                    real.set("unit", unit)
+                    if unit in definitions:
+                        units.setdefault(unit, definitions[unit])
+    if scenario.connections:
+        connections = SubElement(system, _q("ssd", "Connections"))
+        for c in scenario.connections:
+            SubElement(connections, _q("ssd", "Connection"),
+                       {"startElement": c.source_instance, "startConnector": c.source_variable,
+                        "endElement": c.target_instance, "endConnector": c.target_variable})
+    if units:
+        ssd_units = SubElement(root, _q("ssd", "Units"))
+        for name, u in sorted(units.items()):
+            unit = SubElement(ssd_units, _q("ssc", "Unit"), {"name": name})
+            base = {k: str(getattr(u.baseUnit, k)) for k in BASE_UNITS
+                    if u.baseUnit is not None and getattr(u.baseUnit, k, 0)}
+            SubElement(unit, _q("ssc", "BaseUnit"), base)
+    experiment = SubElement(root, _q("ssd", "DefaultExperiment"),
+                            {"startTime": "0.0", "stopTime": _number(t_end)})
+    annotation = SubElement(SubElement(experiment, _q("ssd", "Annotations")),
+                            _q("ssc", "Annotation"), {"type": "com.opensimulationplatform"})
+    algorithm = SubElement(annotation, _q("osp", "Algorithm"))
+    SubElement(algorithm, _q("osp", "FixedStepAlgorithm"), {"baseStepSize": _number(step)})
+    indent(root)
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8")
+
+
+def export_ssp(scenario: Scenario, fmus: dict[str, Path], path: str | Path,
+               step: float | None = None, t_end: float | None = None,
+               record: list[str] | None = None) -> Path:
+    """Write the scenario as an SSP file holding its FMUs; returns the path."""
+    from fmpy import read_model_description
+
+    descriptions = {i.name: read_model_description(str(fmus[i.name])) for i in scenario.instances}
+    check_variables(scenario, descriptions)
+    record = list(record if record is not None else scenario.recorded())
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ssd = system_structure(scenario, descriptions, float(step or scenario.step),
+                           float(t_end or scenario.t_end), record)
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("SystemStructure.ssd", ssd)
+        for inst in scenario.instances:
+            name = f"resources/{inst.source.stem}.fmu"
+            if name not in z.namelist():
+                z.write(fmus[inst.name], name)
+    return path
+
+
+def run(scenario: Scenario, fmus: dict[str, Path], ssp_path: str | Path, step: float | None = None,
+        t_end: float | None = None, record: list[str] | None = None,
+        algorithm: str | None = None) -> Result:
+    """Export the scenario to ``ssp_path`` and run it with ``fmpy.ssp.simulate_ssp``.
+
+    Rows are the recorded outputs at ``h, 2h, ..., t_end`` (the runner keeps no row at 0).
+    """
+    from fmpy.ssp.simulation import simulate_ssp
+    from fmpy.ssp.ssd import read_ssd
+
+    algorithm = algorithm or "jacobi"
+    if algorithm != "jacobi":
+        raise CosimError(f'fmpy\'s SSP runner is a Jacobi master; "{algorithm}" is available '
+                         "with the fmpy master")
+    h = float(step or scenario.step)
+    t_end = float(t_end or scenario.t_end)
+    n = round(t_end / h)
+    if n < 1 or abs(n * h - t_end) > 1e-9 * t_end:
+        raise CosimError(f"t_end {t_end:g} s is not a whole number of steps {h:g} s")
+    record = list(record if record is not None else scenario.recorded())
+    path = export_ssp(scenario, fmus, ssp_path, h, t_end, record)
+    bindings = read_ssd(str(path)).system.parameterBindings
+    parameters = bindings[0].parameterValues[0] if bindings else None
+    # The runner steps while its accumulated time is below stop_time: half a step short of
+    # t_end gives exactly n steps whatever the rounding of the sum.
+    try:
+        table = simulate_ssp(str(path), start_time=0.0, stop_time=(n - 0.5) * h, step_size=h,
+                             parameter_set=parameters)
+    except Exception as exc:  # noqa: BLE001 - fmpy raises plain exceptions (a refused doStep)
+        raise CosimError(f"fmpy's SSP runner failed: {type(exc).__name__}: {exc}") from None
+    if len(table) != n:
+        raise CosimError(f"fmpy's SSP runner took {len(table)} steps, expected {n}")
+    units = {}
+    for inst in scenario.instances:
+        from fmpy import read_model_description
+
+        md = read_model_description(str(fmus[inst.name]))
+        units.update({f"{inst.name}.{v.name}": v.unit or "" for v in md.modelVariables})
+    values = np.column_stack([np.asarray(table[name], dtype=float) for name in record])
+    if not np.all(np.isfinite(values)):
+        bad = [r for r, col in zip(record, values.T) if not np.all(np.isfinite(col))]
+        raise CosimError(f"fmpy's SSP runner: {', '.join(bad)} became non-finite")
+    return Result(time=np.arange(1, n + 1) * h, names=record, values=values,
+                  units={r: units.get(r, "") for r in record}, method="fmpy SSP runner (jacobi)",
+                  stats={"steps": n})
