@@ -159,6 +159,19 @@ def cmd_build(args) -> int:
     return 0
 
 
+def cmd_bench(args) -> int:
+    from . import bench
+
+    if args.from_csv:
+        done = bench.redraw(args.from_csv, args.output)
+    else:
+        done = bench.run_bench(args.scenes, methods=args.methods, scheduler=args.scheduler,
+                               output=args.output, quick=args.quick, progress=not args.no_progress)
+    print(f"{len(done['rows'])} runs -> {done['csv']}, {done['summary']}, "
+          f"{len(done['charts'])} charts in {Path(done['summary']).parent}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mbdfmu", description="Planar multibody mechanisms as FMI 2.0 co-simulation FMUs.",
@@ -207,6 +220,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", help="scene file (.toml) or companion FMU source (.py)")
     p.add_argument("-o", "--output", default=None, help="FMU file (default <scene name>.fmu)")
     p.set_defaults(func=cmd_build)
+
+    from .bench import CASES
+    p = sub.add_parser("bench", help="work-precision and stability benchmark of every method "
+                       "(needs mbdfmu[bench])", formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="scenes: " + "; ".join(f"{k}: {c.title}" for k, c in CASES.items())
+                       + "\nexamples:\n  mbdfmu bench -o bench\n  mbdfmu bench P1 P3 --methods "
+                       "rk4p dop853p --scheduler tcp://10.0.0.5:8786\n  mbdfmu bench --quick "
+                       "--scheduler synchronous")
+    p.add_argument("scenes", nargs="*", metavar="SCENE",
+                   help=f"scenes to run: {' '.join(CASES)} (default all)")
+    p.add_argument("--methods", nargs="+", choices=list(METHODS), default=None,
+                   help="methods to run (default all)")
+    p.add_argument("--scheduler", default=None, help="address of a running Dask scheduler, or "
+                   "'synchronous' (default: a local cluster of 2 single-threaded workers)")
+    p.add_argument("-o", "--output", default="bench", help="output folder (default bench)")
+    p.add_argument("--quick", action="store_true", help="a small sweep on short horizons")
+    p.add_argument("--from-csv", default=None, metavar="CSV",
+                   help="redraw charts and summary from a results.csv, without running")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_bench)
     return parser
 
 

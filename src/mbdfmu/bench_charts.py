@@ -1,0 +1,209 @@
+"""Charts and summary of ``mbdfmu bench``, drawn from the rows of results.csv only.
+
+- ``work_precision``: error against CPU time, log-log, one line per method (failed runs
+  are left out of the line and counted in the legend);
+- ``stability_map``: method by setting (step size for fixed-step methods, rtol for
+  adaptive ones), each cell stable / drifting / unstable / failed (reasons in the CSV);
+- ``write_summary``: per scene, the CPU time each method needs to reach each error level
+  of ``bench.LEVELS``, interpolated on its work-precision line (``time_to_reach``).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.colors import ListedColormap  # noqa: E402
+
+from .bench import CASES, LEVELS  # noqa: E402
+
+STABILITY_CLASSES = ("stable", "drifting", "unstable", "failed")
+STABILITY_COLORS = ("#4daf4a", "#ffd92f", "#ff7f00", "#b2182b")
+DPI = 110
+
+
+def _by_scene(rows):
+    scenes: dict[str, list[dict]] = {}
+    for r in rows:
+        scenes.setdefault(r["scene"], []).append(r)
+    return scenes
+
+
+def _methods(rows):
+    seen = []
+    for r in rows:
+        if r["method"] not in seen:
+            seen.append(r["method"])
+    return seen
+
+
+def _line(rows, method):
+    """(cpu, error, setting) of a method's successful runs, coarse setting first."""
+    pts = [(r["cpu_s"], r["error"], r["setting"]) for r in rows
+           if r["method"] == method and r["status"] == "ok" and math.isfinite(r["error"])
+           and r["error"] > 0]
+    return sorted(pts, key=lambda p: -p[2])
+
+
+def time_to_reach(points, level):
+    """CPU time at which a work-precision line first reaches ``error <= level``.
+
+    ``points``: (cpu, error) of one method, in the order of its line (coarse setting first).
+    Walks the line and interpolates log(cpu) linearly in log(error) on the first segment
+    that crosses ``level``. Returns (cpu, how): how is "interpolated", "at most" (the first,
+    coarsest point is already below the level: its time is an upper bound) or "cannot"
+    (no point reaches it; cpu is nan).
+    """
+    for i, (cpu, err) in enumerate(points):
+        if err <= level:
+            if i == 0:
+                return cpu, "at most"
+            c0, e0 = points[i - 1]
+            if e0 == err:
+                return cpu, "interpolated"
+            frac = (math.log(level) - math.log(e0)) / (math.log(err) - math.log(e0))
+            return math.exp(math.log(c0) + frac * (math.log(cpu) - math.log(c0))), "interpolated"
+    return math.nan, "cannot"
+
+
+def work_precision(rows, key, path):
+    fig, ax = plt.subplots(figsize=(7, 5))
+    for m in _methods(rows):
+        pts = _line(rows, m)
+        failed = sum(1 for r in rows if r["method"] == m and r["status"] != "ok")
+        kind = next((r["kind"] for r in rows if r["method"] == m), "")
+        label = f"{m} ({'h' if kind == 'step' else 'rtol'} sweep" + \
+            (f", {failed} failed)" if failed else ")")
+        if pts:
+            ax.loglog([p[0] for p in pts], [p[1] for p in pts], "o-", ms=4, label=label)
+        else:
+            ax.plot([], [], "x", label=label + " no successful run")
+    for level in LEVELS:
+        ax.axhline(level, color="0.8", lw=0.8, zorder=0)
+    ax.set_xlabel("CPU time per run (s)")
+    ax.set_ylabel("error against the reference")
+    case = CASES.get(key)
+    ax.set_title(f"Work-precision: {case.title if case else key}", fontsize=10)
+    ax.grid(True, which="major", alpha=0.3)
+    ax.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+    return path
+
+
+def _grid(rows, kind):
+    methods = [m for m in _methods(rows) if any(r["method"] == m and r["kind"] == kind
+                                                 for r in rows)]
+    settings = sorted({r["setting"] for r in rows if r["kind"] == kind}, reverse=True)
+    cells = [[None] * len(settings) for _ in methods]
+    for r in rows:
+        if r["kind"] == kind:
+            cells[methods.index(r["method"])][settings.index(r["setting"])] = r
+    return methods, settings, cells
+
+
+def stability_map(rows, key, path):
+    panels = [k for k in ("step", "rtol") if any(r["kind"] == k for r in rows)]
+    widths = [max(3, len({r["setting"] for r in rows if r["kind"] == k})) for k in panels]
+    fig, axes = plt.subplots(1, len(panels), figsize=(2.2 + 0.75 * sum(widths), 3.6),
+                             gridspec_kw={"width_ratios": widths}, squeeze=False)
+    cmap = ListedColormap(STABILITY_COLORS)
+    for ax, kind in zip(axes[0], panels):
+        methods, settings, cells = _grid(rows, kind)
+        codes = [[STABILITY_CLASSES.index(c["stability"]) if c else math.nan for c in line]
+                 for line in cells]
+        ax.imshow(codes, cmap=cmap, vmin=-0.5, vmax=3.5, aspect="auto")
+        for i, line in enumerate(cells):
+            for j, c in enumerate(line):
+                if c is None:
+                    continue
+                text = {"failed": "fail", "unstable": "unst", "drifting": "drift"}.get(
+                    c["stability"], f"{c['error']:.0e}")
+                ax.text(j, i, text, ha="center", va="center", fontsize=6.5)
+        ax.set_xticks(range(len(settings)), [f"{s:g}" for s in settings], rotation=45, fontsize=7)
+        ax.set_yticks(range(len(methods)), methods, fontsize=8)
+        ax.set_xlabel("fixed step h (s)" if kind == "step" else "rtol (adaptive)", fontsize=8)
+    case = CASES.get(key)
+    handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in STABILITY_COLORS]
+    fig.legend(handles, STABILITY_CLASSES, loc="upper right", ncol=4, fontsize=7)
+    fig.suptitle(f"Stability: {case.title if case else key}", fontsize=10, x=0.02, ha="left")
+    fig.tight_layout(rect=(0, 0, 1, 0.9))
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+    return path
+
+
+def draw_all(rows, out: Path) -> list[Path]:
+    out = Path(out)
+    paths = []
+    for key, srows in _by_scene(rows).items():
+        paths.append(work_precision(srows, key, out / f"work_precision_{key}.png"))
+        paths.append(stability_map(srows, key, out / f"stability_{key}.png"))
+    return paths
+
+
+def reach_table(rows) -> dict:
+    """{method: [(cpu, how) per level]} for one scene's rows."""
+    return {m: [time_to_reach([(c, e) for c, e, _ in _line(rows, m)], lv) for lv in LEVELS]
+            for m in _methods(rows)}
+
+
+def fastest(table) -> list[str]:
+    """Per level, the method with the smallest CPU time (or "none")."""
+    best = []
+    for k in range(len(LEVELS)):
+        cands = [(v[k][0], m) for m, v in table.items() if v[k][1] != "cannot"]
+        best.append(min(cands)[1] if cands else "none")
+    return best
+
+
+def _fmt(cpu, how):
+    if how == "cannot":
+        return "cannot"
+    return f"<= {cpu:.3g} s" if how == "at most" else f"{cpu:.3g} s"
+
+
+def write_summary(rows, path: Path, notes: dict | None = None, footer: str = "") -> Path:
+    notes = notes or {}
+    lines = ["# mbdfmu bench summary", "",
+             "CPU time each method needs to reach an error of 1e-4, 1e-6 and 1e-8 against the "
+             "scene's reference, interpolated (log-log) on its work-precision line; "
+             "\"<=\" when its coarsest setting is already below the level; \"cannot\" when "
+             "no setting of the sweep reaches it.", ""]
+    for key, srows in _by_scene(rows).items():
+        case = CASES.get(key)
+        table = reach_table(srows)
+        lines += [f"## {case.title if case else key}", "",
+                  f"Reference: {notes.get(key, case.reference if case else '?')}.", "",
+                  "| method | " + " | ".join(f"{lv:.0e}" for lv in LEVELS) +
+                  " | best error | failed runs |",
+                  "|---|" + "---|" * (len(LEVELS) + 2)]
+        for m, vals in table.items():
+            errs = [r["error"] for r in srows if r["method"] == m and r["status"] == "ok"
+                    and math.isfinite(r["error"])]
+            nfail = sum(1 for r in srows if r["method"] == m and r["status"] != "ok")
+            ntot = sum(1 for r in srows if r["method"] == m)
+            lines.append(f"| {m} | " + " | ".join(_fmt(*v) for v in vals) +
+                         f" | {min(errs):.2g} | {nfail}/{ntot} |" if errs else
+                         f"| {m} | " + " | ".join(_fmt(*v) for v in vals) + f" | - | {nfail}/{ntot} |")
+        lines.append("| **fastest** | " + " | ".join(f"**{b}**" for b in fastest(table)) + " | | |")
+        reasons = sorted({(r["method"], r["reason"].split(": ", 1)[-1][:110]) for r in srows
+                          if r["status"] != "ok"})
+        if reasons:
+            lines += ["", "Failures (first reason per method and kind; every one is in results.csv):"]
+            seen = set()
+            for m, reason in reasons:
+                if m not in seen:
+                    lines.append(f"- {m}: {reason}")
+                    seen.add(m)
+        lines += ["", f"![work-precision](work_precision_{key}.png) "
+                      f"![stability](stability_{key}.png)", ""]
+    if footer:
+        lines += [footer, ""]
+    Path(path).write_text("\n".join(lines), encoding="utf-8")
+    return Path(path)

@@ -1,0 +1,87 @@
+"""Exact references of the benchmark problems, used by ``mbdfmu bench`` at run time.
+
+Closed forms only, from ``shared/BENCHMARK_PROBLEMS.md`` (P1, P2, P4, P6) with numpy and
+scipy: nothing here calls the solver, so the solver cannot leak into its own reference.
+(``tests/references.py`` holds the independent set the tests use; this is the package's own.)
+Conventions: SI units, gravity ``g`` in -y, pendulum angles from the downward vertical,
+crank angles from +x.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.integrate import solve_ivp
+from scipy.special import ellipj, ellipk
+
+G = 9.81
+# rtol = atol of the P2 one-degree-of-freedom integration (P2: "1e-13 gives B0 to ~1e-12").
+REDUCTION_TOL = 1e-13
+
+
+def pendulum(t, *, L=1.0, m=1.0, J=0.0, g=G, theta0=math.pi / 2) -> dict:
+    """P1: a mass ``m`` (own inertia ``J``) on a massless link ``L``, released at rest.
+
+    ``sin(theta/2) = k sn(K(k^2) - w0 t | k^2)``, ``k = sin(theta0/2)``,
+    ``w0 = sqrt(m g L / (m L^2 + J))``. Returns arrays like ``t``: ``theta`` (rad),
+    ``theta_dot`` (rad/s), ``x``, ``y`` (m, pivot at the origin), and the scalar ``period`` (s).
+    """
+    t = np.asarray(t, dtype=float)
+    w0 = math.sqrt(m * g * L / (m * L * L + J))
+    k = math.sin(theta0 / 2.0)
+    K = ellipk(k * k)
+    sn, cn, _dn, _ph = ellipj(K - w0 * t, k * k)
+    theta = 2.0 * np.arcsin(np.clip(k * sn, -1.0, 1.0))
+    return {"theta": theta, "theta_dot": -2.0 * k * w0 * cn,
+            "x": L * np.sin(theta), "y": -L * np.cos(theta), "period": 4.0 * K / w0}
+
+
+def n_four_bar_B0(t, N: int, *, m=1.0, L=1.0, g=G) -> dict:
+    """P2: B0 (top of the first crank) of the N-four-bar from the exact one-DOF reduction.
+
+    ``Meff theta'' = -C cos(theta)``, ``Meff = m L^2 ((N+1)/3 + N)``,
+    ``C = m g L ((N+1)/2 + N)``, theta(0) = pi/2, theta'(0) = -1, ``B0 = L (cos, sin)(theta)``;
+    integrated by DOP853 at 1e-13. ``t`` sorted, >= 0. Returns ``theta``, ``x``, ``y``.
+    """
+    t = np.atleast_1d(np.asarray(t, dtype=float))
+    meff = m * L * L * ((N + 1) / 3.0 + N)
+    c = m * g * L * ((N + 1) / 2.0 + N)
+    y0 = [math.pi / 2, -1.0]
+    theta = np.empty_like(t)
+    later = t > 0
+    theta[~later] = y0[0]
+    if later.any():
+        sol = solve_ivp(lambda _t, y: [y[1], -c * math.cos(y[0]) / meff], (0.0, float(t[-1])),
+                        y0, method="DOP853", t_eval=t[later], rtol=REDUCTION_TOL,
+                        atol=REDUCTION_TOL)
+        theta[later] = sol.y[0]
+    return {"theta": theta, "x": L * np.cos(theta), "y": L * np.sin(theta)}
+
+
+def slider_crank(theta, *, r: float, l: float) -> dict:
+    """P4: centred slider-crank kinematics from the crank angle ``theta`` (rad, from +x).
+
+    ``sin(phi) = -(r/l) sin(theta)``, ``x_B = r cos(theta) + l cos(phi)``; the rod's centre
+    (uniform rod) is half-way between the crank pin A and the slider pin B.
+    Returns ``phi`` (rad), ``xB`` (m), ``rod_x``, ``rod_y`` (m).
+    """
+    th = np.asarray(theta, dtype=float)
+    phi = np.arcsin(-(r / l) * np.sin(th))
+    xB = r * np.cos(th) + l * np.cos(phi)
+    return {"phi": phi, "xB": xB, "rod_x": r * np.cos(th) + 0.5 * l * np.cos(phi),
+            "rod_y": r * np.sin(th) + 0.5 * l * np.sin(phi)}
+
+
+def cart_pole_invariants(theta, *, M: float, m: float, l: float, J=0.0, g=G,
+                         theta0=math.pi / 2) -> dict:
+    """P6: what zero horizontal momentum and energy fix, as functions of the pole angle.
+
+    Cart position ``x = m l (sin theta0 - sin theta) / (M + m)`` and
+    ``theta'^2 = 2 m g l (cos theta - cos theta0) / (m l^2 (M + m sin^2 theta)/(M + m) + J)``
+    (``J`` the bob's own inertia; J = 0 gives P6's formula). Returns ``x`` and ``theta_dot_sq``.
+    """
+    theta = np.asarray(theta, dtype=float)
+    denom = m * l * l * (M + m * np.sin(theta) ** 2) / (M + m) + J
+    return {"x": m * l * (math.sin(theta0) - np.sin(theta)) / (M + m),
+            "theta_dot_sq": 2.0 * m * g * l * (np.cos(theta) - math.cos(theta0)) / denom}
