@@ -45,7 +45,7 @@ UNIT_SYMBOLS = {
     "N": {"kg": 1, "m": 1, "s": -2}, "J": {"kg": 1, "m": 2, "s": -2},
     "W": {"kg": 1, "m": 2, "s": -3}, "Pa": {"kg": 1, "m": -1, "s": -2},
     "V": {"kg": 1, "m": 2, "s": -3, "A": -1}, "Ohm": {"kg": 1, "m": 2, "s": -3, "A": -2},
-    "H": {"kg": 1, "m": 2, "s": -2, "A": -2},
+    "H": {"kg": 1, "m": 2, "s": -2, "A": -2}, "Hz": {"s": -1},
 }
 
 
@@ -60,9 +60,11 @@ class Var(NamedTuple):
 
 
 def base_units(unit: str) -> dict[str, int]:
-    """SI exponents of a unit name such as ``N.m/A`` or ``m3/s``."""
+    """SI exponents of a unit name such as ``N.m/A``, ``m3/s`` or ``m3/(s.Pa)``."""
     exponents: dict[str, int] = {}
     numerator, _, denominator = unit.partition("/")
+    if denominator.startswith("(") and denominator.endswith(")"):
+        denominator = denominator[1:-1]
     for part, sign in ((numerator, 1), (denominator, -1)):
         for token in filter(None, part.split(".")):
             match = re.fullmatch(r"([A-Za-z]+|1)(-?\d*)", token)
