@@ -125,9 +125,13 @@ def case_of(key: str) -> Case:
 
 # ---------------------------------------------------------------------------- scenes and errors
 
+def bundled_scene_path(name: str) -> Path:
+    """A scene shipped with the package (mbdfmu.scenes)."""
+    return Path(str(resources.files("mbdfmu.scenes").joinpath(f"{name}.toml")))
+
+
 def _scene(case: Case):
-    """The case's scene, shipped with the package (mbdfmu.scenes)."""
-    return load_scene(Path(str(resources.files("mbdfmu.scenes").joinpath(f"{case.scene}.toml"))))
+    return load_scene(bundled_scene_path(case.scene))
 
 
 def _get(out: dict, name: str) -> np.ndarray:
@@ -400,7 +404,7 @@ def run_tasks(tasks: list[dict], scheduler: str | None = None, progress: bool = 
     try:
         if scheduler is None:
             cluster = LocalCluster(n_workers=LOCAL_WORKERS, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, env=WORKER_ENV)
+                                   dashboard_address=":0", env=WORKER_ENV)
             client = Client(cluster)
         else:
             try:
@@ -442,7 +446,7 @@ def read_rows(path: Path) -> list[dict]:
                 for r in csv.DictReader(fh)]
 
 
-def run_bench(scenes=None, methods=None, scheduler=None, output="bench", quick=False,
+def run_bench(scenes=None, methods=None, scheduler=None, output=None, quick=False,
               progress=True) -> dict:
     """The whole benchmark: references, the sweep, results.csv, the charts and summary.md.
 
@@ -458,7 +462,7 @@ def run_bench(scenes=None, methods=None, scheduler=None, output="bench", quick=F
     if unknown:
         raise BenchError(f'unknown method {", ".join(unknown)}; expected one of '
                          f'{", ".join(METHODS)}')
-    out = Path(output)
+    out = Path(output or "bench")
     out.mkdir(parents=True, exist_ok=True)
     refs, notes = {}, {}
     for key in scenes:

@@ -234,7 +234,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="methods to run (default all)")
     p.add_argument("--scheduler", default=None, help="address of a running Dask scheduler, or "
                    "'synchronous' (default: a local cluster of 2 single-threaded workers)")
-    p.add_argument("-o", "--output", default="bench", help="output folder (default bench)")
+    p.add_argument("-o", "--output", default=None,
+                   help="output folder (default bench, or the CSV's folder with --from-csv)")
     p.add_argument("--quick", action="store_true", help="a small sweep on short horizons")
     p.add_argument("--from-csv", default=None, metavar="CSV",
                    help="redraw charts and summary from a results.csv, without running")
