@@ -25,6 +25,7 @@ EXAMPLES = """examples:
   mbdfmu animate scenes/pendulum.toml pendulum.csv -o pendulum.gif
   mbdfmu build scenes/slider_crank.toml -o SliderCrank.fmu
   mbdfmu build scenarios/dc_motor_slider_crank/dc_motor.py -o DCMotor.fmu
+  mbdfmu cosim hydraulic_crane --master libcosim   co-simulation scenario: CSV and plot
 """
 
 
@@ -172,6 +173,25 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def cmd_cosim(args) -> int:
+    from .cosim.run import CosimSettings, cosimulate, write
+
+    out = Path(args.output)
+    run = cosimulate(args.scenario, CosimSettings(
+        master=args.master, algorithm=args.algorithm, step=args.step, t_end=args.t_end,
+        variable_step=args.variable_step, rtol=args.rtol, start=args.start),
+        work_dir=out / "fmus")
+    r = run.result
+    stats = ", ".join(f"{k} {v:g}" for k, v in r.stats.items())
+    print(f"{run.scenario.name}: {r.method}, {len(r.time)} points to t = {r.time[-1]:g} s "
+          f"in {run.seconds:.2f} s ({stats})")
+    for name, err in run.errors.items():
+        print(f"  {name}: max |error| against the reference {err:.3g}")
+    for p in write(run, out):
+        print(f"  {p}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mbdfmu", description="Planar multibody mechanisms as FMI 2.0 co-simulation FMUs.",
@@ -241,6 +261,31 @@ def build_parser() -> argparse.ArgumentParser:
                    help="redraw charts and summary from a results.csv, without running")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser(
+        "cosim", help="run a co-simulation scenario (scenarios/): CSV and plot",
+        description="Run a scenario of scenarios/ (NAME, NAME:VARIANT, a folder or a "
+        "connections file) with the fmpy master, fmpy's SSP runner or OSP libcosim.",
+        epilog="examples:\n"
+        "  mbdfmu cosim dc_motor_slider_crank\n"
+        "  mbdfmu cosim hydraulic_crane --master libcosim --step 2e-3\n"
+        "  mbdfmu cosim hydraulic_crane --algorithm jacobi --variable-step\n"
+        "  mbdfmu cosim prescribed_motion:derivatives --master ssp",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("scenario")
+    p.add_argument("--master", choices=["fmpy", "ssp", "libcosim"], default="fmpy")
+    p.add_argument("--algorithm", choices=["jacobi", "gauss-seidel"], default=None,
+                   help="default: the scenario's (fmpy), jacobi (ssp, libcosim)")
+    p.add_argument("--step", type=float, default=None, help="communication step (s)")
+    p.add_argument("--t-end", type=float, default=None, help="end time (s)")
+    p.add_argument("--variable-step", action="store_true",
+                   help="error-controlled step with rollback (fmpy master)")
+    p.add_argument("--rtol", type=float, default=None,
+                   help="variable step: allowed change of a coupled variable per step")
+    p.add_argument("--start", choices=["exchange", "zero"], default="exchange",
+                   help="connected inputs start at the upstream outputs (default) or at 0")
+    p.add_argument("-o", "--output", default="cosim-out", help="output folder")
+    p.set_defaults(func=cmd_cosim)
     return parser
 
 

@@ -372,3 +372,19 @@ def check_variables(scenario: Scenario, descriptions: dict) -> None:
             lookup(ref, ("output", "input", "parameter", "local"), key)
     if problems:
         raise ScenarioError(problems)
+
+
+def reference_function(scenario: Scenario):
+    """The scenario's reference as ``f(times) -> {name: values}`` (None without one): its
+    ``reference`` file's ``reference(scenario, times)``."""
+    if scenario.reference is None:
+        return None
+    import importlib.util
+
+    module_name = f"_mbdfmu_reference_{scenario.name}"
+    spec = importlib.util.spec_from_file_location(module_name, scenario.reference)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    if not hasattr(module, "reference"):
+        raise ScenarioError(f"{scenario.reference}: no function reference(scenario, times)")
+    return lambda times: module.reference(scenario, times)

@@ -12,16 +12,26 @@
   the communication step as its ``FixedStepAlgorithm`` annotation.
 
 fmpy's runner (``fmpy.ssp.simulation.simulate_ssp``, fmpy 0.3.32) is a fixed-step Jacobi
-master with two habits this module accounts for: its connectors start at 0.0, so every
-connected input sees 0.0 over the first step (the fmpy master reproduces this with
-``start="zero"``); and each result row is stamped with the start of its step while holding
-the outputs of its end, so ``run`` re-stamps rows with the end times ``k h``. It also never
-reads the SSD's parameter bindings: ``run`` reads them from the SSP and passes them on.
+master with three habits this module accounts for:
+
+* its connectors start at 0.0, so every connected input sees 0.0 over the first step. The
+  hydraulic crane cannot start that way (a cylinder of length 0 is outside its stroke: the
+  hydraulics discard the first step), and the other scenarios start with a jolt. ``run``
+  therefore starts the way libcosim and the fmpy master do (``start="exchange"``): while
+  the runner instantiates the FMUs it passes outputs to inputs, as many rounds as there are
+  components, after the last one is initialized (``_exchange_at_start`` wraps the runner's
+  ``instantiate_fmu`` for the duration of the call; nothing else of the runner changes).
+  ``start="zero"`` runs it untouched; the fmpy master's ``start="zero"`` reproduces that;
+* each result row is stamped with the start of its step while holding the outputs of its
+  end, so ``run`` re-stamps rows with the end times ``k h``;
+* it never reads the SSD's parameter bindings: ``run`` reads them from the SSP and passes
+  them on.
 """
 
 from __future__ import annotations
 
 import zipfile
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from xml.etree.ElementTree import Element, SubElement, indent, register_namespace, tostring
 
@@ -137,10 +147,48 @@ def export_ssp(scenario: Scenario, fmus: dict[str, Path], path: str | Path,
     return path
 
 
+@contextmanager
+def _exchange_at_start():
+    """Make fmpy's SSP runner pass outputs to inputs once every FMU is initialized (instead
+    of starting every connector at 0.0): wraps its ``instantiate_fmu`` while active."""
+    import fmpy.ssp.simulation as runner
+    from fmpy.ssp.ssd import find_components, get_connections
+
+    original = runner.instantiate_fmu
+
+    def instantiate(component, *args, **kwargs):
+        original(component, *args, **kwargs)
+        root = component.parent
+        while root.parent is not None:
+            root = root.parent
+        components = find_components(root)
+        if not all(hasattr(c, "fmu") for c in components):
+            return
+        connections = get_connections(root)
+        for _ in components:  # enough rounds for any chain of direct feedthrough
+            for c in components:
+                for con in c.connectors:
+                    if con.kind == "output":
+                        con.value = runner.get_value(c, con.name)
+            for start, end in connections:
+                end.value = start.value
+            for c in components:
+                for con in c.connectors:
+                    if con.kind == "input":
+                        runner.set_value(c, con.name, con.value)
+
+    runner.instantiate_fmu = instantiate
+    try:
+        yield
+    finally:
+        runner.instantiate_fmu = original
+
+
 def run(scenario: Scenario, fmus: dict[str, Path], ssp_path: str | Path, step: float | None = None,
         t_end: float | None = None, record: list[str] | None = None,
-        algorithm: str | None = None) -> Result:
-    """Export the scenario to ``ssp_path`` and run it with ``fmpy.ssp.simulate_ssp``.
+        algorithm: str | None = None, start: str = "exchange") -> Result:
+    """Export the scenario to ``ssp_path`` and run it with ``fmpy.ssp.simulate_ssp``
+    (``start``: "exchange" or "zero", see the module docstring).
 
     Rows are the recorded outputs at ``h, 2h, ..., t_end`` (the runner keeps no row at 0).
     """
@@ -162,9 +210,12 @@ def run(scenario: Scenario, fmus: dict[str, Path], ssp_path: str | Path, step: f
     parameters = bindings[0].parameterValues[0] if bindings else None
     # The runner steps while its accumulated time is below stop_time: half a step short of
     # t_end gives exactly n steps whatever the rounding of the sum.
+    if start not in ("exchange", "zero"):
+        raise CosimError(f'start "{start}" is not "exchange" or "zero"')
     try:
-        table = simulate_ssp(str(path), start_time=0.0, stop_time=(n - 0.5) * h, step_size=h,
-                             parameter_set=parameters)
+        with _exchange_at_start() if start == "exchange" else nullcontext():
+            table = simulate_ssp(str(path), start_time=0.0, stop_time=(n - 0.5) * h,
+                                 step_size=h, parameter_set=parameters)
     except Exception as exc:  # noqa: BLE001 - fmpy raises plain exceptions (a refused doStep)
         raise CosimError(f"fmpy's SSP runner failed: {type(exc).__name__}: {exc}") from None
     if len(table) != n:
@@ -180,5 +231,6 @@ def run(scenario: Scenario, fmus: dict[str, Path], ssp_path: str | Path, step: f
         bad = [r for r, col in zip(record, values.T) if not np.all(np.isfinite(col))]
         raise CosimError(f"fmpy's SSP runner: {', '.join(bad)} became non-finite")
     return Result(time=np.arange(1, n + 1) * h, names=record, values=values,
-                  units={r: units.get(r, "") for r in record}, method="fmpy SSP runner (jacobi)",
+                  units={r: units.get(r, "") for r in record},
+                  method=f"fmpy SSP runner (jacobi, {start} start)",
                   stats={"steps": n})

@@ -1,0 +1,122 @@
+"""One scenario, one master: build the FMUs, run, compare with the reference, write CSV
+and a plot. ``mbdfmu cosim`` is this module's ``cosimulate`` plus ``write``."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..result import Result
+from . import libcosim, master, ssp
+from .fmus import build_fmus
+from .master import CosimError, MasterSettings
+from .scenario import Scenario, load_scenario, reference_function
+
+MASTERS = ("fmpy", "ssp", "libcosim")
+
+
+@dataclass(frozen=True)
+class CosimSettings:
+    """A run of a scenario (None: the scenario's own value)."""
+
+    master: str = "fmpy"
+    algorithm: str | None = None
+    step: float | None = None
+    t_end: float | None = None
+    variable_step: bool = False
+    rtol: float | None = None
+    start: str = "exchange"            # "zero": connected inputs start at 0.0 (fmpy, ssp)
+
+
+@dataclass
+class CosimRun:
+    """What a run gives: the result, its wall time and, with a reference, the error of each
+    compared variable (largest absolute difference over the run)."""
+
+    scenario: Scenario
+    settings: CosimSettings
+    result: Result
+    seconds: float
+    algorithm: str = "jacobi"
+    errors: dict[str, float] = field(default_factory=dict)
+    reference: dict[str, np.ndarray] | None = None
+
+
+def cosimulate(scenario: Scenario | str, settings: CosimSettings = CosimSettings(),
+               work_dir: str | Path = "cosim-fmus", compare: bool = True) -> CosimRun:
+    """Run a scenario with one master; FMUs are built (or reused) in ``work_dir``."""
+    if not isinstance(scenario, Scenario):
+        scenario = load_scenario(scenario)
+    if settings.master not in MASTERS:
+        raise CosimError(f'unknown master "{settings.master}"; known: {", ".join(MASTERS)}')
+    if settings.variable_step and settings.master != "fmpy":
+        raise CosimError("the variable-step master is the fmpy master's (--master fmpy)")
+    work_dir = Path(work_dir)
+    fmus = build_fmus(scenario, work_dir)
+    # The SSP runner and libcosim are Jacobi masters: the scenario's default applies to fmpy.
+    algorithm = settings.algorithm or (scenario.algorithm if settings.master == "fmpy"
+                                       else "jacobi")
+    t0 = time.perf_counter()
+    if settings.master == "fmpy":
+        result = master.run(scenario, fmus, MasterSettings(
+            algorithm=algorithm, step=settings.step, t_end=settings.t_end,
+            variable_step=settings.variable_step, rtol=settings.rtol, start=settings.start))
+    elif settings.master == "ssp":
+        result = ssp.run(scenario, fmus, work_dir / f"{scenario.name}.ssp", step=settings.step,
+                         t_end=settings.t_end, algorithm=algorithm, start=settings.start)
+    else:
+        if settings.start != "exchange":
+            raise CosimError('libcosim always starts by passing outputs to inputs ("exchange")')
+        result = libcosim.run(scenario, fmus, step=settings.step, t_end=settings.t_end,
+                              algorithm=algorithm)
+    seconds = time.perf_counter() - t0
+    run = CosimRun(scenario, settings, result, seconds, algorithm=algorithm)
+    ref = reference_function(scenario) if compare else None
+    if ref is not None:
+        run.reference = ref(result.time)
+        run.errors = {n: float(np.max(np.abs(result[n] - run.reference[n])))
+                      for n in scenario.compare if n in run.reference}
+    return run
+
+
+def plot(run: CosimRun, path: str | Path) -> Path:
+    """One panel per plotted variable against time, with the reference dashed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = [n for n in (run.scenario.plot or run.result.names) if n in run.result]
+    fig, axes = plt.subplots(len(names), 1, sharex=True, squeeze=False,
+                             figsize=(8, 1.9 * len(names) + 0.8))
+    for ax, name in zip(axes[:, 0], names):
+        ax.plot(run.result.time, run.result[name], lw=1.2, label="co-simulation")
+        if run.reference is not None and name in run.reference:
+            ax.plot(run.result.time, run.reference[name], "k--", lw=0.9, label="reference")
+        unit = run.result.units.get(name, "")
+        ax.set_ylabel(f"{name}\n({unit})" if unit else name, fontsize="small")
+        ax.grid(True, alpha=0.3)
+    axes[0, 0].legend(loc="best", fontsize="small")
+    axes[-1, 0].set_xlabel("time (s)")
+    h = run.settings.step or run.scenario.step
+    axes[0, 0].set_title(f"{run.scenario.name}: {run.result.method}, step {h:g} s", fontsize="medium")
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def write(run: CosimRun, out_dir: str | Path) -> list[Path]:
+    """CSV and plot of a run in ``out_dir``; returns their paths."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    s = run.settings
+    tag = f"{run.scenario.name}_{s.master}_{run.algorithm}" \
+          + ("_variable" if s.variable_step else "")
+    csv = run.result.to_csv(out_dir / f"{tag}.csv")
+    png = plot(run, out_dir / f"{tag}.png")
+    return [csv, png]
