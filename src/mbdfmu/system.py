@@ -272,6 +272,69 @@ class System:
             return Psi, J
         return Psi, J, cd, gamma + cdd
 
+    def constraint_hessian(self, q: np.ndarray, mu: np.ndarray) -> np.ndarray:
+        """Geometric stiffness ``d(Psi_q^T mu)/dq = sum_k mu_k d2 Psi_k / dq2`` (n, n), mu fixed.
+
+        The tangent term of the constraint forces that implicit index-3 methods need in their
+        iteration matrices. Coincidence rows: ``d2/dphi_i2 = -A_i s_i``, ``d2/dphi_j2 =
+        A_j s_j``; line rows (u = A_i u_i, d = r_j + A_j s_j - r_i - A_i s_i):
+        ``d2/dr_i dphi_i = -B_i u_i``, ``d2/dr_j dphi_i = B_i u_i``, ``d2/dphi_i2 = -u.(d + A_i
+        s_i)``, ``d2/dphi_i dphi_j = u.A_j s_j``, ``d2/dphi_j2 = -u.A_j s_j``; angle rows are
+        linear. Symmetric.
+        """
+        ne = self.n + 3
+        H = np.zeros((ne, ne))
+        r, cs, sn, _ = self._poses(q)
+        c, l = self.coincidence, self.line
+        if c.n:
+            Asi = _rotate(c.si, cs[c.bi], sn[c.bi])
+            Asj = _rotate(c.sj, cs[c.bj], sn[c.bj])
+            m2 = mu[c.rows]                                   # (k, 2)
+            pi, pj = 3 * c.bi + 2, 3 * c.bj + 2
+            np.add.at(H, (pi, pi), -_dot(Asi, m2))
+            np.add.at(H, (pj, pj), _dot(Asj, m2))
+        if l.n:
+            Asi = _rotate(l.si, cs[l.bi], sn[l.bi])
+            Asj = _rotate(l.sj, cs[l.bj], sn[l.bj])
+            u = _rotate(l.u, cs[l.bi], sn[l.bi])
+            ru = _rot90(u)
+            d = r[l.bj] + Asj - r[l.bi] - Asi
+            m1 = mu[l.rows]
+            pi, pj = 3 * l.bi + 2, 3 * l.bj + 2
+            for axis in (0, 1):
+                xi, xj = 3 * l.bi + axis, 3 * l.bj + axis
+                np.add.at(H, (xi, pi), -m1 * ru[:, axis])
+                np.add.at(H, (pi, xi), -m1 * ru[:, axis])
+                np.add.at(H, (xj, pi), m1 * ru[:, axis])
+                np.add.at(H, (pi, xj), m1 * ru[:, axis])
+            np.add.at(H, (pi, pi), -m1 * _dot(u, d + Asi))
+            np.add.at(H, (pi, pj), m1 * _dot(u, Asj))
+            np.add.at(H, (pj, pi), m1 * _dot(u, Asj))
+            np.add.at(H, (pj, pj), -m1 * _dot(u, Asj))
+        return H[: self.n, : self.n]
+
+    def forces_depend_on_state(self) -> bool:
+        """False when F is constant (gravity and constant torques only): no force Jacobian."""
+        return any(not isinstance(f, Torque) for f in self.scene.forces)
+
+    def force_jacobians(self, t: float, q: np.ndarray, qd: np.ndarray):
+        """(dF/dq, dF/dq') (n, n) each, by forward differences; zeros when F is constant."""
+        n = self.n
+        if not self.forces_depend_on_state():
+            return np.zeros((n, n)), np.zeros((n, n))
+        F0 = self.forces(t, q, qd)
+        out = []
+        for x in (q, qd):
+            D = np.empty((n, n))
+            for k in range(n):
+                xk = x.copy()
+                delta = _FD_STEP * max(1.0, abs(x[k]))
+                xk[k] += delta
+                F = self.forces(t, xk, qd) if x is q else self.forces(t, q, xk)
+                D[:, k] = (F - F0) / delta
+            out.append(D)
+        return out[0], out[1]
+
     # ------------------------------------------------------------------ forces
 
     def _signal(self, name: str, t: float, size: int):
@@ -343,17 +406,23 @@ class System:
 
     # ------------------------------------------------------------------ dynamics
 
-    def accelerations(self, t: float, q: np.ndarray, qd: np.ndarray):
+    def accelerations(self, t: float, q: np.ndarray, qd: np.ndarray, *,
+                      baumgarte: tuple[float, float] | None = None):
         """Solve the seed's eq. (14) for q'' (n,) and lam (m,).
 
         Uses the Schur complement of the diagonal mass matrix,
         ``(Psi_q M^-1 Psi_q^T) lam = Psi_q M^-1 F - gamma``, ``q'' = M^-1 (F - Psi_q^T lam)``;
         at singular configurations or with redundant constraints the minimum-norm lam.
+        With ``baumgarte = (alpha, beta)`` the right-hand side is Baumgarte's stabilised
+        ``gamma - 2 alpha (Psi_q q' - nu) - beta^2 Psi``.
         """
         F = self.forces(t, q, qd)
         if self.m == 0:
             return self.minv * F, np.zeros(0)
-        _, J, _, gamma = self.constraints(t, q, qd)
+        Psi, J, nu, gamma = self.constraints(t, q, qd)
+        if baumgarte is not None:
+            alpha, beta = baumgarte
+            gamma = gamma - 2.0 * alpha * (J @ qd - nu) - beta * beta * Psi
         JMi = J * self.minv
         lam = solve_spd(JMi @ J.T, JMi @ F - gamma)
         return self.minv * (F - J.T @ lam), lam
@@ -377,6 +446,39 @@ class System:
                 jt = self.scene.joint(f.joint)
                 bi, bj = idx[jt.body_i], idx[jt.body_j]
                 energy += 0.5 * f.stiffness * (phi[bj] - phi[bi] - f.rest_angle) ** 2
+        return energy
+
+    def nonconservative_reason(self) -> str | None:
+        """Why the energy of this scene is not conserved, or None when it is.
+
+        Conserved: no drivers (they do work through their multipliers), no inputs, no dampers;
+        constant point forces and torques are conservative (their potential is in
+        ``total_energy``).
+        """
+        if self.scene.drivers:
+            return f'driver "{self.scene.drivers[0].name}" does work'
+        for f in self.scene.forces:
+            if getattr(f, "input", False) or getattr(f, "actuator_input", False):
+                return f'"{f.name}" is an input'
+            if getattr(f, "damping", 0.0):
+                return f'"{f.name}" dissipates'
+        return None
+
+    def total_energy(self, q: np.ndarray, qd: np.ndarray) -> float:
+        """Kinetic energy plus the potential of gravity, springs and constant loads (J).
+
+        Constant in time for a scene with ``nonconservative_reason() is None``: a constant
+        torque T on body i has the potential ``-T phi_i``, a constant force F at a body point
+        ``-F . (r_i + A_i s)``.
+        """
+        energy = self.kinetic_energy(qd) + self.potential_energy(q)
+        r, cs, sn, phi = self._poses(q)
+        for f, b in self._forces:
+            if isinstance(f, Torque) and not f.input:
+                energy -= f.value * phi[b]
+            elif isinstance(f, PointForce) and not f.input:
+                As = _rotate(np.array([f.point]), cs[b:b + 1], sn[b:b + 1])[0]
+                energy -= f.value[0] * (r[b, 0] + As[0]) + f.value[1] * (r[b, 1] + As[1])
         return energy
 
     def reactions(self, q: np.ndarray, lam: np.ndarray, t: float = 0.0) -> np.ndarray:
@@ -471,6 +573,8 @@ class System:
         return np.concatenate([np.asarray(p, dtype=float) for p in parts])
 
 
+# Forward-difference step (relative) of the force Jacobians: about sqrt(machine epsilon).
+_FD_STEP = 1.5e-8
 # Relative size of the smallest singular value kept in minimum-norm solves.
 RANK_TOLERANCE = 1e-10
 _potrf, _potrs = scipy.linalg.lapack.dpotrf, scipy.linalg.lapack.dpotrs
@@ -494,3 +598,18 @@ def solve_spd(S: np.ndarray, b: np.ndarray) -> np.ndarray:
         raise SolverError("non-finite values in the constraint equations")
     x, *_ = scipy.linalg.lstsq(S, b, cond=RANK_TOLERANCE, check_finite=False)
     return x
+
+
+def spd_solver(S: np.ndarray):
+    """A solver ``b -> x`` of S x = b for several right-hand sides, with ``solve_spd``'s
+    rules: Cholesky once when S is well conditioned, else the minimum-norm least-squares
+    solution (singular configurations, redundant constraints)."""
+    factor, info = _potrf(S, lower=False, clean=False)
+    if info == 0:
+        diag = np.abs(np.diag(factor))
+        if diag.min() > math.sqrt(RANK_TOLERANCE) * diag.max():
+            def cholesky_solve(b):
+                x, info = _potrs(factor, b, lower=False)
+                return x if info == 0 else solve_spd(S, b)
+            return cholesky_solve
+    return lambda b: solve_spd(S, b)

@@ -6,11 +6,16 @@
 from __future__ import annotations
 
 from ..errors import SolverError
+from .ali3p import ALI3P
 from .base import Integrator
+from .baumgarte import Baumgarte
+from .genalpha import GeneralizedAlpha
 from .projected_rk import DOP853P, RK45P
+from .rk4p import RK4P
 from .taylor import Taylor
 
-METHODS: dict[str, type[Integrator]] = {cls.name: cls for cls in (DOP853P, RK45P, Taylor)}
+METHODS: dict[str, type[Integrator]] = {
+    cls.name: cls for cls in (DOP853P, RK45P, RK4P, Taylor, Baumgarte, GeneralizedAlpha, ALI3P)}
 DEFAULT_METHOD = "dop853p"
 
 

@@ -12,7 +12,8 @@ A method is a subclass of ``Integrator`` that
 4. may override ``restart()``, called when (q, q') or the inputs change from outside.
 
 The public ``advance(t_target)`` does the bookkeeping: it lands exactly on ``t_target``,
-counts the work, and raises ``SolverError`` (with time and reason) on any failure.
+counts the work, checks the energy balance of conservative scenes after every accepted step
+(``energy_audit.py``) and raises ``SolverError`` (with time and reason) on any failure.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import numpy as np
 
 from ..errors import SolverError
 from ..system import System
+from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_TOL_FACTOR, EnergyAudit
 
 # The smallest step, relative to the time, before an adaptive method gives up.
 MIN_STEP_RELATIVE = 1e-13
@@ -36,12 +38,16 @@ DIVERGENCE_FRACTION = 0.5
 
 @dataclass
 class Counters:
-    """Work done, as scipy counts it: steps, rejections, q'' evaluations, projections."""
+    """Work done, as scipy counts it: steps, rejections, q'' evaluations, projections,
+    Newton iterations, iteration-matrix evaluations and factorisations (implicit methods)."""
 
     nsteps: int = 0
     nrejected: int = 0
     naccel: int = 0
     nprojections: int = 0
+    nnewton: int = 0
+    njev: int = 0
+    nlu: int = 0
 
 
 class Integrator:
@@ -72,6 +78,7 @@ class Integrator:
             self.h = float(step if step is not None else self.default_step)
         self.stats = Counters()
         self.restart()
+        self.audit = self._start_audit()
 
     # ------------------------------------------------------------------ for subclasses
 
@@ -80,6 +87,21 @@ class Integrator:
 
     def restart(self) -> None:
         """Forget anything derived from the current (q, q') (called after outside changes)."""
+
+    def _start_audit(self) -> EnergyAudit | None:
+        """The energy check of this run (None for scenes whose energy is not conserved)."""
+        if self.adaptive:
+            budget = min(ENERGY_TOL_FACTOR * self.rtol, ENERGY_DIVERGENCE_FRACTION)
+            what = f"rtol = {self.rtol:g}"
+        else:
+            budget, what = ENERGY_DIVERGENCE_FRACTION, "a fixed-step method"
+        return EnergyAudit.start(self.system, self.q, self.qd, method=self.name,
+                                 budget=budget, what=what)
+
+    def _after_step(self) -> None:
+        """Checks on an accepted step (self.t already moved)."""
+        if self.audit is not None:
+            self.audit.check(self.system, self.t, self.q, self.qd)
 
     def accelerations(self, t: float, q: np.ndarray, qd: np.ndarray):
         """q'' and lam from the seed's eq. (14), counted."""
@@ -124,6 +146,7 @@ class Integrator:
                 raise SolverError(f"{self.name}: a fixed step of {h:.3g} s failed", self.t)
             self.t = t0 + k * h if k < n else t_target
             self.stats.nsteps += 1
+            self._after_step()
 
     def _advance_adaptive(self, t_target: float) -> None:
         rejections = 0
@@ -141,6 +164,7 @@ class Integrator:
                 self.t = t_target if clipped else self.t + h
                 # A step cut short to land on t_target says nothing about the next one.
                 self.h = max(h_next, proposal) if clipped else h_next
+                self._after_step()
             else:
                 rejections += 1
                 self.stats.nrejected += 1
@@ -152,7 +176,7 @@ class Integrator:
 
     def get_state(self) -> dict:
         """A deep copy of everything needed to continue bit for bit."""
-        names = ("t", "q", "qd", "h", "stats") + self.state_fields
+        names = ("t", "q", "qd", "h", "stats", "audit") + self.state_fields
         return {k: copy.deepcopy(getattr(self, k)) for k in names}
 
     def set_state(self, state: dict) -> None:
@@ -164,5 +188,6 @@ class Integrator:
         self.q, self.qd = np.array(q, dtype=float), np.array(qd, dtype=float)
         h = self.h
         self.restart()
+        self.audit = self._start_audit()
         if self.adaptive and h is not None:
             self.h = h

@@ -27,6 +27,21 @@ PROJECTION_TOL_FACTOR = 1e-2
 PROJECTION_TOL_FLOOR = 1e-13
 
 
+def rk_stages(rhs, t: float, y: np.ndarray, h: float, A: np.ndarray, C: np.ndarray,
+              f0: np.ndarray, n_stages: int) -> np.ndarray:
+    """Stage derivatives K (n_stages + 1, len(y)) of an explicit Runge-Kutta tableau (A, C).
+
+    ``rhs(t, y)`` is y' = f(t, y); ``K[0] = f0 = f(t, y)``; the last row is left for the
+    caller (FSAL pairs fill it with f(t + h, y_new)). Hairer, Norsett, Wanner, Solving ODEs I,
+    eq. II.1.8.
+    """
+    K = np.empty((n_stages + 1, y.size))
+    K[0] = f0
+    for s in range(1, n_stages):
+        K[s] = rhs(t + C[s] * h, y + h * (K[:s].T @ A[s, :s]))
+    return K
+
+
 class ProjectedRK(Integrator):
     """Base of the embedded pairs: subclasses give the tableau (A, B, C, error weights)."""
 
@@ -70,14 +85,23 @@ class ProjectedRK(Integrator):
     def _error_norm(self, K, h, scale):
         raise NotImplementedError
 
+    def _rhs_y(self, t, y):
+        return self._rhs(t, *np.split(y, [self.q.size]))
+
+    def _project(self, t_new, y_new):
+        """Mass-weighted projection of y_new = (q, q') onto the constraints at t_new;
+        SolverError when Newton does not converge."""
+        n = self.q.size
+        tol = max(PROJECTION_TOL_FACTOR * self.atol, PROJECTION_TOL_FLOOR) * self.system.length_scale
+        q, _ = project_positions(self.system, t_new, y_new[:n], tol=tol)
+        qd = project_velocities(self.system, t_new, q, y_new[n:])
+        self.stats.nprojections += 1
+        return q, qd
+
     def _step_impl(self, h):
         t, n = self.t, self.q.size
         y = np.concatenate((self.q, self.qd))
-        K = np.empty((self.n_stages + 1, y.size))
-        K[0] = self.f
-        for s in range(1, self.n_stages):
-            dy = h * (K[:s].T @ self.A[s, :s])
-            K[s] = self._rhs(t + self.C[s] * h, *np.split(y + dy, [n]))
+        K = rk_stages(self._rhs_y, t, y, h, self.A, self.C, self.f, self.n_stages)
         y_new = y + h * (K[:-1].T @ self.B)
         K[-1] = self._rhs(t + h, *np.split(y_new, [n]))
         if not (np.all(np.isfinite(y_new)) and np.all(np.isfinite(K[-1]))):
@@ -86,13 +110,10 @@ class ProjectedRK(Integrator):
         if not err < 1.0:
             return False, h * max(MIN_FACTOR, SAFETY * err ** (-1.0 / (self.order + 1)))
         t_new = t + h
-        tol = max(PROJECTION_TOL_FACTOR * self.atol, PROJECTION_TOL_FLOOR) * self.system.length_scale
         try:
-            q, _ = project_positions(self.system, t_new, y_new[:n], tol=tol)
-            qd = project_velocities(self.system, t_new, q, y_new[n:])
+            q, qd = self._project(t_new, y_new)
         except SolverError:
             return False, h * 0.5  # a projection that fails is an error too large
-        self.stats.nprojections += 1
         self.q, self.qd = q, qd
         self.f = self._rhs(t_new, q, qd)
         factor = MAX_FACTOR if err == 0 else min(MAX_FACTOR, SAFETY * err ** (-1.0 / (self.order + 1)))
