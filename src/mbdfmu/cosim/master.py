@@ -9,7 +9,8 @@ One macro step from t to t + h:
   each gets the newest outputs (those of t + h from instances already stepped, of t from
   the others). Still first order, usually with a smaller constant and a larger stable step.
 
-**Variable step** (``VariableStep``): each macro step (of either algorithm) is checked
+**Variable step** (``MasterSettings(variable_step=True)``): each macro step (of either
+algorithm) is checked
 after the fact. For every connection the input that was held over the step is compared
 with the output it stood for at the end of the step (the zero-order hold's extrapolation
 against the actual value); scaled by ``atol + rtol * nominal`` (``nominal``: the largest
@@ -17,7 +18,10 @@ magnitude of that output so far), the largest of these is the step's coupling er
 1, or when an instance discards the step, every instance is rolled back with
 ``fmi2SetFMUstate`` to the state saved at t and the step is retried smaller; otherwise it is
 accepted and the next step is sized to aim at an error of ``SAFETY``. The estimate is
-proportional to h, so the step follows ``h_new = h * SAFETY / err``.
+proportional to h, so the step follows ``h_new = h * SAFETY / err``. A retry whose error
+does not shrink with the step (less than the square root of the step ratio) has met a jump
+of an output (a set point that steps, a switch): no step size removes it, so the step is
+accepted and counted in ``stats["jumps"]``.
 
 Start: after every instance's ``fmi2EnterInitializationMode`` the master sets the start
 values, then passes outputs to inputs as many times as there are instances (as OSP
@@ -45,6 +49,12 @@ SAFETY = 0.8
 # Largest growth of the step after an accepted step, smallest factor after a rejected one.
 MAX_FACTOR = 2.0
 MIN_FACTOR = 0.1
+# Variable step: a step this much longer than planned may end the run.
+LAST_STEP_STRETCH = 1.1
+# Variable step: a retried (shorter) step whose error shrank less than the step ratio to
+# this power has met a jump of an output (a set point, a switch), not a coupling error,
+# which shrinks at least in proportion to the step.
+JUMP_EXPONENT = 0.5
 # Rejections in a row before the variable-step master gives up.
 MAX_REJECTIONS_IN_A_ROW = 40
 # fmpy raises FMICallException with these statuses.
@@ -195,7 +205,7 @@ class System:
         self.out: dict[str, float] = {}     # connected outputs, "instance.variable" -> value
         self.used: dict[str, float] = {}    # the value each input held over the last step
         self.nominal: dict[str, float] = {}  # largest magnitude of each connected output so far
-        self.counters = {"steps": 0, "rejected": 0, "doStep": 0, "rollbacks": 0}
+        self.counters = {"steps": 0, "rejected": 0, "doStep": 0, "rollbacks": 0, "jumps": 0}
 
     # ------------------------------------------------------------------ exchange
 
@@ -408,10 +418,13 @@ def _variable_step(system, algorithm, scenario, settings, h, t_end, out):
     h_min = settings.h_min or vs.h_min
     h_max = settings.h_max or vs.h_max or 10 * h
     h = min(vs.h_initial or h, h_max)
-    t, rejections = 0.0, 0
+    t, rejections, rejected_err, rejected_step = 0.0, 0, math.inf, math.inf
     while t < t_end * (1 - 1e-12):
-        last = t + h >= t_end * (1 - 1e-12)
-        step = t_end - t if last else h
+        # A step that would leave less than a tenth of itself before t_end is stretched to
+        # t_end (no sliver of a last step).
+        last = t + LAST_STEP_STRETCH * h >= t_end * (1 - 1e-12)
+        t_next = t_end if last else t + h
+        step = t_next - t  # the step is a difference of times: a replay of the times repeats it
         saved = system.get_states()
         try:
             try:
@@ -420,7 +433,12 @@ def _variable_step(system, algorithm, scenario, settings, h, t_end, out):
                 reason = f"coupling error {err:.3g} > 1"
             except _Refused as exc:
                 err, reason = math.inf, str(exc)
-            if not err <= 1.0:
+            # An error that does not shrink with the step is a jump of an output (a set
+            # point, a switch), not a coupling error: accept the step and go on.
+            jump = (math.isfinite(err) and rejections > 0
+                    and err >= (step / rejected_step) ** JUMP_EXPONENT * rejected_err)
+            if not err <= 1.0 and not jump:
+                rejected_err, rejected_step = err, step
                 system.set_states(saved)
                 system.counters["rejected"] += 1
                 system.counters["rollbacks"] += 1
@@ -433,8 +451,11 @@ def _variable_step(system, algorithm, scenario, settings, h, t_end, out):
                 continue
         finally:
             system.free_states(saved)
-        rejections = 0
-        t = t_end if last else t + step
+        if jump:
+            system.counters["jumps"] += 1
+            err = 1.0
+        rejections, rejected_err, rejected_step = 0, math.inf, math.inf
+        t = t_next
         system.counters["steps"] += 1
         system.update_nominal()
         out.times.append(t)

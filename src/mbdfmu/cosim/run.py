@@ -47,14 +47,17 @@ class CosimRun:
 
 def cosimulate(scenario: Scenario | str, settings: CosimSettings = CosimSettings(),
                work_dir: str | Path = "cosim-fmus", compare: bool = True) -> CosimRun:
-    """Run a scenario with one master; FMUs are built (or reused) in ``work_dir``."""
+    """Run a scenario with one master; FMUs are built (or reused) in
+    ``work_dir/<scenario folder>``, the SSP written there too."""
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
     if settings.master not in MASTERS:
         raise CosimError(f'unknown master "{settings.master}"; known: {", ".join(MASTERS)}')
     if settings.variable_step and settings.master != "fmpy":
         raise CosimError("the variable-step master is the fmpy master's (--master fmpy)")
-    work_dir = Path(work_dir)
+    # One folder per scenario folder: variants share their FMUs, other scenarios may have
+    # sources of the same name.
+    work_dir = Path(work_dir) / scenario.folder.name
     fmus = build_fmus(scenario, work_dir)
     # The SSP runner and libcosim are Jacobi masters: the scenario's default applies to fmpy.
     algorithm = settings.algorithm or (scenario.algorithm if settings.master == "fmpy"

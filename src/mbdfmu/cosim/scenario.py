@@ -349,7 +349,7 @@ def check_variables(scenario: Scenario, descriptions: dict) -> None:
             return None
         v = table[var]
         if v.causality not in causalities:
-            problems.append(f'{where}: {what} "{ref}" is a {v.causality}, not '
+            problems.append(f'{where}: {what} "{ref}" has causality {v.causality}, not '
                             f"{' or '.join(causalities)}")
         return v
 
@@ -369,7 +369,7 @@ def check_variables(scenario: Scenario, descriptions: dict) -> None:
             problems.append(f'{where}: parameter "{key}" is a {v.type}; set it in the scene file')
     for key in ("record", "plot", "compare"):
         for ref in getattr(scenario, key):
-            lookup(ref, ("output", "input", "parameter", "local"), key)
+            lookup(ref, ("output",), key)
     if problems:
         raise ScenarioError(problems)
 

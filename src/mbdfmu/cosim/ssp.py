@@ -6,8 +6,8 @@
 * one component per instance, with a connector for each connected input and for each
   output the scenario records (fmpy's runner records connectors only);
 * the connections;
-* the scenario's start values as a system-level parameter binding (inline
-  ``ssv:ParameterSet``, names ``<instance>.<variable>``);
+* the scenario's start values as each component's parameter binding (inline
+  ``ssv:ParameterSet``; OSP libcosim reads component bindings, not system-level ones);
 * the units of the connectors, a DefaultExperiment (0 to ``t_end``) and, for OSP libcosim,
   the communication step as its ``FixedStepAlgorithm`` annotation.
 
@@ -72,15 +72,6 @@ def system_structure(scenario: Scenario, descriptions: dict, step: float, t_end:
     system = SubElement(root, _q("ssd", "System"), {"name": scenario.name})
     if scenario.description:
         system.set("description", scenario.description)
-    if scenario.parameters:
-        binding = SubElement(SubElement(system, _q("ssd", "ParameterBindings")),
-                             _q("ssd", "ParameterBinding"))
-        pset = SubElement(SubElement(binding, _q("ssd", "ParameterValues")),
-                          _q("ssv", "ParameterSet"), {"version": "1.0", "name": "start values"})
-        params = SubElement(pset, _q("ssv", "Parameters"))
-        for name, value in scenario.parameters.items():
-            p = SubElement(params, _q("ssv", "Parameter"), {"name": name})
-            SubElement(p, _q("ssv", "Real"), {"value": _number(value)})
     elements = SubElement(system, _q("ssd", "Elements"))
     units: dict[str, object] = {}
     for inst in scenario.instances:
@@ -91,6 +82,17 @@ def system_structure(scenario: Scenario, descriptions: dict, step: float, t_end:
                           {"name": inst.name, "type": FMU_TYPE,
                            "source": f"resources/{inst.source.stem}.fmu"})
         connectors = SubElement(comp, _q("ssd", "Connectors"))
+        start_values = scenario.instance_parameters(inst.name)
+        if start_values:
+            binding = SubElement(SubElement(comp, _q("ssd", "ParameterBindings")),
+                                 _q("ssd", "ParameterBinding"))
+            pset = SubElement(SubElement(binding, _q("ssd", "ParameterValues")),
+                              _q("ssv", "ParameterSet"),
+                              {"version": "1.0", "name": f"{inst.name} start values"})
+            params = SubElement(pset, _q("ssv", "Parameters"))
+            for name, value in start_values.items():
+                p = SubElement(params, _q("ssv", "Parameter"), {"name": name})
+                SubElement(p, _q("ssv", "Real"), {"value": _number(value)})
         inputs = [c.target_variable for c in scenario.connections if c.target_instance == inst.name]
         outputs = [r.split(".", 1)[1] for r in record if r.split(".", 1)[0] == inst.name]
         for kind, names in (("input", inputs), ("output", outputs)):
@@ -147,6 +149,21 @@ def export_ssp(scenario: Scenario, fmus: dict[str, Path], path: str | Path,
     return path
 
 
+def start_values(path: str | Path):
+    """The SSP's start values as one fmpy ``ParameterSet`` named ``<component>.<variable>``
+    (the runner's ``parameter_set``: it reads none of the SSD's bindings itself)."""
+    from fmpy.ssp.ssd import Parameter, ParameterSet, find_components, read_ssd
+
+    merged = ParameterSet(name="start values")
+    for component in find_components(read_ssd(str(path)).system):
+        for binding in component.parameterBindings:
+            for pset in binding.parameterValues:
+                for p in pset.parameters:
+                    merged.parameters.append(Parameter(name=f"{component.name}.{p.name}",
+                                                       type=p.type, value=p.value))
+    return merged
+
+
 @contextmanager
 def _exchange_at_start():
     """Make fmpy's SSP runner pass outputs to inputs once every FMU is initialized (instead
@@ -193,7 +210,6 @@ def run(scenario: Scenario, fmus: dict[str, Path], ssp_path: str | Path, step: f
     Rows are the recorded outputs at ``h, 2h, ..., t_end`` (the runner keeps no row at 0).
     """
     from fmpy.ssp.simulation import simulate_ssp
-    from fmpy.ssp.ssd import read_ssd
 
     algorithm = algorithm or "jacobi"
     if algorithm != "jacobi":
@@ -206,8 +222,7 @@ def run(scenario: Scenario, fmus: dict[str, Path], ssp_path: str | Path, step: f
         raise CosimError(f"t_end {t_end:g} s is not a whole number of steps {h:g} s")
     record = list(record if record is not None else scenario.recorded())
     path = export_ssp(scenario, fmus, ssp_path, h, t_end, record)
-    bindings = read_ssd(str(path)).system.parameterBindings
-    parameters = bindings[0].parameterValues[0] if bindings else None
+    parameters = start_values(path)
     # The runner steps while its accumulated time is below stop_time: half a step short of
     # t_end gives exactly n steps whatever the rounding of the sum.
     if start not in ("exchange", "zero"):
