@@ -55,8 +55,28 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-# Where `mbdfmu cosim NAME` looks: scenarios/ of the source tree.
-SCENARIOS = Path(__file__).resolve().parents[3] / "scenarios"
+def _scenarios_folder() -> Path:
+    """Where ``mbdfmu cosim NAME`` looks: $MBDFMU_SCENARIOS, scenarios/ of the source tree,
+    the installed ``mbdfmu.scenarios``, or ./scenarios."""
+    import os
+
+    if os.environ.get("MBDFMU_SCENARIOS"):
+        return Path(os.environ["MBDFMU_SCENARIOS"])
+    source = Path(__file__).resolve().parents[3] / "scenarios"
+    if source.is_dir():
+        return source
+    try:
+        from importlib import resources
+
+        installed = Path(str(resources.files("mbdfmu.scenarios")))
+        if installed.is_dir():
+            return installed
+    except (ImportError, TypeError):
+        pass
+    return Path.cwd() / "scenarios"
+
+
+SCENARIOS = _scenarios_folder()
 CONNECTIONS_FILE = "connections.toml"
 ALGORITHMS = ("jacobi", "gauss-seidel")
 IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")

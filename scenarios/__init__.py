@@ -1,0 +1,1 @@
+"""Co-simulation scenarios (one folder each); installed as ``mbdfmu.scenarios``."""
