@@ -66,6 +66,17 @@ class Simulation:
         return self.integrator.t
 
     @property
+    def method_name(self) -> str:
+        """The method that runs: its name, or e.g. "auto->dop853p" when auto picked it."""
+        name = self.integrator.name
+        return name if name == self.method.name else f"{self.method.name}->{name}"
+
+    @property
+    def method_reason(self) -> str:
+        """Why ``auto`` picked the method ("" when the method was named)."""
+        return getattr(self.integrator, "reason", "")
+
+    @property
     def q(self) -> np.ndarray:
         return self.integrator.q
 
@@ -258,4 +269,4 @@ def simulate(scene: Scene | str | Path, t_end: float | None = None, method=None,
     return Result(time=times, names=list(sim.output_names), values=np.array(rows),
                   q=np.array(qs), qd=np.array(qds), qdd=np.array(qdds), lam=np.array(lams),
                   units={v.name: v.unit for v in sim.system.outputs},
-                  method=sim.method.name, stats=stats)
+                  method=sim.method_name, stats=stats)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from ..errors import SolverError
 from .ali3p import ALI3P
+from .auto import Auto
 from .base import Integrator
 from .baumgarte import Baumgarte
 from .genalpha import GeneralizedAlpha
@@ -15,8 +16,9 @@ from .rk4p import RK4P
 from .taylor import Taylor
 
 METHODS: dict[str, type[Integrator]] = {
-    cls.name: cls for cls in (DOP853P, RK45P, RK4P, Taylor, Baumgarte, GeneralizedAlpha, ALI3P)}
-DEFAULT_METHOD = "dop853p"
+    cls.name: cls for cls in (Auto, DOP853P, RK45P, RK4P, Taylor, Baumgarte, GeneralizedAlpha,
+                              ALI3P)}
+DEFAULT_METHOD = "auto"
 
 
 def method_class(method: str | type[Integrator] | None) -> type[Integrator]:

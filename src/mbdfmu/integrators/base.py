@@ -34,6 +34,9 @@ MIN_STEP_RELATIVE = 1e-13
 MAX_REJECTIONS_IN_A_ROW = 60
 # A constraint violation beyond this fraction of the mechanism's size means divergence.
 DIVERGENCE_FRACTION = 0.5
+# Failure messages mention a singular configuration when the smallest singular value of
+# Psi_q is below this fraction of the largest.
+SINGULAR_HINT = 1e-2
 
 
 @dataclass
@@ -91,17 +94,31 @@ class Integrator:
     def _start_audit(self) -> EnergyAudit | None:
         """The energy check of this run (None for scenes whose energy is not conserved)."""
         if self.adaptive:
-            budget = min(ENERGY_TOL_FACTOR * self.rtol, ENERGY_DIVERGENCE_FRACTION)
-            what = f"rtol = {self.rtol:g}"
+            rtol, atol, factor = self.rtol, self.atol, ENERGY_TOL_FACTOR
+            what = f"rtol = {self.rtol:g}, atol = {self.atol:g}"
         else:
-            budget, what = ENERGY_DIVERGENCE_FRACTION, "a fixed-step method"
-        return EnergyAudit.start(self.system, self.q, self.qd, method=self.name,
-                                 budget=budget, what=what)
+            rtol, atol, factor = 0.0, 0.0, 0.0
+            what = "a fixed-step method's divergence check"
+        return EnergyAudit.start(self.system, self.q, self.qd, method=self.name, rtol=rtol,
+                                 atol=atol, factor=factor, what=what)
 
     def _after_step(self) -> None:
         """Checks on an accepted step (self.t already moved)."""
         if self.audit is not None:
-            self.audit.check(self.system, self.t, self.q, self.qd)
+            problem = self.audit.check(self.system, self.t, self.q, self.qd)
+            if problem:
+                raise SolverError(problem + self.singularity_hint(), self.t)
+
+    def singularity_hint(self) -> str:
+        """For failure messages: a note when Psi_q is nearly singular at the current state."""
+        if self.system.m == 0:
+            return ""
+        _, J = self.system.constraints(self.t, self.q)
+        sv = np.linalg.svd(J, compute_uv=False)
+        if not np.all(np.isfinite(sv)) or sv[-1] >= SINGULAR_HINT * sv[0]:
+            return ""
+        return (f" (the constraint Jacobian is nearly singular here, singular values "
+                f"{sv[-1]:.2g} / {sv[0]:.2g}: a singular configuration, which method ali3p passes)")
 
     def accelerations(self, t: float, q: np.ndarray, qd: np.ndarray):
         """q'' and lam from the seed's eq. (14), counted."""
@@ -172,7 +189,8 @@ class Integrator:
                 if h_next < h_min or rejections > MAX_REJECTIONS_IN_A_ROW:
                     raise SolverError(
                         f"{self.name}: step size fell to {h_next:.3g} s without meeting "
-                        f"rtol={self.rtol:g}, atol={self.atol:g}", self.t)
+                        f"rtol={self.rtol:g}, atol={self.atol:g}" + self.singularity_hint(),
+                        self.t)
 
     def get_state(self) -> dict:
         """A deep copy of everything needed to continue bit for bit."""

@@ -25,6 +25,9 @@ MAX_FACTOR = 10.0  # Maximum allowed increase of the step after an acceptance.
 # rounding so that Newton always converges.
 PROJECTION_TOL_FACTOR = 1e-2
 PROJECTION_TOL_FLOOR = 1e-13
+# A step rejected for its energy change is retried smaller only while that divides the
+# energy error by at least 1 / ENERGY_MIN_GAIN.
+ENERGY_MIN_GAIN = 0.5
 
 
 def rk_stages(rhs, t: float, y: np.ndarray, h: float, A: np.ndarray, C: np.ndarray,
@@ -48,7 +51,7 @@ class ProjectedRK(Integrator):
     adaptive = True
     default_rtol = 1e-6
     default_atol = 1e-8
-    state_fields = ("f",)
+    state_fields = ("f", "energy_rejected")
     A: np.ndarray
     B: np.ndarray
     C: np.ndarray
@@ -57,6 +60,7 @@ class ProjectedRK(Integrator):
 
     def restart(self):
         self.f = self._rhs(self.t, self.q, self.qd)
+        self.energy_rejected = None  # energy error of the last step rejected for it
         if self.h is None:
             self.h = self._initial_step()
 
@@ -114,6 +118,15 @@ class ProjectedRK(Integrator):
             q, qd = self._project(t_new, y_new)
         except SolverError:
             return False, h * 0.5  # a projection that fails is an error too large
+        if self.audit is not None:
+            # the step's energy change as a second error estimate (energy_audit.py); not
+            # insisted on when a smaller step did not reduce it (a jump that does not come from
+            # the step size, e.g. a projection at a singular configuration)
+            energy_err = self.audit.step_error(self.system, t_new, q, qd)
+            last, self.energy_rejected = self.energy_rejected, None
+            if not energy_err <= 1.0 and (last is None or energy_err < ENERGY_MIN_GAIN * last):
+                self.energy_rejected = energy_err
+                return False, h * max(MIN_FACTOR, SAFETY * energy_err ** (-1.0 / (self.order + 1)))
         self.q, self.qd = q, qd
         self.f = self._rhs(t_new, q, qd)
         factor = MAX_FACTOR if err == 0 else min(MAX_FACTOR, SAFETY * err ** (-1.0 / (self.order + 1)))
