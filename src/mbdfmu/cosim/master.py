@@ -18,10 +18,16 @@ magnitude of that output so far), the largest of these is the step's coupling er
 1, or when an instance discards the step, every instance is rolled back with
 ``fmi2SetFMUstate`` to the state saved at t and the step is retried smaller; otherwise it is
 accepted and the next step is sized to aim at an error of ``SAFETY``. The estimate is
-proportional to h, so the step follows ``h_new = h * SAFETY / err``. A retry whose error
+proportional to h, so the step follows ``h_new = h * SAFETY / err``. The scale of an
+output is its ``nominal`` value (the scenario's ``[variable_step.nominal]``, like FMI's
+nominal attribute), or its largest magnitude so far if that is larger: a signal that
+starts at 0 would otherwise be held to ``atol``. A retry whose error
 does not shrink with the step (less than the square root of the step ratio) has met a jump
 of an output (a set point that steps, a switch): no step size removes it, so the step is
-accepted and counted in ``stats["jumps"]``.
+accepted and counted in ``stats["jumps"]``. A step cut below ``h_min`` is taken at
+``h_min`` and accepted whatever its (finite) error (``stats["forced"]``), so a jump that the
+steps approach without crossing it cannot stall the run; only an instance that refuses
+even ``h_min`` ends it.
 
 Start: after every instance's ``fmi2EnterInitializationMode`` the master sets the start
 values, then passes outputs to inputs as many times as there are instances (as OSP
@@ -205,7 +211,8 @@ class System:
         self.out: dict[str, float] = {}     # connected outputs, "instance.variable" -> value
         self.used: dict[str, float] = {}    # the value each input held over the last step
         self.nominal: dict[str, float] = {}  # largest magnitude of each connected output so far
-        self.counters = {"steps": 0, "rejected": 0, "doStep": 0, "rollbacks": 0, "jumps": 0}
+        self.counters = {"steps": 0, "rejected": 0, "doStep": 0, "rollbacks": 0, "jumps": 0,
+                         "forced": 0}
 
     # ------------------------------------------------------------------ exchange
 
@@ -228,12 +235,16 @@ class System:
             raise _Refused(member, status, self.members[member].reason())
         self.read_outputs(member)
 
-    def coupling_error(self, rtol: float, atol: float) -> float:
-        """Largest scaled difference between a held input and the output it stood for."""
+    def coupling_error(self, rtol: float, atol: float, nominal: dict | None = None) -> float:
+        """Largest scaled difference between a held input and the output it stood for;
+        the scale of an output is the largest of its ``nominal`` value, its largest
+        magnitude so far and its magnitude now."""
         err = 0.0
+        nominal = nominal or {}
         for c in self.connections:
             y = self.out[c.source]
-            scale = atol + rtol * max(self.nominal.get(c.source, 0.0), abs(y))
+            scale = atol + rtol * max(nominal.get(c.source, 0.0),
+                                      self.nominal.get(c.source, 0.0), abs(y))
             err = max(err, abs(y - self.used[c.target]) / scale)
         return err
 
@@ -429,7 +440,7 @@ def _variable_step(system, algorithm, scenario, settings, h, t_end, out):
         try:
             try:
                 algorithm.step(system, t, step, first=settings.start == "zero" and t == 0.0)
-                err = system.coupling_error(rtol, atol)
+                err = system.coupling_error(rtol, atol, vs.nominal)
                 reason = f"coupling error {err:.3g} > 1"
             except _Refused as exc:
                 err, reason = math.inf, str(exc)
@@ -437,7 +448,8 @@ def _variable_step(system, algorithm, scenario, settings, h, t_end, out):
             # point, a switch), not a coupling error: accept the step and go on.
             jump = (math.isfinite(err) and rejections > 0
                     and err >= (step / rejected_step) ** JUMP_EXPONENT * rejected_err)
-            if not err <= 1.0 and not jump:
+            forced = math.isfinite(err) and step <= h_min * (1 + 1e-9)
+            if not err <= 1.0 and not jump and not forced:
                 rejected_err, rejected_step = err, step
                 system.set_states(saved)
                 system.counters["rejected"] += 1
@@ -445,14 +457,16 @@ def _variable_step(system, algorithm, scenario, settings, h, t_end, out):
                 rejections += 1
                 factor = MIN_FACTOR if not math.isfinite(err) else max(MIN_FACTOR, SAFETY / err)
                 h = step * factor
-                if h < h_min or rejections > MAX_REJECTIONS_IN_A_ROW:
-                    raise CosimError(f"the variable step fell to {h:.3g} s (h_min {h_min:g}) "
-                                     f"after {rejections} rejections; last: {reason}", t)
+                if h < h_min:
+                    if step <= h_min * (1 + 1e-9) or rejections > MAX_REJECTIONS_IN_A_ROW:
+                        raise CosimError(f"an instance refuses even the smallest step "
+                                         f"{h_min:g} s (h_min); last: {reason}", t)
+                    h = h_min  # the next try is accepted whatever its error (if finite)
                 continue
         finally:
             system.free_states(saved)
-        if jump:
-            system.counters["jumps"] += 1
+        if jump or (forced and err > 1.0):
+            system.counters["jumps" if jump else "forced"] += 1
             err = 1.0
         rejections, rejected_err, rejected_step = 0, math.inf, math.inf
         t = t_next

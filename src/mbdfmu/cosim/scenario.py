@@ -31,6 +31,7 @@ rtol = 1e-2                      # allowed change of a coupled variable over one
 atol = 1e-6
 h_min = 1e-6
 h_max = 1e-2
+nominal = { "motor.torque" = 1.0 }   # typical magnitudes of connected outputs
 ```
 
 Names are ``<instance>.<variable>``: instance names are identifiers (no dots), so the first
@@ -82,7 +83,7 @@ ALGORITHMS = ("jacobi", "gauss-seidel")
 IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 TOP_KEYS = {"name", "description", "t_end", "step", "algorithm", "order", "record", "plot",
             "compare", "reference", "instances", "connections", "parameters", "variable_step"}
-VARIABLE_STEP_KEYS = {"rtol", "atol", "h_min", "h_max", "h_initial"}
+VARIABLE_STEP_KEYS = {"rtol", "atol", "h_min", "h_max", "h_initial", "nominal"}
 
 
 class ScenarioError(MbdfmuError):
@@ -134,6 +135,7 @@ class VariableStepSettings:
     h_min: float = 1e-7
     h_max: float | None = None      # default: 10 times the scenario's step
     h_initial: float | None = None  # default: the scenario's step
+    nominal: dict = field(default_factory=dict)  # "instance.output" -> typical magnitude
 
 
 @dataclass(frozen=True)
@@ -337,8 +339,19 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         for key in sorted(set(raw_vs) - VARIABLE_STEP_KEYS):
             problem(f'[variable_step]: unknown key "{key}" (known: {", ".join(sorted(VARIABLE_STEP_KEYS))})')
         values = {k: _positive(v, f"{where}: variable_step.{k}", problems)
-                  for k, v in raw_vs.items() if k in VARIABLE_STEP_KEYS}
-        vs = VariableStepSettings(**{k: v for k, v in values.items() if v is not None})
+                  for k, v in raw_vs.items() if k in VARIABLE_STEP_KEYS - {"nominal"}}
+        nominal = raw_vs.get("nominal", {})
+        if not isinstance(nominal, dict):
+            problem("[variable_step] nominal must be a table of output magnitudes")
+            nominal = {}
+        sources = {c.source for c in connections}
+        for key, value in nominal.items():
+            if key not in sources:
+                problem(f'[variable_step] nominal: "{key}" is not a connected output')
+            _positive(value, f'{where}: variable_step.nominal "{key}"', problems)
+        vs = VariableStepSettings(nominal={k: float(v) for k, v in nominal.items()
+                                           if isinstance(v, (int, float))},
+                                  **{k: v for k, v in values.items() if v is not None})
 
     name = data.get("name", path.parent.name)
     if not isinstance(name, str) or not name:
