@@ -3,10 +3,12 @@
 Rules, checked in this order on the scene and its assembled state at t0 (no more model than
 the scene needs):
 
-1. A constraint Jacobian that is nearly singular at t0 (smallest singular value of its
-   independent rows, after ``assembly.rank_report`` has set the redundant ones aside, below
-   NEAR_SINGULAR of the largest): ``ali3p``, whose iteration matrix stays non-singular
-   there while eq. 14 has no unique multipliers.
+1. A singular configuration at t0: the constraint Jacobian loses rank there
+   (``assembly.rank_report``) but regains it a little way along the motion
+   (MOVE_FRACTION of the mechanism's size), or the smallest singular value of its
+   independent rows is below NEAR_SINGULAR of the largest: ``ali3p``, whose iteration
+   matrix stays non-singular there while eq. 14 has no unique multipliers. Rank that stays
+   lost as the mechanism moves is redundancy, not a singular configuration.
 2. A spring or damper much faster than the output interval (period 2 pi sqrt(m / k) or time
    constant m / c below STIFF_FRACTION of it, with m the lightest body it acts on):
    ``genalpha``, implicit, which damps what the output cannot show instead of resolving it
@@ -31,7 +33,8 @@ import math
 
 import numpy as np
 
-from ..assembly import rank_report
+from ..assembly import project_positions, project_velocities, rank_report
+from ..errors import SolverError
 from ..scene import RotationalSpringDamper, SpringDamper
 from .ali3p import ALI3P
 from .base import Integrator
@@ -40,6 +43,9 @@ from .projected_rk import DOP853P
 
 # Smallest singular value of Psi_q relative to its largest that counts as nearly singular.
 NEAR_SINGULAR = 1e-6
+# How far (relative to the mechanism's size) auto moves the mechanism to tell a singular
+# configuration (rank regained) from redundant constraints (rank still lost).
+MOVE_FRACTION = 1e-3
 # A spring period (or damper time constant) below this fraction of the output interval is stiff.
 STIFF_FRACTION = 0.01
 # Output points assumed when the scene gives no output interval (as ``simulate`` does).
@@ -75,6 +81,27 @@ def _fastest_force(system) -> tuple[float, str] | None:
     return fastest
 
 
+def _rank_after_moving(system, t0: float, q0: np.ndarray) -> int:
+    """Rank of Psi_q a little way along the motion from q0 (along q', or q'' from rest).
+
+    Redundant constraints (the parallelogram's third crank) stay redundant as the mechanism
+    moves; a singular configuration (cranks of a four-bar in line) is left at once.
+    """
+    qd0 = np.array([[*b.velocity, b.angular_velocity] for b in system.scene.bodies],
+                   dtype=float).ravel()
+    qd0 = project_velocities(system, t0, q0, qd0)
+    direction = qd0 if np.any(qd0) else system.accelerations(t0, q0, qd0)[0]
+    size = float(np.max(np.abs(direction)))
+    if size == 0.0:
+        return rank_report(system, t0, q0).rank
+    q1 = q0 + (MOVE_FRACTION * system.length_scale / size) * direction
+    try:
+        q1, _ = project_positions(system, t0, q1, tol=1e-12 * system.length_scale)
+    except SolverError:
+        return rank_report(system, t0, q0).rank
+    return rank_report(system, t0, q1).rank
+
+
 def choose_method(system, t0: float, q0: np.ndarray) -> tuple[type[Integrator], str]:
     """The method for this scene and the reason, by the rules of this module."""
     notes = []
@@ -82,6 +109,10 @@ def choose_method(system, t0: float, q0: np.ndarray) -> tuple[type[Integrator], 
     if system.m:
         report = rank_report(system, t0, q0)
         redundant = report.redundant
+        if redundant and _rank_after_moving(system, t0, q0) > report.rank:
+            return ALI3P, (f"the constraint Jacobian loses rank {len(redundant)} at t = {t0:g} "
+                           "and regains it as the mechanism moves (a singular configuration): "
+                           "ali3p passes singular configurations")
         _, J = system.constraints(t0, q0)
         sv = np.linalg.svd(J, compute_uv=False)[: report.rank]  # without the redundant rows
         if sv.size and sv[-1] < NEAR_SINGULAR * sv[0]:

@@ -46,8 +46,9 @@ ENERGY_STEP_FACTOR = 0.05
 ENERGY_TOL_FACTOR = 10.0
 # A fixed-step run whose energy error reaches this fraction of the energy in motion diverged.
 ENERGY_DIVERGENCE_FRACTION = 1.0
-# Round-off allowance, relative to the largest |E| seen (potentials have arbitrary datums).
-ENERGY_ROUNDOFF = 1e-12
+# Round-off allowance per step, relative to the largest |E| seen (potentials have arbitrary
+# datums); the run's allowance grows with the number of steps checked.
+ENERGY_ROUNDOFF = 1e-13
 
 
 @dataclass
@@ -66,6 +67,7 @@ class EnergyAudit:
     magnitude: float = 0.0
     tolerance_joules: float = 0.0  # largest energy change the tolerances allow, seen so far
     last_energy: float = 0.0       # at the last accepted step
+    checks: int = 0                # accepted steps checked
     worst: float = 0.0     # largest |E - E0| / allowance seen
 
     @classmethod
@@ -90,7 +92,7 @@ class EnergyAudit:
         """A proposed step's energy change over ENERGY_STEP_FACTOR times what the tolerances
         allow at its end: above 1, the step should be rejected."""
         change = abs(system.total_energy(q, qd) - self.last_energy)
-        if change <= ENERGY_ROUNDOFF * self.magnitude:
+        if change <= 10 * ENERGY_ROUNDOFF * self.magnitude:
             return 0.0
         allowed = ENERGY_STEP_FACTOR * self.joules(system, t, q, qd)
         return change / allowed if allowed > 0 else np.inf
@@ -113,7 +115,8 @@ class EnergyAudit:
         else:
             allowance = ENERGY_DIVERGENCE_FRACTION * scale
         error = abs(energy - self.e0)
-        if error <= ENERGY_ROUNDOFF * self.magnitude:
+        self.checks += 1
+        if error <= ENERGY_ROUNDOFF * self.magnitude * self.checks:
             return None
         ratio = error / allowance if allowance > 0 else np.inf
         self.worst = max(self.worst, ratio)

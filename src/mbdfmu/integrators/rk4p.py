@@ -45,7 +45,8 @@ class RK4P(ProjectedRK):
         try:
             q, qd = self._project(t_new, y_new)
         except SolverError as exc:
-            raise SolverError(f"{self.name}: step {h:.3g} s too large, {exc.args[0]}", t) from None
+            reason = str(exc).split(": ", 1)[1] if exc.t is not None else str(exc)
+            raise SolverError(f"{self.name}: step {h:.3g} s too large, {reason}", t_new) from None
         f = self._rhs(t_new, q, qd)
         self.check_finite(t_new, f)
         self.q, self.qd, self.f = q, qd, f
