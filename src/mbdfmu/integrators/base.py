@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import SolverError
 from ..system import System
-from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_TOL_FACTOR, EnergyAudit
+from .energy_audit import ENERGY_TOL_FACTOR, EnergyAudit
 
 # The smallest step, relative to the time, before an adaptive method gives up.
 MIN_STEP_RELATIVE = 1e-13
