@@ -222,12 +222,15 @@ def test_an_unsteady_crank_rate_converges_at_the_order_of_the_input_derivation(n
 
 @pytest.mark.parametrize("algorithm", ["jacobi", "gauss-seidel"])
 def test_crane_converges_to_the_monolithic_ode_at_first_order(algorithm, built):
+    # (the order approaches 1 from above: 1.3 and 1.2 for Gauss-Seidel, 1.14 and 1.06 for
+    # Jacobi over these halvings)
     scenario, fmus = built("hydraulic_crane")
     errors = []
-    for h in (4e-3, 2e-3, 1e-3):
-        r = master.run(scenario, fmus, MasterSettings(algorithm=algorithm, step=h, t_end=0.4))
+    for h in (2e-3, 1e-3, 5e-4):
+        r = master.run(scenario, fmus, MasterSettings(algorithm=algorithm, step=h, t_end=0.3))
         errors.append(_error(scenario, r, "mechanism.boom.phi"))
-    assert all(0.8 < p < 1.3 for p in _orders(errors)), errors
+    orders = _orders(errors)
+    assert all(0.9 < p < 1.4 for p in orders) and orders[-1] < 1.25, errors
 
 
 def test_controlled_cart_converges_to_the_monolithic_closed_loop_at_first_order(built):
@@ -256,7 +259,7 @@ def test_jacobi_loses_the_crane_where_gauss_seidel_and_the_variable_step_keep_it
     assert _error(scenario, gs, "mechanism.boom.phi") < 1e-3
     vs = master.run(scenario, fmus, MasterSettings(algorithm="jacobi", step=2e-2, t_end=0.8,
                                                    variable_step=True, rtol=3e-2, h_max=2e-2))
-    assert vs.time[-1] == pytest.approx(0.8) and vs.stats["h_max"] <= 2e-2
+    assert vs.time[-1] == 0.8 and vs.stats["h_max"] <= 2e-2 * (1 + 1e-9)
     assert _error(scenario, vs, "mechanism.boom.phi") < 2e-3
 
 

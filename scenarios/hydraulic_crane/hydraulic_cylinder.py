@@ -48,7 +48,7 @@ class HydraulicCylinder(base.CompanionSlave):
                  "nominal flow of a valve edge, full opening (20 l/min)"),
         base.Var("dp_nom", "parameter", "Pa", 3.5e6, "pressure drop of the nominal flow"),
         base.Var("dp_t", "parameter", "Pa", 1.0e5, "pressure drop below which the orifice is linear"),
-        base.Var("C_leak", "parameter", "m3/(s.Pa)", 1.0e-12, "internal leakage A to B"),
+        base.Var("C_leak", "parameter", "m3/(s.Pa)", 1.0e-14, "internal leakage A to B"),
         base.Var("b", "parameter", "N.s/m", 2.0e3, "viscous friction of the piston"),
         base.Var("force0", "parameter", "N", 0.0, "force at the start (sets p_A(0))"),
         base.Var("pB0", "parameter", "Pa", 2.0e6, "pressure in B at the start"),

@@ -344,7 +344,8 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         if not isinstance(nominal, dict):
             problem("[variable_step] nominal must be a table of output magnitudes")
             nominal = {}
-        sources = {c.source for c in connections}
+        # (every declared source, valid or not: a broken connection is reported once)
+        sources = {c.get("from") for c in raw_connections if isinstance(c, dict)}
         for key, value in nominal.items():
             if key not in sources:
                 problem(f'[variable_step] nominal: "{key}" is not a connected output')
