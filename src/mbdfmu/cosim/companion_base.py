@@ -254,7 +254,10 @@ class CompanionSlave(Fmi2Slave):
 
     def to_xml(self, model_options=None):
         """pythonfmu's description plus units and their definitions."""
+        from pythonfmu import __version__ as pythonfmu_version
+
         root = super().to_xml(model_options or {})
+        root.set("generationTool", f"mbdfmu companion FMU (pythonfmu {pythonfmu_version})")
         units = {v.name: v.unit for v in self.VARIABLES if v.unit}
         definitions = Element("UnitDefinitions")
         for name in sorted(set(units.values())):
