@@ -130,7 +130,27 @@ def _package_files(package_dir: Path) -> list[Path]:
                   not in NOT_SHIPPED_PACKAGES)
 
 
-def _digest(*chunks: bytes) -> str:
+def build_isolated(script: Path, dest: Path, own_modules: set[str], **options) -> Path:
+    """pythonfmu's ``build_FMU``, leaving this process as it found it.
+
+    pythonfmu imports the script (and what it ships) in this process and leaves its folder
+    on ``sys.path``: both are undone (for the FMU's own modules only; third-party modules
+    imported on the way stay), so this process later loads the FMU's own copy.
+    """
+    from pythonfmu.builder import FmuBuilder
+
+    saved_path, saved_modules = list(sys.path), set(sys.modules)
+    try:
+        return Path(FmuBuilder.build_FMU(script, dest=dest, **options))
+    finally:
+        sys.path[:] = saved_path
+        for m in set(sys.modules) - saved_modules:
+            if m.split(".")[0] in own_modules:
+                del sys.modules[m]
+
+
+def digest(*chunks: bytes) -> str:
+    """A short content hash that tells FMU modules apart (length-prefixed chunks)."""
     h = hashlib.sha256()
     for c in chunks:
         h.update(len(c).to_bytes(8, "little"))
@@ -155,8 +175,6 @@ def render_slave(model: dict, variables: list[tuple], class_name: str) -> str:
 def build_fmu(scene_path, output=None) -> Path:
     """Build the FMU of a scene file; returns its path (default ``<Model>.fmu`` in the cwd)."""
     from pythonfmu import __version__ as pythonfmu_version
-    from pythonfmu.builder import FmuBuilder
-
     scene_path = Path(scene_path)
     scene = mbdfmu.load_scene(scene_path)
     name = scene.name
@@ -169,7 +187,7 @@ def build_fmu(scene_path, output=None) -> Path:
 
     package_dir = Path(mbdfmu.__file__).resolve().parent
     files = _package_files(package_dir)
-    package_tag = _digest(*(f.relative_to(package_dir).as_posix().encode() + b"\0" + f.read_bytes()
+    package_tag = digest(*(f.relative_to(package_dir).as_posix().encode() + b"\0" + f.read_bytes()
                             for f in files))
     settings = scene.simulation
     interval = settings.output_interval or settings.t_end / DEFAULT_OUTPUT_POINTS
@@ -187,7 +205,7 @@ def build_fmu(scene_path, output=None) -> Path:
         "solver": solver_values,
         "core_package": f"_mbdfmu_{package_tag}",
     }
-    tag = _digest(package_tag.encode(), scene_json, TEMPLATE.read_bytes(),
+    tag = digest(package_tag.encode(), scene_json, TEMPLATE.read_bytes(),
                   repr(variables).encode(), repr(model).encode())
     module = f"mbdfmu_{name}_{tag}"
     source = render_slave(model, variables, class_name=f"{name}_{tag}")
@@ -207,21 +225,10 @@ def build_fmu(scene_path, output=None) -> Path:
             shutil.copyfile(f, target)
         (stage / "scene.json").write_bytes(scene_json)
         shutil.copyfile(scene_path, stage / "scene.toml")
-        # pythonfmu imports the script (and so the core copy) in this process and leaves
-        # its folder on sys.path: undo both, so this process later loads the FMU's own copy.
-        # (Only those modules: third-party modules imported on the way stay.)
-        saved_path, saved_modules = list(sys.path), set(sys.modules)
-        ours = {module, model["core_package"]}
-        try:
-            fmu = FmuBuilder.build_FMU(
-                script, dest=output,
-                project_files=[core, stage / "scene.json", stage / "scene.toml"],
-                needsExecutionTool=True, canHandleVariableCommunicationStepSize=True,
-                canGetAndSetFMUstate=True, canSerializeFMUstate=True,
-                canInterpolateInputs=False, canBeInstantiatedOnlyOncePerProcess=False)
-        finally:
-            sys.path[:] = saved_path
-            for m in set(sys.modules) - saved_modules:
-                if m.split(".")[0] in ours:
-                    del sys.modules[m]
+        fmu = build_isolated(
+            script, dest=output, own_modules={module, model["core_package"]},
+            project_files=[core, stage / "scene.json", stage / "scene.toml"],
+            needsExecutionTool=True, canHandleVariableCommunicationStepSize=True,
+            canGetAndSetFMUstate=True, canSerializeFMUstate=True,
+            canInterpolateInputs=False, canBeInstantiatedOnlyOncePerProcess=False)
     return Path(fmu)

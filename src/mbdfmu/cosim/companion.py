@@ -16,9 +16,7 @@ depends on an mbdfmu installed in the host (see ../shared/FMI_NOTES.md).
 
 from __future__ import annotations
 
-import hashlib
 import re
-import sys
 import tempfile
 from pathlib import Path
 
@@ -37,28 +35,20 @@ class CompanionBuildError(MbdfmuError):
     """A companion source that cannot be turned into an FMU (the message says why)."""
 
 
-def _digest(*chunks: bytes) -> str:
-    h = hashlib.sha256()
-    for c in chunks:
-        h.update(len(c).to_bytes(8, "little"))
-        h.update(c)
-    return h.hexdigest()[:12]
-
-
 def build_companion(source, output=None) -> Path:
     """Build the FMU of a companion source; returns its path (default ``<Class>.fmu`` in
     the cwd, the class name being the model identifier)."""
-    from pythonfmu.builder import FmuBuilder
+    from fmu_build.build import build_isolated, digest
 
     source = Path(source)
     if not source.is_file():
         raise CompanionBuildError(f"{source}: no such file")
     text = source.read_text(encoding="utf-8")
     base_text = BASE.read_bytes()
-    base_module = f"_mbdfmu_companion_base_{_digest(base_text)}"
+    base_module = f"_mbdfmu_companion_base_{digest(base_text)}"
     text, uses_base = BASE_IMPORT.subn(f"import {base_module} as base", text)
     module = f"mbdfmu_{re.sub(r'[^A-Za-z0-9_]', '_', source.stem)}_" \
-             f"{_digest(text.encode(), base_text)}"
+             f"{digest(text.encode(), base_text)}"
     if output is not None:
         output = Path(output)
         if output.suffix != ".fmu":
@@ -72,21 +62,12 @@ def build_companion(source, output=None) -> Path:
         if uses_base:
             (stage / f"{base_module}.py").write_bytes(base_text)
             project_files.append(stage / f"{base_module}.py")
-        # pythonfmu imports the script in this process and leaves its folder on sys.path:
-        # undo both (for the FMU's own modules only: third-party ones imported on the way
-        # stay), so this process later loads the FMU's own copy.
-        saved_path, saved_modules = list(sys.path), set(sys.modules)
-        ours = {module, base_module}
         try:
-            fmu = FmuBuilder.build_FMU(script, dest=output if output is not None else Path.cwd(),
-                                       project_files=project_files, **CAPABILITIES)
+            fmu = build_isolated(script, dest=output if output is not None else Path.cwd(),
+                                 own_modules={module, base_module},
+                                 project_files=project_files, **CAPABILITIES)
         except (ValueError, TypeError, AttributeError, ImportError, SyntaxError) as exc:
             raise CompanionBuildError(f"{source}: {type(exc).__name__}: {exc}") from None
-        finally:
-            sys.path[:] = saved_path
-            for m in set(sys.modules) - saved_modules:
-                if m.split(".")[0] in ours:
-                    del sys.modules[m]
     return Path(fmu)
 
 
