@@ -24,6 +24,7 @@ import importlib
 import importlib.util
 import json
 import math
+import os
 import pickle
 import pkgutil
 import sys
@@ -195,7 +196,10 @@ class MbdfmuSlave(Fmi2Slave):
     def _new_simulation(self):
         s = self._solver
         scene = self._core.scene.with_parameters(self._scene, self._params)
-        return self._core.Simulation(scene, method=s["solver.method"] or None,
+        # numpy kernel unless asked otherwise: numba would compile its kernel anew in every
+        # fresh extraction of the FMU (seconds at instantiation), see docs/performance.md
+        kernel = os.environ.get("MBDFMU_KERNEL") or "numpy"
+        return self._core.Simulation(scene, kernel=kernel, method=s["solver.method"] or None,
                                      step=s["solver.step"] or None,
                                      rtol=s["solver.rtol"] or None,
                                      atol=s["solver.atol"] or None, t0=self._t0)

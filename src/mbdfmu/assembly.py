@@ -14,7 +14,8 @@ import numpy as np
 import scipy.linalg
 
 from .errors import AssemblyError, SolverError
-from .system import RANK_TOLERANCE, System, solve_spd
+from .linalg import RANK_TOLERANCE, schur_solve
+from .system import System
 
 # Newton iterations allowed when assembling from rough estimates, and while projecting.
 ASSEMBLY_MAX_ITER = 60
@@ -31,7 +32,7 @@ def project_positions(system: System, t: float, q: np.ndarray, *, tol: float,
     """
     q = q.copy()
     for it in range(max_iter + 1):
-        Psi, J = system.constraints(t, q)
+        Psi, J = system.constraints(t, q, sparse=True)
         if not np.all(np.isfinite(Psi)):
             raise SolverError("non-finite constraint residual while projecting positions", t)
         err = np.max(np.abs(Psi)) if Psi.size else 0.0
@@ -39,8 +40,7 @@ def project_positions(system: System, t: float, q: np.ndarray, *, tol: float,
             return q, it
         if it == max_iter:
             break
-        JMi = J * system.minv
-        q -= JMi.T @ solve_spd(JMi @ J.T, Psi)
+        q -= system.minv * (J.T @ schur_solve(J, system.minv, Psi))
     worst = int(np.argmax(np.abs(Psi)))
     raise SolverError(f"position projection did not converge: {system.row_labels[worst]} "
                       f"violated by {err:.3g} after {max_iter} iterations", t)
@@ -50,9 +50,8 @@ def project_velocities(system: System, t: float, q: np.ndarray, qd: np.ndarray) 
     """Closest q' in kinetic energy with Psi_q q' = nu."""
     if system.m == 0:
         return qd.copy()
-    _, J, nu, _ = system.constraints(t, q, qd)
-    JMi = J * system.minv
-    return qd - JMi.T @ solve_spd(JMi @ J.T, J @ qd - nu)
+    _, J, nu, _ = system.constraints(t, q, qd, sparse=True)
+    return qd - system.minv * (J.T @ schur_solve(J, system.minv, J @ qd - nu))
 
 
 @dataclass(frozen=True)

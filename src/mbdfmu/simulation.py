@@ -31,10 +31,11 @@ class Simulation:
     """
 
     def __init__(self, scene: Scene, method=None, step=None, rtol=None, atol=None,
-                 t0: float = 0.0, method_options: dict | None = None):
+                 t0: float = 0.0, method_options: dict | None = None,
+                 kernel: str | None = None):
         settings = scene.simulation
         self.scene = scene
-        self.system = System(scene)
+        self.system = System(scene, kernel=kernel)
         self.method = method_class(method if method is not None else settings.method)
         self._force_items = {}
         for f in scene.forces:
@@ -147,13 +148,17 @@ class Simulation:
 
     def advance(self, t_target: float) -> None:
         """Integrate to exactly ``t_target``; on failure the state stays where it was."""
-        snapshot = self.get_state()
+        # Only the integrator and the flag change while stepping (inputs and signals do not),
+        # so that is all the rollback keeps: no per-step copy of the whole state.
+        snapshot, inputs_changed = self.integrator.get_state(), self._inputs_changed
         try:
             if self._inputs_changed:
                 self._reinitialize()
             self.integrator.advance(t_target)
         except SolverError:
-            self.set_state(snapshot)
+            self.integrator.set_state(snapshot)
+            self._inputs_changed = inputs_changed
+            self._cache = None
             raise
         self._cache = None
 
@@ -238,12 +243,13 @@ def output_times(t_end: float, interval: float) -> np.ndarray:
 
 def simulate(scene: Scene | str | Path, t_end: float | None = None, method=None, step=None,
              rtol=None, atol=None, output_interval=None, inputs=None,
-             method_options: dict | None = None) -> Result:
+             method_options: dict | None = None, kernel: str | None = None) -> Result:
     """Simulate a scene (or a scene file) from 0 to ``t_end`` and return every variable.
 
     ``inputs``: a structured array with ``time`` first and input names as columns (forces
     interpolated linearly; driver positions by splines), or a dict ``{item: signal(t)}``.
     ``method_options``: the method's own settings (see ``METHODS[name].option_names``).
+    ``kernel``: "numpy" or "numba" (default: numba when installed, see ``system.py``).
     """
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
@@ -252,7 +258,7 @@ def simulate(scene: Scene | str | Path, t_end: float | None = None, method=None,
         raise InputError(f"t_end must be positive and finite, got {t_end}")
     interval = output_interval or scene.simulation.output_interval or t_end / DEFAULT_OUTPUT_POINTS
     sim = Simulation(scene, method=method, step=step, rtol=rtol, atol=atol,
-                     method_options=method_options)
+                     method_options=method_options, kernel=kernel)
     if isinstance(inputs, dict):
         for item, signal in inputs.items():
             sim.set_input_signal(item, signal)

@@ -23,12 +23,14 @@ acceleration equation ``Psi_q q'' = gamma``.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
-from .errors import SolverError
+from . import kernel_jit
+from .errors import InputError, SolverError
+from .linalg import RANK_TOLERANCE, JacobianPattern, schur_solve, solve_spd, spd_solver  # noqa: F401
 from .motion import InputMotion
 from .scene import (GROUND, PointForce, RotationalSpringDamper, Scene, SpringDamper, Torque,
                     _driver_unit)
@@ -41,6 +43,21 @@ class Variable:
     name: str
     unit: str
     description: str
+
+
+KERNELS = ("numpy", "numba")
+
+
+def _choose_kernel(kernel: str | None) -> str:
+    """The constraint kernel: as asked, else ``$MBDFMU_KERNEL``, else numba when installed."""
+    kernel = kernel or os.environ.get("MBDFMU_KERNEL") or "auto"
+    if kernel == "auto":
+        return "numba" if kernel_jit.available() else "numpy"
+    if kernel not in KERNELS:
+        raise InputError(f"unknown kernel {kernel!r}: choose one of {', '.join(KERNELS)} or auto")
+    if kernel == "numba" and kernel_jit.numba is None:
+        raise InputError('kernel "numba" needs numba: pip install "mbdfmu[jit]"')
+    return kernel
 
 
 def _rot90(v: np.ndarray) -> np.ndarray:
@@ -93,7 +110,7 @@ class System:
     ``force_signals[name](t) -> values``.
     """
 
-    def __init__(self, scene: Scene):
+    def __init__(self, scene: Scene, *, kernel: str | None = None):
         self.scene = scene
         nb = len(scene.bodies)
         self.nb, self.n = nb, 3 * nb
@@ -161,39 +178,52 @@ class System:
         self.joint_frame_body = np.array([b for b, _ in self.joint_frame], dtype=int)
         self.joint_frame_angle = np.array([a for _, a in self.joint_frame], dtype=float)
         self.driver_rows = np.array(self.driver_rows, dtype=int)
-        self._build_jacobian_template()
+        self._build_jacobian_pattern()
+        self.kernel = _choose_kernel(kernel)
 
         self.driver_signals: dict[str, object] = {}
         self.force_signals: dict[str, object] = {}
         self._forces = [(f, idx.get(getattr(f, "body", None) or "", -1)) for f in scene.forces]
+        # gravity and constant torques do not depend on the state: summed once
+        self._F_constant = self.F_gravity.copy()
+        self._state_forces = []
+        for f, b in self._forces:
+            if isinstance(f, Torque) and not f.input:
+                self._F_constant[3 * b + 2] += f.value
+            else:
+                self._state_forces.append((f, b))
         self.length_scale = max([1.0] + [abs(v) for b in scene.bodies for v in b.position])
         self.outputs = self._output_table()
         self.inputs = self._input_table()
 
     # ------------------------------------------------------------------ Jacobian layout
 
-    def _build_jacobian_template(self):
-        """Constant entries once; index arrays for the entries that depend on q."""
-        ne = self.n + 3  # with the ground's three columns, dropped on return
-        T = np.zeros((self.m, ne))
+    def _build_jacobian_pattern(self):
+        """Psi_q's nonzeros once (``linalg.JacobianPattern``); per evaluation only values.
+
+        The value vector is [constant entries | coincidence angle columns (4 blocks of one
+        entry per joint) | line rows (6 blocks)], columns counting the ground's three.
+        """
         c, l, a = self.coincidence, self.line, self.angle
-        if c.n:
-            r0, r1 = c.rows[:, 0], c.rows[:, 1]
-            T[r0, 3 * c.bi], T[r1, 3 * c.bi + 1] = 1.0, 1.0
-            T[r0, 3 * c.bj], T[r1, 3 * c.bj + 1] = -1.0, -1.0
-        if a.n:
-            T[a.rows, 3 * a.bj + 2] = 1.0
-            T[a.rows, 3 * a.bi + 2] = -1.0
-        self._J_template = T
-        # q-dependent entries: coincidence phi columns (4 per joint), line: 6 per row
-        if c.n:
-            r0, r1 = c.rows[:, 0], c.rows[:, 1]
-            self._c_idx = (np.concatenate([r0, r1, r0, r1]),
-                           np.concatenate([3 * c.bi + 2, 3 * c.bi + 2, 3 * c.bj + 2, 3 * c.bj + 2]))
-        if l.n:
-            self._l_idx = (np.tile(l.rows, 6),
-                           np.concatenate([3 * l.bi, 3 * l.bi + 1, 3 * l.bi + 2,
-                                           3 * l.bj, 3 * l.bj + 1, 3 * l.bj + 2]))
+        r0, r1 = (c.rows[:, 0], c.rows[:, 1]) if c.n else (np.zeros(0, int),) * 2
+        rows = [r0, r1, r0, r1, a.rows, a.rows,                      # constants
+                r0, r1, r0, r1,                                      # coincidence, phi
+                *([l.rows] * 6)]                                     # line rows
+        cols = [3 * c.bi, 3 * c.bi + 1, 3 * c.bj, 3 * c.bj + 1, 3 * a.bj + 2, 3 * a.bi + 2,
+                3 * c.bi + 2, 3 * c.bi + 2, 3 * c.bj + 2, 3 * c.bj + 2,
+                3 * l.bi, 3 * l.bi + 1, 3 * l.bi + 2, 3 * l.bj, 3 * l.bj + 1, 3 * l.bj + 2]
+        self._jac_constants = np.concatenate(
+            [np.ones(2 * c.n), -np.ones(2 * c.n), np.ones(a.n), -np.ones(a.n)])
+        self._jac_nnz = 4 * c.n + 6 * l.n + self._jac_constants.size
+        self.jacobian_pattern = JacobianPattern(np.concatenate(rows), np.concatenate(cols),
+                                                self.m, self.n, self.minv)
+        # every body-fixed vector that rotates with its body, rotated in one go:
+        # coincidence s_i, s_j; line s_i, s_j, u_i
+        self._points = np.concatenate([c.si, c.sj, l.si, l.sj, l.u]).reshape(-1, 2)
+        self._point_body = np.concatenate([c.bi, c.bj, l.bi, l.bj, l.bi]).astype(np.intp)
+        self._point_split = np.cumsum([c.n, c.n, l.n, l.n])
+        self._jit_args = (c.rows.reshape(-1, 2), c.bi, c.bj, c.si, c.sj,
+                          l.rows, l.bi, l.bj, l.si, l.sj, l.u, a.rows, a.bi, a.bj)
 
     # ------------------------------------------------------------------ kinematics
 
@@ -223,51 +253,80 @@ class System:
         return c, cd, cdd
 
     def constraints(self, t: float, q: np.ndarray, qd: np.ndarray | None = None,
-                    *, extended: bool = False):
+                    *, extended: bool = False, sparse: bool = False):
         """Psi (m,), Psi_q (m, n) and, with qd, nu (m,) and gamma (m,) (seed eq. 14 rhs).
 
-        With ``extended`` the Jacobian keeps the ground's three columns (for reactions).
+        Psi_q is a dense array, or with ``sparse`` for a large mechanism a
+        ``linalg.SparseJacobian`` (supports ``J @ x``, ``J.T @ y`` and ``schur_solve``).
+        With ``extended`` a dense Psi_q keeps the ground's three columns (for reactions).
         """
+        if self.kernel == "numba":
+            return self._constraints_compiled(t, q, qd, extended, sparse)
         r, cs, sn, phi = self._poses(q)
-        Psi = np.zeros(self.m)
-        J = self._J_template.copy()
+        Psi = np.empty(self.m)
+        data = np.empty(self._jac_nnz)
+        k = self._jac_constants.size
+        data[:k] = self._jac_constants
         with_v = qd is not None
-        gamma = np.zeros(self.m)
         if with_v:
             v, w = self._velocities(qd)
+            gamma = np.zeros(self.m)
         c, l, a = self.coincidence, self.line, self.angle
+        pb = self._point_body
+        Asi_c, Asj_c, Asi_l, Asj_l, u = np.split(_rotate(self._points, cs[pb], sn[pb]),
+                                                 self._point_split)
         if c.n:
-            Asi = _rotate(c.si, cs[c.bi], sn[c.bi])
-            Asj = _rotate(c.sj, cs[c.bj], sn[c.bj])
-            Psi[c.rows] = r[c.bi] + Asi - r[c.bj] - Asj
+            Psi[c.rows] = r[c.bi] + Asi_c - r[c.bj] - Asj_c
             # d(A s)/dphi = B s = rot90(A s)
-            J[self._c_idx] = np.concatenate([-Asi[:, 1], Asi[:, 0], Asj[:, 1], -Asj[:, 0]])
+            data[k:k + 4 * c.n] = np.concatenate([-Asi_c[:, 1], Asi_c[:, 0],
+                                                  Asj_c[:, 1], -Asj_c[:, 0]])
+            k += 4 * c.n
             if with_v:
-                gamma[c.rows] = Asi * (w[c.bi] ** 2)[:, None] - Asj * (w[c.bj] ** 2)[:, None]
+                gamma[c.rows] = (Asi_c * (w[c.bi] ** 2)[:, None]
+                                 - Asj_c * (w[c.bj] ** 2)[:, None])
         if l.n:
-            Asi = _rotate(l.si, cs[l.bi], sn[l.bi])
-            Asj = _rotate(l.sj, cs[l.bj], sn[l.bj])
-            u = _rotate(l.u, cs[l.bi], sn[l.bi])
-            d = r[l.bj] + Asj - r[l.bi] - Asi
+            d = r[l.bj] + Asj_l - r[l.bi] - Asi_l
             Psi[l.rows] = _dot(u, d)
             ru = _rot90(u)
-            J[self._l_idx] = np.concatenate([
-                -u[:, 0], -u[:, 1],
-                _dot(ru, d) - _dot(u, _rot90(Asi)),
-                u[:, 0], u[:, 1], _dot(u, _rot90(Asj))])
+            data[k:] = np.concatenate([-u[:, 0], -u[:, 1],
+                                       _dot(ru, d) - _dot(u, _rot90(Asi_l)),
+                                       u[:, 0], u[:, 1], _dot(u, _rot90(Asj_l))])
             if with_v:
                 wi, wj = w[l.bi], w[l.bj]
-                dd = v[l.bj] + wj[:, None] * _rot90(Asj) - v[l.bi] - wi[:, None] * _rot90(Asi)
+                dd = v[l.bj] + wj[:, None] * _rot90(Asj_l) - v[l.bi] - wi[:, None] * _rot90(Asi_l)
                 gamma[l.rows] = (wi ** 2 * _dot(u, d)
                                  - 2.0 * wi * _dot(ru, dd)
-                                 + _dot(u, Asj * (wj ** 2)[:, None]
-                                             - Asi * (wi ** 2)[:, None]))
+                                 + _dot(u, Asj_l * (wj ** 2)[:, None]
+                                             - Asi_l * (wi ** 2)[:, None]))
         if a.n:
             Psi[a.rows] = phi[a.bj] - phi[a.bi]
         cval, cd, cdd = self.motion_values(t)
         Psi -= cval
-        if not extended:
-            J = J[:, : self.n]
+        if extended:
+            J = self.jacobian_pattern.dense_with_ground(data)
+        else:
+            J = self.jacobian_pattern.jacobian(data, sparse)
+        if not with_v:
+            return Psi, J
+        return Psi, J, cd, gamma + cdd
+
+    def _constraints_compiled(self, t, q, qd, extended, sparse):
+        """``constraints`` through the numba kernel (``kernel_jit.py``), same results."""
+        n = self.n
+        qe = np.zeros(n + 3)
+        qe[:n] = q
+        with_v = qd is not None
+        qde = np.zeros(n + 3)
+        if with_v:
+            qde[:n] = qd
+        cval, cd, cdd = self.motion_values(t)
+        Psi, gamma = np.empty(self.m), np.empty(self.m)
+        data = np.empty(self._jac_nnz)
+        data[:self._jac_constants.size] = self._jac_constants
+        kernel_jit.constraint_terms_compiled(qe, qde, with_v, cval, *self._jit_args,
+                                             Psi, data, gamma)
+        pattern = self.jacobian_pattern
+        J = pattern.dense_with_ground(data) if extended else pattern.jacobian(data, sparse)
         if not with_v:
             return Psi, J
         return Psi, J, cd, gamma + cdd
@@ -344,47 +403,74 @@ class System:
         return np.atleast_1d(np.asarray(signal(t), dtype=float))
 
     def forces(self, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-        """Generalized applied forces F (n,): gravity, point forces, torques, springs."""
-        F = np.zeros(self.n + 3)
-        F[: self.n] = self.F_gravity
-        r, cs, sn, phi = self._poses(q)
-        v, w = self._velocities(qd)
+        """Generalized applied forces F (n,): gravity, point forces, torques, springs.
+
+        Gravity and constant torques are summed once (``_F_constant``); the rest, one item at
+        a time in scalar arithmetic, which beats numpy on 2-vectors.
+        """
+        F = self._F_constant.copy()
         idx = self._idx
-        for f, b in self._forces:
+        for f, b in self._state_forces:
             if isinstance(f, PointForce):
                 fx, fy = self._signal(f.name, t, 2) if f.input else f.value
-                As = _rotate(np.array([f.point]), cs[b:b + 1], sn[b:b + 1])[0]
-                F[3 * b: 3 * b + 3] += (fx, fy, As[0] * fy - As[1] * fx)
+                _, _, ax, ay = self._body_point(q, b, f.point)
+                F[3 * b] += fx
+                F[3 * b + 1] += fy
+                F[3 * b + 2] += ax * fy - ay * fx
             elif isinstance(f, Torque):
-                F[3 * b + 2] += self._signal(f.name, t, 1)[0] if f.input else f.value
+                F[3 * b + 2] += self._signal(f.name, t, 1)[0]
             elif isinstance(f, SpringDamper):
                 bi, bj = idx[f.body_i], idx[f.body_j]
-                length, rate, u, Asi, Asj = self._spring_geometry(f, t, r, cs, sn, v, w)
+                length, rate, (ux, uy), (aix, aiy), (ajx, ajy) = self._spring_geometry(f, t, q, qd)
                 tension = self._spring_tension(f, t, length, rate)
-                fj = -tension * u  # pulls body_j towards body_i when stretched
-                F[3 * bj: 3 * bj + 3] += (fj[0], fj[1], Asj[0] * fj[1] - Asj[1] * fj[0])
-                F[3 * bi: 3 * bi + 3] -= (fj[0], fj[1], Asi[0] * fj[1] - Asi[1] * fj[0])
+                fx, fy = -tension * ux, -tension * uy  # on body_j: towards body_i when stretched
+                if bj < self.nb:
+                    F[3 * bj] += fx
+                    F[3 * bj + 1] += fy
+                    F[3 * bj + 2] += ajx * fy - ajy * fx
+                if bi < self.nb:
+                    F[3 * bi] -= fx
+                    F[3 * bi + 1] -= fy
+                    F[3 * bi + 2] -= aix * fy - aiy * fx
             elif isinstance(f, RotationalSpringDamper):
                 jt = self.scene.joint(f.joint)
                 bi, bj = idx[jt.body_i], idx[jt.body_j]
-                torque = (-f.stiffness * (phi[bj] - phi[bi] - f.rest_angle)
-                          - f.damping * (w[bj] - w[bi]))
-                F[3 * bj + 2] += torque
-                F[3 * bi + 2] -= torque
-        return F[: self.n]
+                phi_i = q[3 * bi + 2] if bi < self.nb else 0.0
+                phi_j = q[3 * bj + 2] if bj < self.nb else 0.0
+                w_i = qd[3 * bi + 2] if bi < self.nb else 0.0
+                w_j = qd[3 * bj + 2] if bj < self.nb else 0.0
+                torque = (-f.stiffness * (phi_j - phi_i - f.rest_angle)
+                          - f.damping * (w_j - w_i))
+                if bj < self.nb:
+                    F[3 * bj + 2] += torque
+                if bi < self.nb:
+                    F[3 * bi + 2] -= torque
+        return F
 
-    def _spring_geometry(self, f: SpringDamper, t, r, cs, sn, v, w):
+    def _body_point(self, q, b: int, point):
+        """Position of body b's centre (x, y) and its arm A s to a body point (ground: b = nb)."""
+        if b >= self.nb:
+            return 0.0, 0.0, point[0], point[1]
+        x, y, phi = q[3 * b], q[3 * b + 1], q[3 * b + 2]
+        c, s = math.cos(phi), math.sin(phi)
+        return x, y, c * point[0] - s * point[1], s * point[0] + c * point[1]
+
+    def _spring_geometry(self, f: SpringDamper, t, q, qd):
         """Length, its rate, unit vector i->j and the two arms (A s) of a spring-damper."""
         bi, bj = self._idx[f.body_i], self._idx[f.body_j]
-        Asi = _rotate(np.array([f.point_i]), cs[bi:bi + 1], sn[bi:bi + 1])[0]
-        Asj = _rotate(np.array([f.point_j]), cs[bj:bj + 1], sn[bj:bj + 1])[0]
-        d = r[bj] + Asj - r[bi] - Asi
-        length = math.hypot(d[0], d[1])
+        xi, yi, aix, aiy = self._body_point(q, bi, f.point_i)
+        xj, yj, ajx, ajy = self._body_point(q, bj, f.point_j)
+        dx, dy = xj + ajx - xi - aix, yj + ajy - yi - aiy
+        length = math.hypot(dx, dy)
         if length < 1e-12:
             raise SolverError(f'spring "{f.name}" has zero length: its direction is undefined', t)
-        u = d / length
-        vrel = v[bj] + w[bj] * _rot90(Asj) - v[bi] - w[bi] * _rot90(Asi)
-        return length, float(u @ vrel), u, Asi, Asj
+        ux, uy = dx / length, dy / length
+        vi = (qd[3 * bi], qd[3 * bi + 1], qd[3 * bi + 2]) if bi < self.nb else (0.0, 0.0, 0.0)
+        vj = (qd[3 * bj], qd[3 * bj + 1], qd[3 * bj + 2]) if bj < self.nb else (0.0, 0.0, 0.0)
+        # relative velocity of the points: v_j + w_j rot90(A_j s_j) - v_i - w_i rot90(A_i s_i)
+        vx = vj[0] - vj[2] * ajy - vi[0] + vi[2] * aiy
+        vy = vj[1] + vj[2] * ajx - vi[1] - vi[2] * aix
+        return length, ux * vx + uy * vy, (ux, uy), (aix, aiy), (ajx, ajy)
 
     def _spring_tension(self, f: SpringDamper, t, length, rate) -> float:
         """k (L - L0) + c L' minus the actuator input (which pushes the points apart)."""
@@ -395,12 +481,10 @@ class System:
 
     def spring_states(self, t, q, qd) -> np.ndarray:
         """(length, rate, tension) of every spring-damper, (ns, 3)."""
-        r, cs, sn, _ = self._poses(q)
-        v, w = self._velocities(qd)
         rows = []
         for f, _ in self._forces:
             if isinstance(f, SpringDamper):
-                length, rate, *_ = self._spring_geometry(f, t, r, cs, sn, v, w)
+                length, rate, *_ = self._spring_geometry(f, t, q, qd)
                 rows.append((length, rate, self._spring_tension(f, t, length, rate)))
         return np.array(rows, dtype=float).reshape(-1, 3)
 
@@ -419,13 +503,27 @@ class System:
         F = self.forces(t, q, qd)
         if self.m == 0:
             return self.minv * F, np.zeros(0)
-        Psi, J, nu, gamma = self.constraints(t, q, qd)
+        if self.kernel == "numba" and baumgarte is None and not self.jacobian_pattern.banded:
+            qdd, lam, ok = self._accelerations_compiled(t, q, qd, F)
+            if ok:
+                return qdd, lam
+        Psi, J, nu, gamma = self.constraints(t, q, qd, sparse=True)
         if baumgarte is not None:
             alpha, beta = baumgarte
             gamma = gamma - 2.0 * alpha * (J @ qd - nu) - beta * beta * Psi
-        JMi = J * self.minv
-        lam = solve_spd(JMi @ J.T, JMi @ F - gamma)
+        lam = schur_solve(J, self.minv, J @ (self.minv * F) - gamma)
         return self.minv * (F - J.T @ lam), lam
+
+    def _accelerations_compiled(self, t, q, qd, F):
+        """Eq. 14 in one numba call (small mechanisms); ok False near singular (see caller)."""
+        n = self.n
+        qe, qde = np.zeros(n + 3), np.zeros(n + 3)
+        qe[:n], qde[:n] = q, qd
+        cval, _, cdd = self.motion_values(t)
+        p = self.jacobian_pattern
+        return kernel_jit.accelerations_dense_compiled(
+            qe, qde, cval, cdd, F, self.minv, RANK_TOLERANCE, self._jit_args,
+            self._jac_constants, p.flat, p.keep, self.m, n)
 
     def kinetic_energy(self, qd: np.ndarray) -> float:
         return 0.5 * float(qd @ (self.mass * qd))
@@ -564,7 +662,7 @@ class System:
 
     def output_values(self, t, q, qd, qdd, lam) -> np.ndarray:
         """Every output of ``self.outputs`` at one instant, in that order."""
-        Psi, J, nu, _ = self.constraints(t, q, qd)
+        Psi, J, nu, _ = self.constraints(t, q, qd, sparse=True)
         parts = [np.concatenate((q.reshape(-1, 3), qd.reshape(-1, 3)), axis=1).ravel(),
                  self.reactions(q, lam, t).ravel(), self.driver_efforts(lam),
                  self.spring_states(t, q, qd).ravel(),
@@ -575,41 +673,3 @@ class System:
 
 # Forward-difference step (relative) of the force Jacobians: about sqrt(machine epsilon).
 _FD_STEP = 1.5e-8
-# Relative size of the smallest singular value kept in minimum-norm solves.
-RANK_TOLERANCE = 1e-10
-_potrf, _potrs = scipy.linalg.lapack.dpotrf, scipy.linalg.lapack.dpotrs
-
-
-def solve_spd(S: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Solve S x = b for symmetric positive semi-definite S.
-
-    Cholesky when S is well conditioned; otherwise (singular configurations, redundant
-    constraints) the minimum-norm least-squares solution.
-    """
-    # LAPACK directly: the scipy wrappers cost more than the factorisation at these sizes.
-    factor, info = _potrf(S, lower=False, clean=False)
-    if info == 0:
-        diag = np.abs(np.diag(factor))
-        if diag.min() > math.sqrt(RANK_TOLERANCE) * diag.max():
-            x, info = _potrs(factor, b, lower=False)
-            if info == 0:
-                return x
-    if not np.all(np.isfinite(S)) or not np.all(np.isfinite(b)):
-        raise SolverError("non-finite values in the constraint equations")
-    x, *_ = scipy.linalg.lstsq(S, b, cond=RANK_TOLERANCE, check_finite=False)
-    return x
-
-
-def spd_solver(S: np.ndarray):
-    """A solver ``b -> x`` of S x = b for several right-hand sides, with ``solve_spd``'s
-    rules: Cholesky once when S is well conditioned, else the minimum-norm least-squares
-    solution (singular configurations, redundant constraints)."""
-    factor, info = _potrf(S, lower=False, clean=False)
-    if info == 0:
-        diag = np.abs(np.diag(factor))
-        if diag.min() > math.sqrt(RANK_TOLERANCE) * diag.max():
-            def cholesky_solve(b):
-                x, info = _potrs(factor, b, lower=False)
-                return x if info == 0 else solve_spd(S, b)
-            return cholesky_solve
-    return lambda b: solve_spd(S, b)

@@ -195,11 +195,11 @@ class Integrator:
     def get_state(self) -> dict:
         """A deep copy of everything needed to continue bit for bit."""
         names = ("t", "q", "qd", "h", "stats", "audit") + self.state_fields
-        return {k: copy.deepcopy(getattr(self, k)) for k in names}
+        return {k: _copy(getattr(self, k)) for k in names}
 
     def set_state(self, state: dict) -> None:
         for k, v in state.items():
-            setattr(self, k, copy.deepcopy(v))
+            setattr(self, k, _copy(v))
 
     def reset_state(self, q: np.ndarray, qd: np.ndarray) -> None:
         """Replace (q, q') at the current time (after an input jump) and restart."""
@@ -209,3 +209,12 @@ class Integrator:
         self.audit = self._start_audit()
         if self.adaptive and h is not None:
             self.h = h
+
+
+def _copy(value):
+    """A deep copy, without deepcopy's bookkeeping for the common cheap cases."""
+    if value is None or isinstance(value, (float, int, bool, str)):
+        return value
+    if isinstance(value, np.ndarray):
+        return value.copy()
+    return copy.deepcopy(value)

@@ -90,7 +90,8 @@ class ProjectedRK(Integrator):
         raise NotImplementedError
 
     def _rhs_y(self, t, y):
-        return self._rhs(t, *np.split(y, [self.q.size]))
+        n = self.q.size
+        return self._rhs(t, y[:n], y[n:])
 
     def _project(self, t_new, y_new):
         """Mass-weighted projection of y_new = (q, q') onto the constraints at t_new;
@@ -107,7 +108,7 @@ class ProjectedRK(Integrator):
         y = np.concatenate((self.q, self.qd))
         K = rk_stages(self._rhs_y, t, y, h, self.A, self.C, self.f, self.n_stages)
         y_new = y + h * (K[:-1].T @ self.B)
-        K[-1] = self._rhs(t + h, *np.split(y_new, [n]))
+        K[-1] = self._rhs(t + h, y_new[:n], y_new[n:])
         if not (np.all(np.isfinite(y_new)) and np.all(np.isfinite(K[-1]))):
             return False, h * MIN_FACTOR
         err = self._error_norm(K, h, self._scale(y, y_new))

@@ -1,0 +1,253 @@
+"""Linear algebra of the constraint Jacobian: its fixed sparsity pattern and eq. 14's solves.
+
+Psi_q has the same nonzeros at every configuration (they follow from which bodies each
+constraint row touches), so the pattern is worked out once per scene and every evaluation
+only fills in the values. Two forms use it:
+
+* small mechanisms get a dense ``ndarray`` Psi_q and a dense Cholesky factorisation of the
+  Schur complement ``S = Psi_q M^-1 Psi_q^T`` (LAPACK potrf): at tens of rows nothing is
+  faster from Python;
+* large ones (``m >= BANDED_MIN_ROWS``) get a ``SparseJacobian``: products by index sums
+  (``np.bincount``) and S assembled straight into band storage, in the reverse Cuthill-McKee
+  order of its rows, and factorised by banded Cholesky (LAPACK pbtrf). For chain-like
+  mechanisms the band is narrow and does not grow with the mechanism, so the cost of a
+  solve is linear in the number of bodies instead of cubic.
+
+Both forms support ``J @ x`` and ``J.T @ y``, and ``schur_solve(J, minv, b)`` solves
+``S x = b`` with the same rules: Cholesky when S is well conditioned, otherwise (singular
+configurations, redundant constraints) the minimum-norm least-squares solution.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse
+from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+from .errors import SolverError
+
+# Constraint rows from which the sparse banded form is used (below it dense wins).
+BANDED_MIN_ROWS = 60
+# Relative size of the smallest singular value kept in minimum-norm solves.
+RANK_TOLERANCE = 1e-10
+# Iterated Tikhonov steps of the banded minimum-norm solve: each multiplies the error of a
+# component with eigenvalue s by eps / (s + eps), so three leave well-kept ones exact.
+TIKHONOV_STEPS = 3
+
+_potrf, _potrs = scipy.linalg.lapack.dpotrf, scipy.linalg.lapack.dpotrs
+_pbtrf, _pbtrs = scipy.linalg.lapack.dpbtrf, scipy.linalg.lapack.dpbtrs
+
+
+def _well_conditioned(diag: np.ndarray) -> bool:
+    """Cholesky's diagonal says S is far enough from singular to trust the factorisation."""
+    diag = np.abs(diag)
+    return diag.min() > math.sqrt(RANK_TOLERANCE) * diag.max()
+
+
+def solve_spd(S: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve S x = b for symmetric positive semi-definite dense S.
+
+    Cholesky when S is well conditioned; otherwise the minimum-norm least-squares solution.
+    """
+    # LAPACK directly: the scipy wrappers cost more than the factorisation at these sizes.
+    factor, info = _potrf(S, lower=False, clean=False)
+    if info == 0 and _well_conditioned(np.diag(factor)):
+        x, info = _potrs(factor, b, lower=False)
+        if info == 0:
+            return x
+    if not np.all(np.isfinite(S)) or not np.all(np.isfinite(b)):
+        raise SolverError("non-finite values in the constraint equations")
+    x, *_ = scipy.linalg.lstsq(S, b, cond=RANK_TOLERANCE, check_finite=False)
+    return x
+
+
+def spd_solver(S: np.ndarray):
+    """A solver ``b -> x`` of S x = b for several right-hand sides, with ``solve_spd``'s
+    rules: Cholesky once when S is well conditioned, else minimum-norm least squares."""
+    factor, info = _potrf(S, lower=False, clean=False)
+    if info == 0 and _well_conditioned(np.diag(factor)):
+        def cholesky_solve(b):
+            x, info = _potrs(factor, b, lower=False)
+            return x if info == 0 else solve_spd(S, b)
+        return cholesky_solve
+    return lambda b: solve_spd(S, b)
+
+
+def schur_solve(J, minv: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve ``(J M^-1 J^T) x = b`` for a dense or sparse J (see the module's rules)."""
+    if isinstance(J, SparseJacobian):
+        return J.pattern.schur_solve(J.data, b)
+    JMi = J * minv
+    return solve_spd(JMi @ J.T, b)
+
+
+class JacobianPattern:
+    """The nonzeros of Psi_q, (rows, cols), fixed for a scene, and what follows from them.
+
+    ``rows``/``cols`` index the entries of a value vector ``data`` in the order the System
+    fills it; entries in columns >= n (the virtual ground body) are kept in ``data`` but
+    dropped here. ``banded`` chooses the sparse form (see the module docstring).
+    """
+
+    def __init__(self, rows, cols, m: int, n: int, minv: np.ndarray, *, banded: bool | None = None):
+        rows, cols = np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp)
+        self.flat_with_ground = rows * (n + 3) + cols
+        self.keep = np.flatnonzero(cols < n)
+        self.rows, self.cols = rows[self.keep], cols[self.keep]
+        self.m, self.n = m, n
+        self.flat = self.rows * n + self.cols
+        if np.unique(self.flat).size != self.flat.size:
+            raise ValueError("Jacobian pattern has repeated entries")
+        self.banded = (m >= BANDED_MIN_ROWS) if banded is None else bool(banded)
+        if self.banded:
+            self._plan_schur_band(minv)
+
+    # ------------------------------------------------------------------ both forms
+
+    def dense(self, data: np.ndarray) -> np.ndarray:
+        J = np.zeros((self.m, self.n))
+        J.flat[self.flat] = data[self.keep]
+        return J
+
+    def dense_with_ground(self, data: np.ndarray) -> np.ndarray:
+        """Dense Psi_q with the virtual ground body's three columns last (m, n + 3)."""
+        J = np.zeros((self.m, self.n + 3))
+        J.flat[self.flat_with_ground] = data
+        return J
+
+    def jacobian(self, data: np.ndarray, sparse: bool):
+        """Psi_q from its values: a ``SparseJacobian`` when asked for and banded, else dense."""
+        if sparse and self.banded:
+            return SparseJacobian(self, data[self.keep])
+        return self.dense(data)
+
+    # ------------------------------------------------------------------ banded Schur complement
+
+    def _plan_schur_band(self, minv: np.ndarray) -> None:
+        """Index maps that put S = J M^-1 J^T straight into LAPACK's upper band storage.
+
+        S_ab = sum_k J_ak J_bk / M_k over the columns k that rows a and b share: every pair
+        of entries of one column contributes once (upper triangle in the permuted order).
+        """
+        m = self.m
+        order = np.argsort(self.cols, kind="stable")
+        cols_sorted = self.cols[order]
+        starts = np.flatnonzero(np.r_[True, cols_sorted[1:] != cols_sorted[:-1]])
+        ends = np.r_[starts[1:], cols_sorted.size]
+        pa, pb = [], []
+        for s, e in zip(starts, ends):
+            entries = order[s:e]
+            a, b = np.meshgrid(entries, entries, indexing="ij")
+            pa.append(a.ravel()), pb.append(b.ravel())
+        pa, pb = np.concatenate(pa), np.concatenate(pb)
+        ra, rb = self.rows[pa], self.rows[pb]
+        graph = scipy.sparse.coo_matrix((np.ones(ra.size), (ra, rb)), shape=(m, m)).tocsr()
+        perm = reverse_cuthill_mckee(graph, symmetric_mode=True)
+        position = np.empty(m, dtype=np.intp)
+        position[perm] = np.arange(m)
+        i, j = position[ra], position[rb]
+        upper = i <= j
+        pa, pb, i, j = pa[upper], pb[upper], i[upper], j[upper]
+        self.kd = int((j - i).max()) if j.size else 0
+        self.pair_a, self.pair_b = pa, pb
+        self.pair_minv = minv[self.cols[pa]]
+        self.band_index = (self.kd + i - j) * m + j      # into a C-ordered (kd + 1, m) array
+        self.band_size = (self.kd + 1) * m
+        self.perm = perm
+
+    def schur_band(self, values: np.ndarray) -> np.ndarray:
+        """S = J M^-1 J^T in upper band storage (kd + 1, m), rows in ``self.perm`` order."""
+        weights = values[self.pair_a] * values[self.pair_b] * self.pair_minv
+        return np.bincount(self.band_index, weights=weights,
+                           minlength=self.band_size).reshape(self.kd + 1, self.m)
+
+    def schur_solve(self, values: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Solve (J M^-1 J^T) x = b by banded Cholesky; minimum-norm when S is near singular.
+
+        M is the mass matrix the pattern was planned with (a System's is fixed)."""
+        band = self.schur_band(values)
+        bp = b[self.perm]
+        factor, info = _pbtrf(band, lower=0)
+        if info == 0 and _well_conditioned(factor[self.kd]):
+            xp, info = _pbtrs(factor, bp, lower=0)
+            if info == 0:
+                return self._unpermute(xp)
+        if not np.all(np.isfinite(values)) or not np.all(np.isfinite(b)):
+            raise SolverError("non-finite values in the constraint equations")
+        return self._unpermute(self._min_norm(band, bp))
+
+    def _min_norm(self, band: np.ndarray, bp: np.ndarray) -> np.ndarray:
+        """Minimum-norm least-squares solution by iterated Tikhonov regularisation.
+
+        x_k+1 = x_k + (S + eps I)^-1 (b - S x_k) from x_0 = 0 never leaves the range of S and
+        converges there to the least-squares solution; eps at RANK_TOLERANCE times the
+        largest diagonal plays the part of lstsq's cut-off, in banded cost.
+        """
+        eps = RANK_TOLERANCE * float(np.abs(band[self.kd]).max() or 1.0)
+        shifted = band.copy()
+        shifted[self.kd] += eps
+        factor, info = _pbtrf(shifted, lower=0)
+        if info != 0:
+            raise SolverError("the constraint equations could not be solved (Schur complement "
+                              "not positive semi-definite)")
+        x = np.zeros_like(bp)
+        for _ in range(TIKHONOV_STEPS):
+            dx, _ = _pbtrs(factor, bp - _band_matvec(band, x, self.kd), lower=0)
+            x += dx
+        return x
+
+    def _unpermute(self, xp: np.ndarray) -> np.ndarray:
+        x = np.empty_like(xp)
+        x[self.perm] = xp
+        return x
+
+
+def _band_matvec(band: np.ndarray, x: np.ndarray, kd: int) -> np.ndarray:
+    """S x for symmetric S in upper band storage (kd + 1, m)."""
+    m = x.size
+    y = band[kd] * x
+    for d in range(1, kd + 1):
+        diag = band[kd - d, d:]          # S[j - d, j], j = d..m-1
+        y[:m - d] += diag * x[d:]
+        y[d:] += diag * x[:m - d]
+    return y
+
+
+class SparseJacobian:
+    """Psi_q of a large mechanism as values on its ``JacobianPattern``: ``J @ x``, ``J.T @ y``."""
+
+    __slots__ = ("pattern", "data")
+
+    def __init__(self, pattern: JacobianPattern, data: np.ndarray):
+        self.pattern, self.data = pattern, data
+
+    @property
+    def shape(self):
+        return self.pattern.m, self.pattern.n
+
+    def __matmul__(self, x: np.ndarray) -> np.ndarray:
+        p = self.pattern
+        return np.bincount(p.rows, weights=self.data * x[p.cols], minlength=p.m)
+
+    @property
+    def T(self):
+        return _Transposed(self)
+
+    def toarray(self) -> np.ndarray:
+        J = np.zeros(self.shape)
+        J.flat[self.pattern.flat] = self.data
+        return J
+
+
+class _Transposed:
+    __slots__ = ("J",)
+
+    def __init__(self, J: SparseJacobian):
+        self.J = J
+
+    def __matmul__(self, y: np.ndarray) -> np.ndarray:
+        p = self.J.pattern
+        return np.bincount(p.cols, weights=self.J.data * y[p.rows], minlength=p.n)

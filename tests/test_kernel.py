@@ -1,0 +1,171 @@
+"""The fast paths give the answers of the plain ones: numba kernel = numpy kernel, banded
+sparse solves = dense solves of eq. 14, lean rollback = full state.
+
+References are independent computations: a dense solve of the augmented eq. 14 with numpy,
+the pseudo-inverse for minimum-norm multipliers, and P2's exact one-DOF reduction.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import mbdfmu
+from mbdfmu import kernel_jit, linalg
+from mbdfmu.assembly import assemble
+from mbdfmu.errors import InputError, SolverError
+from mbdfmu.scene import scene_from_dict
+from mbdfmu.scenes.generate_n_four_bar import scene_text
+from mbdfmu.system import System
+
+import references as ref
+from conftest import SCENES as SCENE_DIR
+
+
+def scene(name):
+    return mbdfmu.load_scene(SCENE_DIR / f"{name}.toml")
+
+needs_numba = pytest.mark.skipif(kernel_jit.numba is None, reason="numba not installed")
+SCENES = ["slider_crank", "andrews", "four_bar", "parallelogram", "slider_force",
+          "double_pendulum", "n_four_bar_2"]
+
+
+def n_four_bar(n: int):
+    return scene_from_dict(tomllib.loads(scene_text(n)), source=f"<P2 N = {n}>")
+
+
+def augmented_solve(system: System, t, q, qd):
+    """q'' and lam from the dense augmented matrix [[M, J^T], [J, 0]] of eq. 14 (numpy):
+    its minimum-norm least-squares solution, so redundant constraints get the minimum-norm
+    lam (q'' is unique either way)."""
+    _, J, _, gamma = system.constraints(t, q, qd)
+    F = system.forces(t, q, qd)
+    n, m = system.n, system.m
+    A = np.block([[np.diag(system.mass), J.T], [J, np.zeros((m, m))]])
+    x = np.linalg.lstsq(A, np.concatenate((F, gamma)), rcond=1e-12)[0]
+    return x[:n], x[n:]
+
+
+@needs_numba
+@pytest.mark.parametrize("name", SCENES)
+@settings(max_examples=15, deadline=None)
+@given(data=st.data())
+def test_numba_kernel_equals_numpy_kernel(name, data):
+    plain, fast = System(scene(name), kernel="numpy"), System(scene(name), kernel="numba")
+    q0, qd0 = assemble(plain)
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**31)))
+    q = q0 + rng.normal(scale=0.3, size=q0.size)
+    qd = rng.normal(scale=2.0, size=q0.size)
+    t = data.draw(st.floats(0.0, 1.0))
+    for a, b in zip(plain.constraints(t, q, qd), fast.constraints(t, q, qd)):
+        np.testing.assert_allclose(b, a, rtol=1e-13, atol=1e-13)
+    np.testing.assert_allclose(fast.constraints(t, q, extended=True)[1],
+                               plain.constraints(t, q, extended=True)[1], atol=1e-13)
+    qdd_ref, lam_ref = augmented_solve(plain, t, q0, qd)
+    for system in (plain, fast):
+        qdd, lam = system.accelerations(t, q0, qd)
+        for x, x_ref in ((qdd, qdd_ref), (lam, lam_ref)):
+            np.testing.assert_allclose(x, x_ref, rtol=1e-8, atol=1e-8 * max(1.0, np.abs(x_ref).max()))
+
+
+def test_kernel_choice_errors_name_the_choices():
+    with pytest.raises(InputError, match="numpy, numba"):
+        System(scene("pendulum"), kernel="fortran")
+
+
+@pytest.mark.parametrize("kernel", ["numpy", pytest.param("numba", marks=needs_numba)])
+def test_banded_accelerations_equal_the_augmented_solve(kernel):
+    system = System(n_four_bar(40), kernel=kernel)
+    assert system.jacobian_pattern.banded and system.jacobian_pattern.kd < 20
+    q, qd = assemble(system)
+    rng = np.random.default_rng(1)
+    qd = qd + rng.normal(scale=0.5, size=qd.size)   # any velocity: gamma changes, not J
+    qdd_ref, lam_ref = augmented_solve(system, 0.0, q, qd)
+    qdd, lam = system.accelerations(0.0, q, qd)
+    np.testing.assert_allclose(qdd, qdd_ref, atol=1e-9 * np.abs(qdd_ref).max())
+    np.testing.assert_allclose(lam, lam_ref, atol=1e-9 * np.abs(lam_ref).max())
+
+
+def test_banded_products_equal_dense_products():
+    system = System(n_four_bar(20))
+    q, qd = assemble(system)
+    _, Js = system.constraints(0.0, q, sparse=True)
+    _, Jd = system.constraints(0.0, q)
+    assert isinstance(Js, linalg.SparseJacobian)
+    np.testing.assert_array_equal(Js.toarray(), Jd)
+    x, y = np.arange(system.n, dtype=float), np.arange(system.m, dtype=float)
+    np.testing.assert_allclose(Js @ x, Jd @ x, rtol=1e-14)
+    np.testing.assert_allclose(Js.T @ y, Jd.T @ y, rtol=1e-14)
+
+
+def test_banded_min_norm_at_the_singular_crossing_equals_the_pseudo_inverse():
+    # P2 with the cranks horizontal: Psi_q loses rank N; lam is the minimum-norm solution
+    N = 40
+    system = System(n_four_bar(N), kernel="numpy")
+    theta, rate = 0.0, -2.0
+    q = np.empty(system.n)
+    qd = np.empty(system.n)
+    for k, body in enumerate(system.scene.bodies):
+        if body.name.startswith("crank"):
+            x0 = float(body.name[5:])
+            q[3 * k: 3 * k + 3] = (x0 + 0.5 * math.cos(theta), 0.5 * math.sin(theta), theta)
+            qd[3 * k: 3 * k + 3] = (-0.5 * math.sin(theta) * rate, 0.5 * math.cos(theta) * rate, rate)
+        else:
+            x0 = float(body.name[7:])
+            q[3 * k: 3 * k + 3] = (x0 + 0.5 + math.cos(theta), math.sin(theta), 0.0)
+            qd[3 * k: 3 * k + 3] = (-math.sin(theta) * rate, math.cos(theta) * rate, 0.0)
+    Psi, J, _, gamma = system.constraints(0.0, q, qd)
+    assert np.abs(Psi).max() < 1e-12
+    sv = np.linalg.svd(J, compute_uv=False)
+    assert sv[-N] < 1e-10 * sv[0]                  # rank loss N, as P2 says
+    F = system.forces(0.0, q, qd)
+    JMi = J * system.minv
+    b = JMi @ F - gamma
+    lam_ref = np.linalg.pinv(JMi @ J.T, rcond=1e-10) @ b
+    qdd_ref = system.minv * (F - J.T @ lam_ref)
+    qdd, lam = system.accelerations(0.0, q, qd)
+    np.testing.assert_allclose(lam, lam_ref, atol=1e-6 * np.abs(lam_ref).max())
+    np.testing.assert_allclose(qdd, qdd_ref, atol=1e-6 * np.abs(qdd_ref).max())
+    # (At this instant eq. 14 has a family of solutions, N extra instantaneous degrees of
+    # freedom; the minimum-norm one is not the physical motion's, which the integrators
+    # recover from the neighbouring steps: see the run below.)
+
+
+def test_p2_n20_banded_run_follows_the_reduction_through_a_crossing():
+    # the banded path (m = 122) in a whole run, through the first singular crossing
+    t_end = 1.0
+    sim = mbdfmu.Simulation(n_four_bar(20), method="rk4p", step=1e-3)
+    assert sim.system.jacobian_pattern.banded
+    sim.advance(t_end)
+    b0 = (sim.q[0] + 0.5 * math.cos(sim.q[2]), sim.q[1] + 0.5 * math.sin(sim.q[2]))
+    exact = ref.n_four_bar(np.array([t_end]), 20)
+    assert math.hypot(b0[0] - exact["B0_x"][-1], b0[1] - exact["B0_y"][-1]) < 1e-6
+
+
+def test_failed_advance_rolls_back_to_the_exact_state():
+    sim = mbdfmu.Simulation(scene("slider_crank"), method="rk4p", step=1e-3)
+    sim.advance(0.01)
+    before = (sim.t, sim.q.copy(), sim.qd.copy(), sim.integrator.stats.nsteps)
+    calls = []
+
+    def half_done_then_fail(h):   # changes the state in place, as a step may, then fails
+        if calls:
+            sim.integrator.q += 1.0
+            sim.integrator.qd *= 2.0
+            raise SolverError("forced failure", sim.t)
+        calls.append(h)
+        return type(sim.integrator)._step_impl(sim.integrator, h)
+
+    sim.integrator._step_impl = half_done_then_fail
+    with pytest.raises(SolverError):
+        sim.advance(0.02)
+    assert len(calls) == 1                       # one step was taken, then undone
+    assert sim.t == before[0]
+    np.testing.assert_array_equal(sim.q, before[1])
+    np.testing.assert_array_equal(sim.qd, before[2])
+    assert sim.integrator.stats.nsteps == before[3]
