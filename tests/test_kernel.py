@@ -169,3 +169,26 @@ def test_failed_advance_rolls_back_to_the_exact_state():
     np.testing.assert_array_equal(sim.q, before[1])
     np.testing.assert_array_equal(sim.qd, before[2])
     assert sim.integrator.stats.nsteps == before[3]
+
+
+@needs_numba
+@pytest.mark.parametrize("name", ["n_four_bar_2", "four_bar", "pendulum", "double_pendulum"])
+def test_compiled_rk4p_step_equals_the_general_step(name):
+    sim = mbdfmu.Simulation(scene(name), method="rk4p", step=1e-3, kernel="numba")
+    assert sim.system.fused_steps
+    sim.advance(0.05)
+    integrator = sim.integrator
+    start = integrator.get_state()
+    assert integrator._fused_step(1e-3)
+    fused = integrator.q.copy(), integrator.qd.copy(), integrator.f.copy()
+    integrator.set_state(start)
+    general = mbdfmu.Simulation(scene(name), method="rk4p", step=1e-3, kernel="numpy").integrator
+    general.set_state(start)
+    general._step_impl(1e-3)
+    for a, b in zip(fused, (general.q, general.qd, general.f)):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
+
+
+def test_state_dependent_forces_take_the_general_path():
+    for name in ("andrews", "slider_force", "slider_crank"):   # springs, point forces
+        assert not System(scene(name), kernel="numpy").fused_steps

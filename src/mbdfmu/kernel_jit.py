@@ -20,11 +20,17 @@ except ImportError:  # pragma: no cover - depends on the installation
     numba = None
 
 
+def _compiled(function):
+    """numba's ahead-of-use compilation, cached on disk; the plain function without numba."""
+    return numba.njit(cache=True, nogil=True)(function) if numba is not None else function
+
+
 def available() -> bool:
     """numba is installed and not switched off by ``MBDFMU_KERNEL=numpy``."""
     return numba is not None and os.environ.get("MBDFMU_KERNEL", "auto") != "numpy"
 
 
+@_compiled
 def constraint_terms(q, qd, with_v, cval,
                      c_rows, c_bi, c_bj, c_si, c_sj,
                      l_rows, l_bi, l_bj, l_si, l_sj, l_u,
@@ -94,42 +100,58 @@ def constraint_terms(q, qd, with_v, cval,
         psi[row] = q[3 * a_bj[k] + 2] - q[3 * a_bi[k] + 2] - cval[row]
 
 
-if numba is not None:
-    constraint_terms_compiled = numba.njit(cache=True, nogil=True)(constraint_terms)
-else:  # pragma: no cover
-    constraint_terms_compiled = None
-
-
-def accelerations_dense(q, qd, cval, cdd, F, minv, rank_tol, args, jac_constants, flat,
-                        keep, m, n):
-    """Eq. 14 by the Schur complement for a small mechanism, all in one compiled call.
-
-    Same steps as ``System.accelerations`` (dense path): ``S = J M^-1 J^T``, Cholesky,
-    ``lam = S^-1 (J M^-1 F - gamma)``, ``q'' = M^-1 (F - J^T lam)``. Returns
-    (q'', lam, ok); ok is False when S is too close to singular for Cholesky (the caller
-    then takes the minimum-norm path).
-    """
+@_compiled
+def terms(q, qd, with_v, cval, args, jac_constants, keep):
+    """Psi (m,), the kept Jacobian values (on the pattern's rows/cols) and gamma without
+    c''(t). q, qd with the ground's three zeros appended."""
+    m = cval.shape[0]
     psi, gamma = np.empty(m), np.empty(m)
     data = np.empty(jac_constants.shape[0] + 4 * args[0].shape[0] + 6 * args[5].shape[0])
     data[:jac_constants.shape[0]] = jac_constants
-    constraint_terms_compiled(q, qd, True, cval, args[0], args[1], args[2], args[3], args[4],
-                              args[5], args[6], args[7], args[8], args[9], args[10],
-                              args[11], args[12], args[13], psi, data, gamma)
-    J = np.zeros(m * n)
-    for k in range(keep.shape[0]):
-        J[flat[k]] = data[keep[k]]
-    J = J.reshape(m, n)
-    JMi = J * minv
-    S = JMi @ J.T
-    b = JMi @ F - (gamma + cdd)
-    # Cholesky S = L L^T, in place in the lower triangle
+    constraint_terms(q, qd, with_v, cval, args[0], args[1], args[2], args[3], args[4],
+                     args[5], args[6], args[7], args[8], args[9], args[10],
+                     args[11], args[12], args[13], psi, data, gamma)
+    return psi, data[keep], gamma
+
+
+@_compiled
+def jac_mul(values, rows, cols, x, m):
+    """J x from J's values on its pattern."""
+    y = np.zeros(m)
+    for k in range(values.shape[0]):
+        y[rows[k]] += values[k] * x[cols[k]]
+    return y
+
+
+@_compiled
+def jac_t_mul(values, rows, cols, y, n):
+    """J^T y from J's values on its pattern."""
+    x = np.zeros(n)
+    for k in range(values.shape[0]):
+        x[cols[k]] += values[k] * y[rows[k]]
+    return x
+
+
+@_compiled
+def schur_solve(values, pattern, b, rank_tol):
+    """x with (J M^-1 J^T) x = b by Cholesky; ok False when S is too near singular.
+
+    S's lower triangle is summed over the column pairs of the pattern
+    (``JacobianPattern._plan_schur_lower``): O(nonzeros), no dense J.
+    """
+    rows, lower_a, lower_b, lower_minv = pattern[0], pattern[2], pattern[3], pattern[4]
+    m = b.shape[0]
+    S = np.zeros((m, m))
+    for p in range(lower_a.shape[0]):
+        a, c = lower_a[p], lower_b[p]
+        S[rows[a], rows[c]] += values[a] * values[c] * lower_minv[p]
     dmax, dmin = 0.0, np.inf
-    for j in range(m):
+    for j in range(m):                   # S = L L^T in the lower triangle
         s = S[j, j]
         for k in range(j):
             s -= S[j, k] * S[j, k]
         if s <= 0.0:
-            return np.zeros(n), np.zeros(m), False
+            return b, False
         d = math.sqrt(s)
         S[j, j] = d
         dmax, dmin = max(dmax, d), min(dmin, d)
@@ -139,22 +161,96 @@ def accelerations_dense(q, qd, cval, cdd, F, minv, rank_tol, args, jac_constants
                 s -= S[i, k] * S[j, k]
             S[i, j] = s / d
     if not dmin > math.sqrt(rank_tol) * dmax:
-        return np.zeros(n), np.zeros(m), False
-    lam = b.copy()
+        return b, False
+    x = b.copy()
     for i in range(m):                   # L y = b
-        s = lam[i]
+        s = x[i]
         for k in range(i):
-            s -= S[i, k] * lam[k]
-        lam[i] = s / S[i, i]
+            s -= S[i, k] * x[k]
+        x[i] = s / S[i, i]
     for i in range(m - 1, -1, -1):       # L^T x = y
-        s = lam[i]
+        s = x[i]
         for k in range(i + 1, m):
-            s -= S[k, i] * lam[k]
-        lam[i] = s / S[i, i]
-    return minv * (F - J.T @ lam), lam, True
+            s -= S[k, i] * x[k]
+        x[i] = s / S[i, i]
+    return x, True
 
 
-if numba is not None:
-    accelerations_dense_compiled = numba.njit(cache=True, nogil=True)(accelerations_dense)
-else:  # pragma: no cover
-    accelerations_dense_compiled = None
+@_compiled
+def accelerations_dense(q, qd, cval, cdd, F, minv, rank_tol, args, jac_constants, keep,
+                        pattern):
+    """Eq. 14 by the Schur complement for a small mechanism, all in one compiled call.
+
+    Same steps as ``System.accelerations``: ``S = J M^-1 J^T``, Cholesky,
+    ``lam = S^-1 (J M^-1 F - gamma)``, ``q'' = M^-1 (F - J^T lam)``. q, qd with the ground's
+    three zeros appended; ``pattern`` = (rows, cols, lower_a, lower_b, lower_minv) of
+    ``JacobianPattern``. Returns (q'', lam, ok); ok is False when S is too close to singular
+    for Cholesky (the caller then takes the minimum-norm path).
+    """
+    m, n = cval.shape[0], F.shape[0]
+    rows, cols = pattern[0], pattern[1]
+    _, values, gamma = terms(q, qd, True, cval, args, jac_constants, keep)
+    rhs = jac_mul(values, rows, cols, minv * F, m) - (gamma + cdd)
+    lam, ok = schur_solve(values, pattern, rhs, rank_tol)
+    return minv * (F - jac_t_mul(values, rows, cols, lam, n)), lam, ok
+
+
+@_compiled
+def rk4p_step(q, qd, f, h, motion, F, minv, rank_tol, tol, max_iter, args, jac_constants,
+              keep, pattern):
+    """One step of ``rk4p`` (classic RK4 on the index-1 form, then the mass-weighted
+    projections of ``assembly.py``) for a mechanism with constant applied forces F.
+
+    q, qd, f (= q'' at the start): (n,). ``motion`` (3, 3, m): c, c', c'' of every row at
+    t, t + h/2 and t + h. Returns (q, q', q'' at t + h, status): status 0 ok, 1 a singular
+    Schur complement (the caller redoes the step on the general path), 2 the position
+    projection did not converge to tol in max_iter Newton iterations.
+    """
+    n = q.shape[0]
+    m = motion.shape[2]
+    rows, cols = pattern[0], pattern[1]
+    z = np.zeros(3)
+    qe, qde = np.concatenate((q, z)), np.concatenate((qd, z))
+    acc_q, acc_v = qd.copy(), f.copy()          # sum of b_i k_i (times 6)
+    k_q, k_v = qd, f
+    for stage in range(1, 4):
+        a = 0.5 * h if stage < 3 else h
+        row = 1 if stage < 3 else 2
+        qe[:n] = q + a * k_q
+        qde[:n] = qd + a * k_v
+        k_q = qde[:n].copy()
+        k_v, _, ok = accelerations_dense(qe, qde, motion[row, 0], motion[row, 2], F, minv,
+                                         rank_tol, args, jac_constants, keep, pattern)
+        if not ok:
+            return q, qd, f, 1
+        w = 2.0 if stage < 3 else 1.0
+        acc_q += w * k_q
+        acc_v += w * k_v
+    qn = q + h / 6.0 * acc_q
+    vn = qd + h / 6.0 * acc_v
+    # position projection: Newton, dq = -M^-1 J^T (J M^-1 J^T)^-1 Psi
+    done = False
+    for _ in range(max_iter + 1):
+        qe[:n] = qn
+        psi, values, _ = terms(qe, qe, False, motion[2, 0], args, jac_constants, keep)
+        if np.max(np.abs(psi)) <= tol:
+            done = True
+            break
+        x, ok = schur_solve(values, pattern, psi, rank_tol)
+        if not ok:
+            return q, qd, f, 1
+        qn = qn - minv * jac_t_mul(values, rows, cols, x, n)
+    if not done:
+        return q, qd, f, 2
+    # velocity projection onto J q' = nu
+    x, ok = schur_solve(values, pattern, jac_mul(values, rows, cols, vn, m) - motion[2, 1],
+                        rank_tol)
+    if not ok:
+        return q, qd, f, 1
+    vn = vn - minv * jac_t_mul(values, rows, cols, x, n)
+    qde[:n] = vn
+    fn, _, ok = accelerations_dense(qe, qde, motion[2, 0], motion[2, 2], F, minv, rank_tol,
+                                    args, jac_constants, keep, pattern)
+    if not ok:
+        return q, qd, f, 1
+    return qn, vn, fn, 0

@@ -104,6 +104,8 @@ class JacobianPattern:
         self.banded = (m >= BANDED_MIN_ROWS) if banded is None else bool(banded)
         if self.banded:
             self._plan_schur_band(minv)
+        else:
+            self._plan_schur_lower(minv)
 
     # ------------------------------------------------------------------ both forms
 
@@ -126,23 +128,33 @@ class JacobianPattern:
 
     # ------------------------------------------------------------------ banded Schur complement
 
-    def _plan_schur_band(self, minv: np.ndarray) -> None:
-        """Index maps that put S = J M^-1 J^T straight into LAPACK's upper band storage.
-
-        S_ab = sum_k J_ak J_bk / M_k over the columns k that rows a and b share: every pair
-        of entries of one column contributes once (upper triangle in the permuted order).
-        """
-        m = self.m
+    def _column_pairs(self):
+        """Every pair (a, b) of kept entries in one column: S_ab = sum_k J_ak J_bk / M_k is a
+        sum over exactly these pairs, so S can be assembled without forming J."""
         order = np.argsort(self.cols, kind="stable")
         cols_sorted = self.cols[order]
         starts = np.flatnonzero(np.r_[True, cols_sorted[1:] != cols_sorted[:-1]])
         ends = np.r_[starts[1:], cols_sorted.size]
         pa, pb = [], []
         for s, e in zip(starts, ends):
-            entries = order[s:e]
-            a, b = np.meshgrid(entries, entries, indexing="ij")
+            a, b = np.meshgrid(order[s:e], order[s:e], indexing="ij")
             pa.append(a.ravel()), pb.append(b.ravel())
-        pa, pb = np.concatenate(pa), np.concatenate(pb)
+        if not pa:
+            return np.zeros(0, np.intp), np.zeros(0, np.intp)
+        return np.concatenate(pa), np.concatenate(pb)
+
+    def _plan_schur_lower(self, minv: np.ndarray) -> None:
+        """Pairs of the lower triangle of S (row a >= row b), for the compiled dense kernel."""
+        pa, pb = self._column_pairs()
+        lower = self.rows[pa] >= self.rows[pb]
+        self.lower_a, self.lower_b = pa[lower], pb[lower]
+        self.lower_minv = minv[self.cols[self.lower_a]]
+
+    def _plan_schur_band(self, minv: np.ndarray) -> None:
+        """Index maps that put S = J M^-1 J^T straight into LAPACK's upper band storage,
+        rows in reverse Cuthill-McKee order (upper triangle in that order)."""
+        m = self.m
+        pa, pb = self._column_pairs()
         ra, rb = self.rows[pa], self.rows[pb]
         graph = scipy.sparse.coo_matrix((np.ones(ra.size), (ra, rb)), shape=(m, m)).tocsr()
         perm = reverse_cuthill_mckee(graph, symmetric_mode=True)

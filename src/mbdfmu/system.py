@@ -178,8 +178,15 @@ class System:
         self.joint_frame_body = np.array([b for b, _ in self.joint_frame], dtype=int)
         self.joint_frame_angle = np.array([a for _, a in self.joint_frame], dtype=float)
         self.driver_rows = np.array(self.driver_rows, dtype=int)
+        self._no_motion = (self.c_const, np.zeros(self.m), np.zeros(self.m))
+        self._no_motion_steps = np.array([self._no_motion] * 3)
+        for a in (*self._no_motion, self._no_motion_steps):
+            a.flags.writeable = False
         self._build_jacobian_pattern()
         self.kernel = _choose_kernel(kernel)
+        p = self.jacobian_pattern
+        if not p.banded:
+            self._jit_pattern = (p.rows, p.cols, p.lower_a, p.lower_b, p.lower_minv)
 
         self.driver_signals: dict[str, object] = {}
         self.force_signals: dict[str, object] = {}
@@ -221,7 +228,8 @@ class System:
         # coincidence s_i, s_j; line s_i, s_j, u_i
         self._points = np.concatenate([c.si, c.sj, l.si, l.sj, l.u]).reshape(-1, 2)
         self._point_body = np.concatenate([c.bi, c.bj, l.bi, l.bj, l.bi]).astype(np.intp)
-        self._point_split = np.cumsum([c.n, c.n, l.n, l.n])
+        ends = np.cumsum([c.n, c.n, l.n, l.n, l.n])
+        self._point_slices = [slice(a, b) for a, b in zip(np.r_[0, ends[:-1]], ends)]
         self._jit_args = (c.rows.reshape(-1, 2), c.bi, c.bj, c.si, c.sj,
                           l.rows, l.bi, l.bj, l.si, l.sj, l.u, a.rows, a.bi, a.bj)
 
@@ -239,7 +247,11 @@ class System:
         return V[:, :2], V[:, 2]
 
     def motion_values(self, t: float):
-        """(c, c', c'') of every constraint row at time t (seed: Psi depends on t by drivers)."""
+        """(c, c', c'') of every constraint row at time t (seed: Psi depends on t by drivers).
+
+        Read-only arrays; without drivers the same three every time."""
+        if not self.driver_motions:
+            return self._no_motion
         c = self.c_const.copy()
         cd = np.zeros(self.m)
         cdd = np.zeros(self.m)
@@ -273,8 +285,8 @@ class System:
             gamma = np.zeros(self.m)
         c, l, a = self.coincidence, self.line, self.angle
         pb = self._point_body
-        Asi_c, Asj_c, Asi_l, Asj_l, u = np.split(_rotate(self._points, cs[pb], sn[pb]),
-                                                 self._point_split)
+        rotated = _rotate(self._points, cs[pb], sn[pb])
+        Asi_c, Asj_c, Asi_l, Asj_l, u = (rotated[s] for s in self._point_slices)
         if c.n:
             Psi[c.rows] = r[c.bi] + Asi_c - r[c.bj] - Asj_c
             # d(A s)/dphi = B s = rot90(A s)
@@ -323,7 +335,7 @@ class System:
         Psi, gamma = np.empty(self.m), np.empty(self.m)
         data = np.empty(self._jac_nnz)
         data[:self._jac_constants.size] = self._jac_constants
-        kernel_jit.constraint_terms_compiled(qe, qde, with_v, cval, *self._jit_args,
+        kernel_jit.constraint_terms(qe, qde, with_v, cval, *self._jit_args,
                                              Psi, data, gamma)
         pattern = self.jacobian_pattern
         J = pattern.dense_with_ground(data) if extended else pattern.jacobian(data, sparse)
@@ -520,10 +532,25 @@ class System:
         qe, qde = np.zeros(n + 3), np.zeros(n + 3)
         qe[:n], qde[:n] = q, qd
         cval, _, cdd = self.motion_values(t)
-        p = self.jacobian_pattern
-        return kernel_jit.accelerations_dense_compiled(
+        return kernel_jit.accelerations_dense(
             qe, qde, cval, cdd, F, self.minv, RANK_TOLERANCE, self._jit_args,
-            self._jac_constants, p.flat, p.keep, self.m, n)
+            self._jac_constants, self.jacobian_pattern.keep, self._jit_pattern)
+
+    @property
+    def fused_steps(self) -> bool:
+        """Whole steps can run compiled (``kernel_jit.rk4p_step``): the numba kernel, a
+        dense mechanism, and applied forces that do not depend on the state or on inputs."""
+        return (self.kernel == "numba" and self.m > 0 and not self.jacobian_pattern.banded
+                and not self._state_forces)
+
+    def rk4p_step(self, t: float, q, qd, f, h: float, *, tol: float, max_iter: int):
+        """One compiled rk4p step (see ``fused_steps``): (q, q', q'', status) at t + h."""
+        motion = (self._no_motion_steps if not self.driver_motions else
+                  np.array([self.motion_values(t + a) for a in (0.0, 0.5 * h, h)]))
+        return kernel_jit.rk4p_step(q, qd, f, h, motion, self._F_constant, self.minv,
+                                    RANK_TOLERANCE, tol, max_iter, self._jit_args,
+                                    self._jac_constants, self.jacobian_pattern.keep,
+                                    self._jit_pattern)
 
     def kinetic_energy(self, qd: np.ndarray) -> float:
         return 0.5 * float(qd @ (self.mass * qd))
@@ -569,6 +596,8 @@ class System:
         torque T on body i has the potential ``-T phi_i``, a constant force F at a body point
         ``-F . (r_i + A_i s)``.
         """
+        if not self._state_forces:  # gravity and constant torques: potential -F . q
+            return self.kinetic_energy(qd) - float(self._F_constant @ q)
         energy = self.kinetic_energy(qd) + self.potential_energy(q)
         r, cs, sn, phi = self._poses(q)
         for f, b in self._forces:

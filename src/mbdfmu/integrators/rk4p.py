@@ -10,10 +10,13 @@ and Wanner, Solving ODEs II, sec. VII.2). No error control: the step sets the ac
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from ..assembly import PROJECTION_MAX_ITER
 from ..errors import SolverError
-from .projected_rk import ProjectedRK, rk_stages
+from .projected_rk import PROJECTION_TOL_FACTOR, PROJECTION_TOL_FLOOR, ProjectedRK, rk_stages
 
 # The classic tableau (Kutta 1901; Hairer, Norsett, Wanner I, Table II.1.1).
 RK4_A = np.array([[0.0, 0.0, 0.0, 0.0],
@@ -39,6 +42,10 @@ class RK4P(ProjectedRK):
     default_step = 1e-3
 
     def _step_impl(self, h):
+        if self.system.fused_steps:
+            done = self._fused_step(h)
+            if done:
+                return True, h
         t, t_new = self.t, self.t + h
         y_new = rk4_step(self._rhs_y, t, np.concatenate((self.q, self.qd)), h, self.f)
         self.check_finite(t_new, y_new)
@@ -51,3 +58,22 @@ class RK4P(ProjectedRK):
         self.check_finite(t_new, f)
         self.q, self.qd, self.f = q, qd, f
         return True, h
+
+    def _fused_step(self, h) -> bool:
+        """The same step compiled in one call (``kernel_jit.rk4p_step``); False to redo it
+        on the general path (a singular Schur complement needs the minimum-norm solve)."""
+        tol = max(PROJECTION_TOL_FACTOR * self.atol, PROJECTION_TOL_FLOOR) * self.system.length_scale
+        n = self.q.size
+        q, qd, qdd, status = self.system.rk4p_step(self.t, self.q, self.qd, self.f[n:], h,
+                                                   tol=tol, max_iter=PROJECTION_MAX_ITER)
+        if status == 1:
+            return False
+        if status == 2:
+            raise SolverError(f"{self.name}: step {h:.3g} s too large, position projection "
+                              f"did not converge in {PROJECTION_MAX_ITER} iterations", self.t + h)
+        if not math.isfinite(q.sum() + qd.sum() + qdd.sum()):   # one reduction for all three
+            self.check_finite(self.t + h, q, qd, qdd)
+        self.q, self.qd, self.f = q, qd, np.concatenate((qd, qdd))
+        self.stats.naccel += 4
+        self.stats.nprojections += 1
+        return True
