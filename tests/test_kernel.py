@@ -173,20 +173,38 @@ def test_failed_advance_rolls_back_to_the_exact_state():
 
 @needs_numba
 @pytest.mark.parametrize("name", ["n_four_bar_2", "four_bar", "pendulum", "double_pendulum"])
-def test_compiled_rk4p_step_equals_the_general_step(name):
-    sim = mbdfmu.Simulation(scene(name), method="rk4p", step=1e-3, kernel="numba")
-    assert sim.system.fused_steps
-    sim.advance(0.05)
-    integrator = sim.integrator
-    start = integrator.get_state()
-    assert integrator._fused_step(1e-3)
-    fused = integrator.q.copy(), integrator.qd.copy(), integrator.f.copy()
-    integrator.set_state(start)
-    general = mbdfmu.Simulation(scene(name), method="rk4p", step=1e-3, kernel="numpy").integrator
-    general.set_state(start)
-    general._step_impl(1e-3)
-    for a, b in zip(fused, (general.q, general.qd, general.f)):
-        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
+def test_compiled_rk4p_steps_equal_the_general_steps(name):
+    runs = {}
+    for kernel in ("numba", "numpy"):
+        sim = mbdfmu.Simulation(scene(name), method="rk4p", step=1e-3, kernel=kernel)
+        assert sim.system.fused_steps == (kernel == "numba")
+        sim.advance(0.3)                                  # 300 steps, compiled in one call
+        runs[kernel] = sim.integrator
+    fast, plain = runs["numba"], runs["numpy"]
+    assert fast.t == plain.t and fast.stats.nsteps == plain.stats.nsteps == 300
+    for a, b in ((fast.q, plain.q), (fast.qd, plain.qd), (fast.f, plain.f)):
+        # round-off only (the double pendulum is chaotic: 3e-9 after 300 steps)
+        np.testing.assert_allclose(a, b, rtol=1e-8, atol=1e-8)
+    if plain.audit is not None:                           # the energy check's running state
+        assert fast.audit.checks == plain.audit.checks
+        for field in ("kinetic_max", "potential_swing", "magnitude", "last_energy"):
+            assert getattr(fast.audit, field) == pytest.approx(getattr(plain.audit, field),
+                                                              rel=1e-9, abs=1e-12)
+
+
+@needs_numba
+def test_compiled_rk4p_fails_where_the_general_path_fails_and_says_the_same():
+    # steps far too coarse: the position projection fails at the same step on both paths
+    for name, h in (("pendulum", 1.0), ("n_four_bar_2", 0.7)):
+        messages = {}
+        for kernel in ("numba", "numpy"):
+            sim = mbdfmu.Simulation(scene(name), method="rk4p", step=h, kernel=kernel)
+            with pytest.raises(SolverError, match="too large, position projection") as info:
+                sim.advance(20.0)
+            # the time and the failure; which joint is worst may differ by round-off in a
+            # diverging Newton iteration
+            messages[kernel] = str(info.value).split(': joint "')[0]
+        assert messages["numba"] == messages["numpy"]
 
 
 def test_state_dependent_forces_take_the_general_path():

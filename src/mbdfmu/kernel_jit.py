@@ -254,3 +254,45 @@ def rk4p_step(q, qd, f, h, motion, F, minv, rank_tol, tol, max_iter, args, jac_c
     if not ok:
         return q, qd, f, 1
     return qn, vn, fn, 0
+
+
+# Fields of the ``audit`` array of rk4p_steps: EnergyAudit's running state (energy_audit.py).
+AUDIT_FIELDS = ("active", "e0", "v0", "kinetic_max", "potential_swing", "magnitude", "checks",
+                "worst", "last_energy")
+
+
+@_compiled
+def rk4p_steps(q, qd, f, h, motions, F, minv, rank_tol, tol, max_iter, args, jac_constants,
+               keep, pattern, mass, audit, divergence_fraction, roundoff):
+    """``rk4p_step`` repeated for every row of ``motions`` (s, 3, 3, m), with the energy
+    divergence check of a fixed-step method after each step (``EnergyAudit.check`` with
+    factor 0, for mechanisms whose energy is 1/2 q'M q' - F.q) updating ``audit`` in place.
+
+    Returns (q, q', q'', steps done, status): status 0 all done; 1 a singular Schur
+    complement at the next step, 2 a failed projection there (see rk4p_step); 3 the energy
+    check failed after the last step done; 4 a non-finite state after it.
+    """
+    for k in range(motions.shape[0]):
+        qn, vn, fn, status = rk4p_step(q, qd, f, h, motions[k], F, minv, rank_tol, tol,
+                                       max_iter, args, jac_constants, keep, pattern)
+        if status != 0:
+            return q, qd, f, k, status
+        q, qd, f = qn, vn, fn
+        if not np.isfinite(q.sum() + qd.sum() + f.sum()):
+            return q, qd, f, k + 1, 4
+        if audit[0] != 0.0:
+            kinetic = 0.5 * np.sum(mass * qd * qd)
+            energy = kinetic - np.sum(F * q)
+            audit[3] = max(audit[3], kinetic)
+            audit[4] = max(audit[4], abs(energy - kinetic - audit[2]))
+            audit[5] = max(audit[5], abs(energy), kinetic)
+            audit[8] = energy
+            audit[6] += 1.0
+            error = abs(energy - audit[1])
+            if error > roundoff * audit[5] * audit[6]:
+                allowance = divergence_fraction * max(audit[3], audit[4])
+                ratio = error / allowance if allowance > 0.0 else np.inf
+                audit[7] = max(audit[7], ratio)
+                if ratio > 1.0:
+                    return q, qd, f, k + 1, 3
+    return q, qd, f, motions.shape[0], 0

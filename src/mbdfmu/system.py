@@ -538,19 +538,24 @@ class System:
 
     @property
     def fused_steps(self) -> bool:
-        """Whole steps can run compiled (``kernel_jit.rk4p_step``): the numba kernel, a
+        """Whole steps can run compiled (``kernel_jit.rk4p_steps``): the numba kernel, a
         dense mechanism, and applied forces that do not depend on the state or on inputs."""
         return (self.kernel == "numba" and self.m > 0 and not self.jacobian_pattern.banded
                 and not self._state_forces)
 
-    def rk4p_step(self, t: float, q, qd, f, h: float, *, tol: float, max_iter: int):
-        """One compiled rk4p step (see ``fused_steps``): (q, q', q'', status) at t + h."""
-        motion = (self._no_motion_steps if not self.driver_motions else
-                  np.array([self.motion_values(t + a) for a in (0.0, 0.5 * h, h)]))
-        return kernel_jit.rk4p_step(q, qd, f, h, motion, self._F_constant, self.minv,
-                                    RANK_TOLERANCE, tol, max_iter, self._jit_args,
-                                    self._jac_constants, self.jacobian_pattern.keep,
-                                    self._jit_pattern)
+    def rk4p_steps(self, times, q, qd, f, h: float, audit_state, *, tol: float,
+                   max_iter: int, divergence_fraction: float, roundoff: float):
+        """Compiled rk4p steps from each of ``times`` with the energy check's running state
+        ``audit_state`` (updated in place; see ``kernel_jit.rk4p_steps``)."""
+        if self.driver_motions:
+            motions = np.array([[self.motion_values(t + a) for a in (0.0, 0.5 * h, h)]
+                                for t in times])
+        else:
+            motions = np.broadcast_to(self._no_motion_steps, (len(times), 3, 3, self.m))
+        return kernel_jit.rk4p_steps(
+            q, qd, f, h, motions, self._F_constant, self.minv, RANK_TOLERANCE, tol, max_iter,
+            self._jit_args, self._jac_constants, self.jacobian_pattern.keep, self._jit_pattern,
+            self.mass, audit_state, divergence_fraction, roundoff)
 
     def kinetic_energy(self, qd: np.ndarray) -> float:
         return 0.5 * float(qd @ (self.mass * qd))
