@@ -134,57 +134,62 @@ def jac_t_mul(values, rows, cols, y, n):
 
 @_compiled
 def schur_solve(values, pattern, b, rank_tol):
-    """x with (J M^-1 J^T) x = b by Cholesky; ok False when S is too near singular.
+    """x with (J M^-1 J^T) x = b by banded Cholesky; ok False when S is too near singular.
 
-    S's lower triangle is summed over the column pairs of the pattern
-    (``JacobianPattern._plan_schur_lower``): O(nonzeros), no dense J.
+    S is summed over the pattern's column pairs straight into lower band storage in
+    reverse Cuthill-McKee order (``JacobianPattern._plan_schur_band``): O(nonzeros) to
+    assemble, O(m kd^2) to factorise, no dense J, at any size.
     """
-    rows, lower_a, lower_b, lower_minv = pattern[0], pattern[2], pattern[3], pattern[4]
+    pair_a, pair_b, pair_minv, band_index, perm, kd = (pattern[2], pattern[3], pattern[4],
+                                                       pattern[5], pattern[6], pattern[7])
     m = b.shape[0]
-    S = np.zeros((m, m))
-    for p in range(lower_a.shape[0]):
-        a, c = lower_a[p], lower_b[p]
-        S[rows[a], rows[c]] += values[a] * values[c] * lower_minv[p]
+    flat = np.zeros((kd + 1) * m)
+    for p in range(pair_a.shape[0]):
+        flat[band_index[p]] += values[pair_a[p]] * values[pair_b[p]] * pair_minv[p]
+    L = flat.reshape(kd + 1, m)          # L[i - j, j] = S[i, j], then the factor
     dmax, dmin = 0.0, np.inf
-    for j in range(m):                   # S = L L^T in the lower triangle
-        s = S[j, j]
-        for k in range(j):
-            s -= S[j, k] * S[j, k]
+    for j in range(m):
+        s = L[0, j]
+        for k in range(max(0, j - kd), j):
+            s -= L[j - k, k] * L[j - k, k]
         if s <= 0.0:
             return b, False
         d = math.sqrt(s)
-        S[j, j] = d
+        L[0, j] = d
         dmax, dmin = max(dmax, d), min(dmin, d)
-        for i in range(j + 1, m):
-            s = S[i, j]
-            for k in range(j):
-                s -= S[i, k] * S[j, k]
-            S[i, j] = s / d
+        for i in range(j + 1, min(m, j + kd + 1)):
+            s = L[i - j, j]
+            for k in range(max(0, i - kd), j):
+                s -= L[i - k, k] * L[j - k, k]
+            L[i - j, j] = s / d
     if not dmin > math.sqrt(rank_tol) * dmax:
         return b, False
-    x = b.copy()
-    for i in range(m):                   # L y = b
+    x = np.empty(m)
+    for i in range(m):                   # L y = P b
+        s = b[perm[i]]
+        for k in range(max(0, i - kd), i):
+            s -= L[i - k, k] * x[k]
+        x[i] = s / L[0, i]
+    for i in range(m - 1, -1, -1):       # L^T z = y
         s = x[i]
-        for k in range(i):
-            s -= S[i, k] * x[k]
-        x[i] = s / S[i, i]
-    for i in range(m - 1, -1, -1):       # L^T x = y
-        s = x[i]
-        for k in range(i + 1, m):
-            s -= S[k, i] * x[k]
-        x[i] = s / S[i, i]
-    return x, True
+        for k in range(i + 1, min(m, i + kd + 1)):
+            s -= L[k - i, i] * x[k]
+        x[i] = s / L[0, i]
+    out = np.empty(m)
+    for i in range(m):                   # x = P^T z
+        out[perm[i]] = x[i]
+    return out, True
 
 
 @_compiled
-def accelerations_dense(q, qd, cval, cdd, F, minv, rank_tol, args, jac_constants, keep,
+def accelerations(q, qd, cval, cdd, F, minv, rank_tol, args, jac_constants, keep,
                         pattern):
-    """Eq. 14 by the Schur complement for a small mechanism, all in one compiled call.
+    """Eq. 14 by the Schur complement, all in one compiled call.
 
     Same steps as ``System.accelerations``: ``S = J M^-1 J^T``, Cholesky,
     ``lam = S^-1 (J M^-1 F - gamma)``, ``q'' = M^-1 (F - J^T lam)``. q, qd with the ground's
-    three zeros appended; ``pattern`` = (rows, cols, lower_a, lower_b, lower_minv) of
-    ``JacobianPattern``. Returns (q'', lam, ok); ok is False when S is too close to singular
+    three zeros appended; ``pattern`` = (rows, cols, pair_a, pair_b, pair_minv, band_index,
+    perm, kd) of ``JacobianPattern``. Returns (q'', lam, ok); ok is False when S is too close to singular
     for Cholesky (the caller then takes the minimum-norm path).
     """
     m, n = cval.shape[0], F.shape[0]
@@ -219,7 +224,7 @@ def rk4p_step(q, qd, f, h, motion, F, minv, rank_tol, tol, max_iter, args, jac_c
         qe[:n] = q + a * k_q
         qde[:n] = qd + a * k_v
         k_q = qde[:n].copy()
-        k_v, _, ok = accelerations_dense(qe, qde, motion[row, 0], motion[row, 2], F, minv,
+        k_v, _, ok = accelerations(qe, qde, motion[row, 0], motion[row, 2], F, minv,
                                          rank_tol, args, jac_constants, keep, pattern)
         if not ok:
             return q, qd, f, 1
@@ -249,7 +254,7 @@ def rk4p_step(q, qd, f, h, motion, F, minv, rank_tol, tol, max_iter, args, jac_c
         return q, qd, f, 1
     vn = vn - minv * jac_t_mul(values, rows, cols, x, n)
     qde[:n] = vn
-    fn, _, ok = accelerations_dense(qe, qde, motion[2, 0], motion[2, 2], F, minv, rank_tol,
+    fn, _, ok = accelerations(qe, qde, motion[2, 0], motion[2, 2], F, minv, rank_tol,
                                     args, jac_constants, keep, pattern)
     if not ok:
         return q, qd, f, 1

@@ -102,10 +102,7 @@ class JacobianPattern:
         if np.unique(self.flat).size != self.flat.size:
             raise ValueError("Jacobian pattern has repeated entries")
         self.banded = (m >= BANDED_MIN_ROWS) if banded is None else bool(banded)
-        if self.banded:
-            self._plan_schur_band(minv)
-        else:
-            self._plan_schur_lower(minv)
+        self._plan_schur_band(minv)   # the compiled kernel uses it at any size
 
     # ------------------------------------------------------------------ both forms
 
@@ -143,35 +140,30 @@ class JacobianPattern:
             return np.zeros(0, np.intp), np.zeros(0, np.intp)
         return np.concatenate(pa), np.concatenate(pb)
 
-    def _plan_schur_lower(self, minv: np.ndarray) -> None:
-        """Pairs of the lower triangle of S (row a >= row b), for the compiled dense kernel."""
-        pa, pb = self._column_pairs()
-        lower = self.rows[pa] >= self.rows[pb]
-        self.lower_a, self.lower_b = pa[lower], pb[lower]
-        self.lower_minv = minv[self.cols[self.lower_a]]
-
     def _plan_schur_band(self, minv: np.ndarray) -> None:
-        """Index maps that put S = J M^-1 J^T straight into LAPACK's upper band storage,
-        rows in reverse Cuthill-McKee order (upper triangle in that order)."""
+        """Index maps that put S = J M^-1 J^T straight into lower band storage
+        ``band[i - j, j] = S[i, j]`` (i >= j; LAPACK's lower form, also the compiled
+        kernel's), rows in reverse Cuthill-McKee order, which keeps the band narrow."""
         m = self.m
         pa, pb = self._column_pairs()
         ra, rb = self.rows[pa], self.rows[pb]
         graph = scipy.sparse.coo_matrix((np.ones(ra.size), (ra, rb)), shape=(m, m)).tocsr()
-        perm = reverse_cuthill_mckee(graph, symmetric_mode=True)
+        perm = (reverse_cuthill_mckee(graph, symmetric_mode=True).astype(np.intp) if m
+                else np.zeros(0, np.intp))            # no constraints: nothing to order
         position = np.empty(m, dtype=np.intp)
         position[perm] = np.arange(m)
         i, j = position[ra], position[rb]
-        upper = i <= j
-        pa, pb, i, j = pa[upper], pb[upper], i[upper], j[upper]
-        self.kd = int((j - i).max()) if j.size else 0
+        lower = i >= j
+        pa, pb, i, j = pa[lower], pb[lower], i[lower], j[lower]
+        self.kd = int((i - j).max()) if i.size else 0
         self.pair_a, self.pair_b = pa, pb
         self.pair_minv = minv[self.cols[pa]]
-        self.band_index = (self.kd + i - j) * m + j      # into a C-ordered (kd + 1, m) array
+        self.band_index = (i - j) * m + j                # into a C-ordered (kd + 1, m) array
         self.band_size = (self.kd + 1) * m
         self.perm = perm
 
     def schur_band(self, values: np.ndarray) -> np.ndarray:
-        """S = J M^-1 J^T in upper band storage (kd + 1, m), rows in ``self.perm`` order."""
+        """S = J M^-1 J^T in lower band storage (kd + 1, m), rows in ``self.perm`` order."""
         weights = values[self.pair_a] * values[self.pair_b] * self.pair_minv
         return np.bincount(self.band_index, weights=weights,
                            minlength=self.band_size).reshape(self.kd + 1, self.m)
@@ -182,9 +174,9 @@ class JacobianPattern:
         M is the mass matrix the pattern was planned with (a System's is fixed)."""
         band = self.schur_band(values)
         bp = b[self.perm]
-        factor, info = _pbtrf(band, lower=0)
-        if info == 0 and _well_conditioned(factor[self.kd]):
-            xp, info = _pbtrs(factor, bp, lower=0)
+        factor, info = _pbtrf(band, lower=1)
+        if info == 0 and _well_conditioned(factor[0]):
+            xp, info = _pbtrs(factor, bp, lower=1)
             if info == 0:
                 return self._unpermute(xp)
         if not np.all(np.isfinite(values)) or not np.all(np.isfinite(b)):
@@ -198,16 +190,16 @@ class JacobianPattern:
         converges there to the least-squares solution; eps at RANK_TOLERANCE times the
         largest diagonal plays the part of lstsq's cut-off, in banded cost.
         """
-        eps = RANK_TOLERANCE * float(np.abs(band[self.kd]).max() or 1.0)
+        eps = RANK_TOLERANCE * float(np.abs(band[0]).max() or 1.0)
         shifted = band.copy()
-        shifted[self.kd] += eps
-        factor, info = _pbtrf(shifted, lower=0)
+        shifted[0] += eps
+        factor, info = _pbtrf(shifted, lower=1)
         if info != 0:
             raise SolverError("the constraint equations could not be solved (Schur complement "
                               "not positive semi-definite)")
         x = np.zeros_like(bp)
         for _ in range(TIKHONOV_STEPS):
-            dx, _ = _pbtrs(factor, bp - _band_matvec(band, x, self.kd), lower=0)
+            dx, _ = _pbtrs(factor, bp - _band_matvec(band, x), lower=1)
             x += dx
         return x
 
@@ -217,14 +209,14 @@ class JacobianPattern:
         return x
 
 
-def _band_matvec(band: np.ndarray, x: np.ndarray, kd: int) -> np.ndarray:
-    """S x for symmetric S in upper band storage (kd + 1, m)."""
+def _band_matvec(band: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """S x for symmetric S in lower band storage (kd + 1, m): band[d, j] = S[j + d, j]."""
     m = x.size
-    y = band[kd] * x
-    for d in range(1, kd + 1):
-        diag = band[kd - d, d:]          # S[j - d, j], j = d..m-1
-        y[:m - d] += diag * x[d:]
+    y = band[0] * x
+    for d in range(1, band.shape[0]):
+        diag = band[d, :m - d]
         y[d:] += diag * x[:m - d]
+        y[:m - d] += diag * x[d:]
     return y
 
 

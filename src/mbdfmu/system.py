@@ -30,7 +30,7 @@ import numpy as np
 
 from . import kernel_jit
 from .errors import InputError, SolverError
-from .linalg import RANK_TOLERANCE, JacobianPattern, schur_solve, solve_spd, spd_solver  # noqa: F401
+from .linalg import RANK_TOLERANCE, JacobianPattern, schur_solve
 from .motion import InputMotion
 from .scene import (GROUND, PointForce, RotationalSpringDamper, Scene, SpringDamper, Torque,
                     _driver_unit)
@@ -185,8 +185,8 @@ class System:
         self._build_jacobian_pattern()
         self.kernel = _choose_kernel(kernel)
         p = self.jacobian_pattern
-        if not p.banded:
-            self._jit_pattern = (p.rows, p.cols, p.lower_a, p.lower_b, p.lower_minv)
+        self._jit_pattern = (p.rows, p.cols, p.pair_a, p.pair_b, p.pair_minv, p.band_index,
+                             p.perm, p.kd)
 
         self.driver_signals: dict[str, object] = {}
         self.force_signals: dict[str, object] = {}
@@ -515,7 +515,7 @@ class System:
         F = self.forces(t, q, qd)
         if self.m == 0:
             return self.minv * F, np.zeros(0)
-        if self.kernel == "numba" and baumgarte is None and not self.jacobian_pattern.banded:
+        if self.kernel == "numba" and baumgarte is None:
             qdd, lam, ok = self._accelerations_compiled(t, q, qd, F)
             if ok:
                 return qdd, lam
@@ -527,21 +527,20 @@ class System:
         return self.minv * (F - J.T @ lam), lam
 
     def _accelerations_compiled(self, t, q, qd, F):
-        """Eq. 14 in one numba call (small mechanisms); ok False near singular (see caller)."""
+        """Eq. 14 in one numba call (any size); ok False near singular (see caller)."""
         n = self.n
         qe, qde = np.zeros(n + 3), np.zeros(n + 3)
         qe[:n], qde[:n] = q, qd
         cval, _, cdd = self.motion_values(t)
-        return kernel_jit.accelerations_dense(
+        return kernel_jit.accelerations(
             qe, qde, cval, cdd, F, self.minv, RANK_TOLERANCE, self._jit_args,
             self._jac_constants, self.jacobian_pattern.keep, self._jit_pattern)
 
     @property
     def fused_steps(self) -> bool:
-        """Whole steps can run compiled (``kernel_jit.rk4p_steps``): the numba kernel, a
-        dense mechanism, and applied forces that do not depend on the state or on inputs."""
-        return (self.kernel == "numba" and self.m > 0 and not self.jacobian_pattern.banded
-                and not self._state_forces)
+        """Whole steps can run compiled (``kernel_jit.rk4p_steps``): the numba kernel and
+        applied forces that do not depend on the state or on inputs."""
+        return self.kernel == "numba" and self.m > 0 and not self._state_forces
 
     def rk4p_steps(self, times, q, qd, f, h: float, audit_state, *, tol: float,
                    max_iter: int, divergence_fraction: float, roundoff: float):
@@ -681,8 +680,8 @@ class System:
             if isinstance(d.motion, InputMotion):
                 unit, _ = _driver_unit(self.scene, d)
                 out += [Variable(f"{d.name}.position", unit, f"prescribed position of {d.name}"),
-                        Variable(f"{d.name}.velocity", f"{unit}/s", f"its rate (optional)"),
-                        Variable(f"{d.name}.acceleration", f"{unit}/s2", f"its second rate (optional)")]
+                        Variable(f"{d.name}.velocity", f"{unit}/s", "its rate (optional)"),
+                        Variable(f"{d.name}.acceleration", f"{unit}/s2", "its second rate (optional)")]
         for f in self.scene.forces:
             if isinstance(f, PointForce) and f.input:
                 out += [Variable(f"{f.name}.fx", "N", f"{f.name}, x component, ground frame"),

@@ -35,7 +35,7 @@ loses rank, and the trapezoidal equations then hold exactly (Psi = 0 to the tole
 Projections (Bayo and Ledesma's mass-orthogonal projections): after convergence q' and q''
 from the trapezoidal rule are projected onto Psi_q q' = nu and Psi_q q'' = gamma with the
 smallest change in the mass metric, ``x - M^-1 Psi_q^T (Psi_q M^-1 Psi_q^T)^+ (Psi_q x - rhs)``,
-minimum-norm at singular configurations (``system.spd_solver``). Cuadrado et al. weight the
+minimum-norm at singular configurations (``linalg.spd_solver``). Cuadrado et al. weight the
 projections with f_q instead, which needs no extra factorisation in their sparse code; with
 a diagonal M the mass metric costs one small Cholesky and is exact.
 
@@ -48,7 +48,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import SolverError
-from ..system import spd_solver
+from ..linalg import spd_solver
 from .base import Integrator
 from .implicit import (NEWTON_MAX_ITER, IterationMatrix, NewtonFailure, advance_with_halving,
                        check_rate, converged, increment_converged,

@@ -15,7 +15,7 @@ the scene needs):
    with tiny explicit steps; ``ali3p`` if the constraints are also redundant (genalpha's
    matrix would be singular).
 3. Otherwise ``dop853p``: adaptive, high order, coordinate projection. Consistent redundant
-   constraints stay here: eq. 14's minimum-norm multipliers (``system.solve_spd``) handle
+   constraints stay here: eq. 14's minimum-norm multipliers (``linalg.solve_spd``) handle
    them, and the parallelogram runs 10 s with dop853p to 1.6e-12 in 2.8 s, against 2.5e-5
    in 14 s with ali3p at its default step. A huge mass ratio (P6's light cart, beyond
    MASS_RATIO) stays here too: its fast transients are physical, so they must be resolved,
