@@ -193,6 +193,7 @@ def scene_from_text(tmp_path, text, name="scene"):
     ("n_four_bar_40", "dop853p", "smooth"),     # singular only later: auto looks at t0
     ("parallelogram", "dop853p", "redundant"),  # consistent: minimum-norm multipliers
     ("light_cart_pole", "dop853p", "1e+06x"),
+    ("slider_crank", "rk4p", "no degrees of freedom"),   # the projections give the motion
 ])
 def test_auto_picks_per_scene_and_says_why(name, picked, words):
     sim = mbdfmu.Simulation(scene(name))

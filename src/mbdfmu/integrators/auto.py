@@ -3,6 +3,10 @@
 Rules, checked in this order on the scene and its assembled state at t0 (no more model than
 the scene needs):
 
+0. No degrees of freedom (every coordinate follows from the constraints and drivers, as in
+   the driven slider-crank): the motion is the projections' (``assembly.py``), exact to
+   their tolerance whatever the integrator, so the cheapest one, ``rk4p`` at its step,
+   whose RK4 predictor only starts the Newton projection close.
 1. A singular configuration at t0: the constraint Jacobian loses rank there
    (``assembly.rank_report``) but regains it a little way along the motion
    (MOVE_FRACTION of the mechanism's size), or the smallest singular value of its
@@ -40,6 +44,7 @@ from .ali3p import ALI3P
 from .base import Integrator
 from .genalpha import GeneralizedAlpha
 from .projected_rk import DOP853P
+from .rk4p import RK4P
 
 # Smallest singular value of Psi_q relative to its largest that counts as nearly singular.
 NEAR_SINGULAR = 1e-6
@@ -109,6 +114,9 @@ def choose_method(system, t0: float, q0: np.ndarray) -> tuple[type[Integrator], 
     if system.m:
         report = rank_report(system, t0, q0)
         redundant = report.redundant
+        if report.dof == 0 and not redundant:
+            return RK4P, ("no degrees of freedom (the drivers prescribe the whole motion): "
+                          "the projections give it, so the cheapest method, rk4p")
         if redundant and _rank_after_moving(system, t0, q0) > report.rank:
             return ALI3P, (f"the constraint Jacobian loses rank {len(redundant)} at t = {t0:g} "
                            "and regains it as the mechanism moves (a singular configuration): "
@@ -145,8 +153,8 @@ class Auto(Integrator):
     ``picked_by = "auto"`` and ``reason`` set."""
 
     name = "auto"
-    summary = ("picks per scene: ali3p for redundant/singular constraints, genalpha for stiff "
-               "springs, else dop853p; says why")
+    summary = ("picks per scene: rk4p without degrees of freedom, ali3p for redundant/singular "
+               "constraints, genalpha for stiff springs, else dop853p; says why")
     adaptive = True  # the usual choice; the FMU's solver.step = 0 means the method's default
 
     def __new__(cls, system, t0, q0, qd0, *, step=None, rtol=None, atol=None):
