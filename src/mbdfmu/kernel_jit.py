@@ -31,7 +31,7 @@ def available() -> bool:
 
 
 @_compiled
-def constraint_terms(q, qd, with_v, cval,
+def constraint_terms(q, qd, cval,
                      c_rows, c_bi, c_bj, c_si, c_sj,
                      l_rows, l_bi, l_bj, l_si, l_sj, l_u,
                      a_rows, a_bi, a_bj,
@@ -61,10 +61,9 @@ def constraint_terms(q, qd, with_v, cval,
         data[k0 + kc + k] = aix
         data[k0 + 2 * kc + k] = ajy
         data[k0 + 3 * kc + k] = -ajx
-        if with_v:
-            wi2, wj2 = qd[3 * i + 2] ** 2, qd[3 * j + 2] ** 2
-            gamma[r0] = aix * wi2 - ajx * wj2
-            gamma[r1] = aiy * wi2 - ajy * wj2
+        wi2, wj2 = qd[3 * i + 2] ** 2, qd[3 * j + 2] ** 2
+        gamma[r0] = aix * wi2 - ajx * wj2
+        gamma[r1] = aiy * wi2 - ajy * wj2
     k1 = k0 + 4 * kc
     for k in range(kl):
         i, j = l_bi[k], l_bj[k]
@@ -87,28 +86,27 @@ def constraint_terms(q, qd, with_v, cval,
         data[k1 + 3 * kl + k] = ux
         data[k1 + 4 * kl + k] = uy
         data[k1 + 5 * kl + k] = -ux * ajy + uy * ajx
-        if with_v:
-            wi, wj = qd[3 * i + 2], qd[3 * j + 2]
-            ddx = qd[3 * j] - wj * ajy - qd[3 * i] + wi * aiy
-            ddy = qd[3 * j + 1] + wj * ajx - qd[3 * i + 1] - wi * aix
-            gamma[row] = (wi * wi * (ux * dx + uy * dy)
-                          - 2.0 * wi * (-uy * ddx + ux * ddy)
-                          + ux * (ajx * wj * wj - aix * wi * wi)
-                          + uy * (ajy * wj * wj - aiy * wi * wi))
+        wi, wj = qd[3 * i + 2], qd[3 * j + 2]
+        ddx = qd[3 * j] - wj * ajy - qd[3 * i] + wi * aiy
+        ddy = qd[3 * j + 1] + wj * ajx - qd[3 * i + 1] - wi * aix
+        gamma[row] = (wi * wi * (ux * dx + uy * dy)
+                      - 2.0 * wi * (-uy * ddx + ux * ddy)
+                      + ux * (ajx * wj * wj - aix * wi * wi)
+                      + uy * (ajy * wj * wj - aiy * wi * wi))
     for k in range(a_rows.shape[0]):
         row = a_rows[k]
         psi[row] = q[3 * a_bj[k] + 2] - q[3 * a_bi[k] + 2] - cval[row]
 
 
 @_compiled
-def terms(q, qd, with_v, cval, args, jac_constants, keep):
+def terms(q, qd, cval, args, jac_constants, keep):
     """Psi (m,), the kept Jacobian values (on the pattern's rows/cols) and gamma without
     c''(t). q, qd with the ground's three zeros appended."""
     m = cval.shape[0]
     psi, gamma = np.empty(m), np.empty(m)
     data = np.empty(jac_constants.shape[0] + 4 * args[0].shape[0] + 6 * args[5].shape[0])
     data[:jac_constants.shape[0]] = jac_constants
-    constraint_terms(q, qd, with_v, cval, args[0], args[1], args[2], args[3], args[4],
+    constraint_terms(q, qd, cval, args[0], args[1], args[2], args[3], args[4],
                      args[5], args[6], args[7], args[8], args[9], args[10],
                      args[11], args[12], args[13], psi, data, gamma)
     return psi, data[keep], gamma
@@ -194,7 +192,7 @@ def accelerations(q, qd, cval, cdd, F, minv, rank_tol, args, jac_constants, keep
     """
     m, n = cval.shape[0], F.shape[0]
     rows, cols = pattern[0], pattern[1]
-    _, values, gamma = terms(q, qd, True, cval, args, jac_constants, keep)
+    _, values, gamma = terms(q, qd, cval, args, jac_constants, keep)
     rhs = jac_mul(values, rows, cols, minv * F, m) - (gamma + cdd)
     lam, ok = schur_solve(values, pattern, rhs, rank_tol)
     return minv * (F - jac_t_mul(values, rows, cols, lam, n)), lam, ok
@@ -237,7 +235,7 @@ def rk4p_step(q, qd, f, h, motion, F, minv, rank_tol, tol, max_iter, args, jac_c
     done = False
     for _ in range(max_iter + 1):
         qe[:n] = qn
-        psi, values, _ = terms(qe, qe, False, motion[2, 0], args, jac_constants, keep)
+        psi, values, _ = terms(qe, qe, motion[2, 0], args, jac_constants, keep)
         if np.max(np.abs(psi)) <= tol:
             done = True
             break

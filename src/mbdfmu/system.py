@@ -262,6 +262,8 @@ class System:
             else:
                 f = motion.evaluate(t)
             c[row], cd[row], cdd[row] = f
+        for a in (c, cd, cdd):      # one array type for the compiled kernel (one compilation)
+            a.flags.writeable = False
         return c, cd, cdd
 
     def constraints(self, t: float, q: np.ndarray, qd: np.ndarray | None = None,
@@ -335,7 +337,7 @@ class System:
         Psi, gamma = np.empty(self.m), np.empty(self.m)
         data = np.empty(self._jac_nnz)
         data[:self._jac_constants.size] = self._jac_constants
-        kernel_jit.constraint_terms(qe, qde, with_v, cval, *self._jit_args,
+        kernel_jit.constraint_terms(qe, qde, cval, *self._jit_args,
                                              Psi, data, gamma)
         pattern = self.jacobian_pattern
         J = pattern.dense_with_ground(data) if extended else pattern.jacobian(data, sparse)
@@ -550,7 +552,8 @@ class System:
             motions = np.array([[self.motion_values(t + a) for a in (0.0, 0.5 * h, h)]
                                 for t in times])
         else:
-            motions = np.broadcast_to(self._no_motion_steps, (len(times), 3, 3, self.m))
+            motions = np.repeat(self._no_motion_steps[None], len(times), axis=0)
+        motions.flags.writeable = False   # read-only C arrays everywhere: one compilation
         return kernel_jit.rk4p_steps(
             q, qd, f, h, motions, self._F_constant, self.minv, RANK_TOLERANCE, tol, max_iter,
             self._jit_args, self._jac_constants, self.jacobian_pattern.keep, self._jit_pattern,
