@@ -6,7 +6,9 @@ the scene's reference, so the sweep gives the same errors on any scheduler: in t
 process (``scheduler="synchronous"``), on a local Dask cluster (the default) or on an
 existing one (``scheduler="tcp://host:8786"``). A task records
 
-- ``cpu_s``: ``time.process_time()`` of the run (assembly included) in the worker;
+- ``cpu_s``: ``time.process_time()`` of the run (assembly included) in the worker, after
+  an untimed warm-up per worker (numba compiles the kernel once per installation, loads
+  it once per process: neither is the method's work);
 - ``error``: the error against the scene's reference (exact where one exists, otherwise a
   converged run of ``REFERENCE_METHOD``), see each ``Case``;
 - ``energy_drift``: max |E(t) - E(0)| over the run, relative to the largest kinetic energy
@@ -255,6 +257,18 @@ def simulate_outputs(scene, t_out, method, kind, setting, budget):
     return out, stats, t_reached, reason
 
 
+_warmed_up: set = set()
+
+
+def _warm_up(case, scene, task, t_out) -> None:
+    """A short untimed run of the task's scene and method, once per process."""
+    key = (case.key, task["method"], task["kind"])
+    if key in _warmed_up:
+        return
+    _warmed_up.add(key)
+    simulate_outputs(scene, t_out[:2], task["method"], task["kind"], task["setting"], math.inf)
+
+
 def run_task(task: dict) -> dict:
     """One run of the sweep: a pure function of ``task`` (scene key, method, kind, setting,
     quick, reference). Returns one CSV row (a dict over CSV_FIELDS)."""
@@ -262,6 +276,7 @@ def run_task(task: dict) -> dict:
     scene = _scene(case)
     t_end, t_out = horizon(case, task["quick"])
     budget = QUICK_CPU_BUDGET_S if task["quick"] else CPU_BUDGET_S
+    _warm_up(case, scene, task, t_out)
     start = time.process_time()
     out, stats, t_reached, reason = simulate_outputs(scene, t_out, task["method"], task["kind"],
                                                      task["setting"], budget)
