@@ -37,6 +37,8 @@ CASES = {
                       ['driver "m"', 'unknown joint "P"']),
     "duplicate": (BASE + '[[body]]\nname = "crank"\nmass = 1.0\ninertia = 1.0\nposition = [0.0, 0.0]\n',
                   ['body "crank"', "duplicate name"]),
+    "force_on_ground": (BASE + '[[force]]\nname = "F"\ntype = "torque"\nbody = "ground"\nvalue = 1.0\n',
+                        ['force "F"', "acts on the ground"]),
     "duplicate_across_kinds": (BASE + '[[force]]\nname = "O"\ntype = "torque"\nbody = "crank"\nvalue = 1.0\n',
                                ['force "O"', "duplicate name (also a joint)"]),
     "nonpositive_mass": (BASE.replace("mass = 1.0", "mass = 0.0"),

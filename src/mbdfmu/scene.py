@@ -409,7 +409,10 @@ def _check_references(scene_items: dict[str, list], problems: _Problems) -> None
     for f in scene_items["force"]:
         where = f'force "{f.name}"'
         if isinstance(f, (PointForce, Torque)):
-            body_ref(where, "body", f.body)
+            if f.body == GROUND:
+                problems.add(where, "acts on the ground, which is fixed: name a moving body")
+            else:
+                body_ref(where, "body", f.body)
         elif isinstance(f, SpringDamper):
             body_ref(where, "body_i", f.body_i)
             body_ref(where, "body_j", f.body_j)
