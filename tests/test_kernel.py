@@ -148,7 +148,8 @@ def test_p2_n20_banded_run_follows_the_reduction_through_a_crossing():
 
 
 def test_failed_advance_rolls_back_to_the_exact_state():
-    sim = mbdfmu.Simulation(scene("slider_crank"), method="rk4p", step=1e-3)
+    # the general step path (the compiled run of steps does not call _step_impl)
+    sim = mbdfmu.Simulation(scene("slider_crank"), method="rk4p", step=1e-3, kernel="numpy")
     sim.advance(0.01)
     before = (sim.t, sim.q.copy(), sim.qd.copy(), sim.integrator.stats.nsteps)
     calls = []
@@ -207,6 +208,54 @@ def test_compiled_rk4p_fails_where_the_general_path_fails_and_says_the_same():
         assert messages["numba"] == messages["numpy"]
 
 
-def test_state_dependent_forces_take_the_general_path():
-    for name in ("andrews", "slider_force", "slider_crank"):   # springs, point forces
-        assert not System(scene(name), kernel="numpy").fused_steps
+@needs_numba
+def test_only_state_dependent_or_input_forces_take_the_general_path():
+    # a spring; an input force; gravity and a constant force at the slider's centre
+    assert not System(scene("andrews"), kernel="numba").fused_steps
+    assert not System(scene("slider_force"), kernel="numba").fused_steps
+    assert System(scene("slider_crank"), kernel="numba").fused_steps
+    assert not System(scene("slider_crank"), kernel="numpy").fused_steps
+
+
+PUSHED_SLIDER = """
+name = "Pushed"
+gravity = [0.0, -9.81]
+[[body]]
+name = "slider"
+mass = 2.0
+inertia = 0.1
+position = [0.0, 0.0]
+angle = 0.0
+velocity = [0.5, 0.0]
+[[joint]]
+name = "guide"
+type = "translational"
+body_i = "ground"
+point_i = [0.0, 0.0]
+axis_i = [1.0, 0.0]
+body_j = "slider"
+point_j = [0.0, 0.0]
+[[force]]
+name = "push"
+type = "force"
+body = "slider"
+point = [0.0, 0.0]
+value = [3.0, 7.0]
+"""
+
+
+@pytest.mark.parametrize("kernel", ["numba", "numpy"])
+def test_constant_force_at_a_centre_is_a_constant_generalized_force(kernel):
+    if kernel == "numba" and kernel_jit.numba is None:
+        pytest.skip("numba not installed")
+    sim = mbdfmu.Simulation(scene_from_dict(tomllib.loads(PUSHED_SLIDER)), method="rk4p",
+                            step=1e-2, kernel=kernel)
+    assert sim.system.fused_steps == (kernel == "numba")
+    sim.advance(2.0)
+    out = sim.outputs()
+    # x = x0 + v0 t + F t^2 / (2 m); the guide carries F_y - m g and no moment
+    assert out["slider.x"] == pytest.approx(0.5 * 2.0 + 3.0 * 4.0 / 4.0, rel=1e-12)
+    assert out["slider.vx"] == pytest.approx(0.5 + 3.0 * 2.0 / 2.0, rel=1e-12)
+    assert abs(out["slider.y"]) < 1e-12 and abs(out["slider.phi"]) < 1e-12
+    assert out["guide.Fy"] == pytest.approx(2.0 * 9.81 - 7.0, rel=1e-12)
+    assert abs(out["guide.Fx"]) < 1e-12 and abs(out["guide.Tz"]) < 1e-12

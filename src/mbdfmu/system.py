@@ -191,12 +191,15 @@ class System:
         self.driver_signals: dict[str, object] = {}
         self.force_signals: dict[str, object] = {}
         self._forces = [(f, idx.get(getattr(f, "body", None) or "", -1)) for f in scene.forces]
-        # gravity and constant torques do not depend on the state: summed once
+        # gravity, constant torques and constant forces at a centre of mass do not depend
+        # on the state: summed once (a force off the centre has a moment arm A(phi) s)
         self._F_constant = self.F_gravity.copy()
         self._state_forces = []
         for f, b in self._forces:
             if isinstance(f, Torque) and not f.input:
                 self._F_constant[3 * b + 2] += f.value
+            elif isinstance(f, PointForce) and not f.input and not any(f.point):
+                self._F_constant[3 * b:3 * b + 2] += f.value
             else:
                 self._state_forces.append((f, b))
         self.length_scale = max([1.0] + [abs(v) for b in scene.bodies for v in b.position])
@@ -387,8 +390,10 @@ class System:
         return H[: self.n, : self.n]
 
     def forces_depend_on_state(self) -> bool:
-        """False when F is constant (gravity and constant torques only): no force Jacobian."""
-        return any(not isinstance(f, Torque) for f in self.scene.forces)
+        """False when F does not depend on (q, q'): gravity, torques and forces at a centre of
+        mass only (constant or inputs); then there is no force Jacobian."""
+        return any(not (isinstance(f, Torque) or (isinstance(f, PointForce) and not any(f.point)))
+                   for f in self.scene.forces)
 
     def force_jacobians(self, t: float, q: np.ndarray, qd: np.ndarray):
         """(dF/dq, dF/dq') (n, n) each, by forward differences; zeros when F is constant."""
@@ -419,8 +424,9 @@ class System:
     def forces(self, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """Generalized applied forces F (n,): gravity, point forces, torques, springs.
 
-        Gravity and constant torques are summed once (``_F_constant``); the rest, one item at
-        a time in scalar arithmetic, which beats numpy on 2-vectors.
+        Gravity, constant torques and constant forces at a centre of mass are summed once
+        (``_F_constant``); the rest, one item at a time in scalar arithmetic, which beats
+        numpy on 2-vectors.
         """
         F = self._F_constant.copy()
         idx = self._idx
@@ -603,7 +609,7 @@ class System:
         torque T on body i has the potential ``-T phi_i``, a constant force F at a body point
         ``-F . (r_i + A_i s)``.
         """
-        if not self._state_forces:  # gravity and constant torques: potential -F . q
+        if not self._state_forces:  # constant generalized forces only: potential -F . q
             return self.kinetic_energy(qd) - float(self._F_constant @ q)
         energy = self.kinetic_energy(qd) + self.potential_energy(q)
         r, cs, sn, phi = self._poses(q)
