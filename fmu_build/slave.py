@@ -121,20 +121,25 @@ class MbdfmuSlave(Fmi2Slave):
             if isinstance(d.motion, core.motion.InputMotion):
                 self._inputs[f"{d.name}.position"] = d.motion.initial
         self._inputs_set: dict[str, float] = {}     # set since the last step, in order
-        self._out = self._sim.outputs()
+        # outputs as one list in the simulation's order, read by index (getReal's fast path)
+        self._out_index = {name: i for i, name in enumerate(self._sim.output_names)}
+        self._out = self._sim.output_vector().tolist()
         self._changed = False                       # a parameter set since the last build
         self._initialized = False
         self._failed: str | None = None             # reason once the FMU refuses to step
         for spec in VARIABLES:
             self.register_variable(self._variable(*spec))
+        self._out_slot = {v.value_reference: self._out_index[v.name] for v in self.vars.values()
+                          if v.causality == Fmi2Causality.output}
 
     # ------------------------------------------------------------------ variable table
 
     def _variable(self, name, kind, vtype, unit, description):
         if kind == "output":
+            i = self._out_index[name]
             return Real(name, causality=Fmi2Causality.output,
                         variability=Fmi2Variability.continuous, initial=Fmi2Initial.exact,
-                        description=description, getter=lambda: self._out[name],
+                        description=description, getter=lambda: self._out[i],
                         setter=lambda value: self._refuse_set(name, "an output"))
         if kind == "input":
             return Real(name, causality=Fmi2Causality.input,
@@ -218,7 +223,7 @@ class MbdfmuSlave(Fmi2Slave):
                 self._sim = self._new_simulation()
                 self._changed = False
             self._push_inputs()
-            self._out = self._sim.outputs()
+            self._out = self._sim.output_vector().tolist()
         self._initialized = self._guard("fmi2ExitInitializationMode", build, retryable=False)
 
     def _push_inputs(self):
@@ -246,10 +251,15 @@ class MbdfmuSlave(Fmi2Slave):
                 raise Failure(f"step size {step_size!r} must be positive")
             self._push_inputs()
             self._sim.advance(current_time + step_size)
-            self._out = self._sim.outputs()
+            self._out = self._sim.output_vector().tolist()
         return self._guard("fmi2DoStep", step)
 
     def get_real(self, vrs):
+        try:  # outputs only (what a master reads every step): straight from the list
+            out, slot = self._out, self._out_slot
+            return [out[slot[vr]] for vr in vrs]
+        except (KeyError, TypeError):
+            pass
         try:
             return super().get_real(vrs)
         except Exception as exc:  # noqa: BLE001 - an unknown or non-Real reference
@@ -278,7 +288,7 @@ class MbdfmuSlave(Fmi2Slave):
             return {"sim": self._sim.get_state(), "params": dict(self._params),
                     "solver": dict(self._solver), "t0": self._t0,
                     "inputs": dict(self._inputs), "inputs_set": dict(self._inputs_set),
-                    "out": dict(self._out), "changed": self._changed,
+                    "out": list(self._out), "changed": self._changed,
                     "initialized": self._initialized, "failed": self._failed}
         except Exception as exc:  # noqa: BLE001 - the FMI boundary: nothing may escape
             self._fail("fmi2GetFMUstate", f"{type(exc).__name__}: {exc}")
@@ -295,7 +305,7 @@ class MbdfmuSlave(Fmi2Slave):
                 self._sim = self._new_simulation()
             self._sim.set_state(state["sim"])
             self._inputs, self._inputs_set = dict(state["inputs"]), dict(state["inputs_set"])
-            self._out = dict(state["out"])
+            self._out = list(state["out"])
             self._changed, self._initialized = state["changed"], state["initialized"]
             self._failed = state["failed"]
         self._guard("fmi2SetFMUstate", restore, retryable=False)
