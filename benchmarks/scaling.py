@@ -1,4 +1,4 @@
-"""Cost against mechanism size: P2's N-four-bar with N = 2, 10, 40, 160 (7 to 483 bodies).
+"""Cost against mechanism size: P2's N-four-bar with N = 2, 10, 40, 160 (5 to 321 moving bodies).
 
 For each N and method, the run from t = 0 to ``--t-end`` (through the first singular
 crossing at the default 1 s) is timed (process CPU time, best of ``--repeat``; assembly not
