@@ -259,3 +259,34 @@ def test_constant_force_at_a_centre_is_a_constant_generalized_force(kernel):
     assert abs(out["slider.y"]) < 1e-12 and abs(out["slider.phi"]) < 1e-12
     assert out["guide.Fy"] == pytest.approx(2.0 * 9.81 - 7.0, rel=1e-12)
     assert abs(out["guide.Fx"]) < 1e-12 and abs(out["guide.Tz"]) < 1e-12
+
+
+def _reversed_joints(name):
+    """The scene with every joint's body_i and body_j (and points) swapped: the ground
+    becomes body_j, whose Jacobian block is in the virtual ground columns."""
+    data = tomllib.loads((SCENE_DIR / f"{name}.toml").read_text())
+    for j in data["joint"]:
+        if j["type"] == "revolute":
+            j["body_i"], j["body_j"] = j["body_j"], j["body_i"]
+            j["point_i"], j["point_j"] = j["point_j"], j["point_i"]
+    return scene_from_dict(data, source=f"<{name} reversed>")
+
+
+@pytest.mark.parametrize("kernel", ["numpy", "numba"])
+@pytest.mark.parametrize("name", SCENES + ["pendulum", "reversed pendulum", "reversed four_bar"])
+def test_reaction_blocks_gathered_from_the_pattern_equal_the_dense_jacobian(name, kernel):
+    if kernel == "numba" and kernel_jit.numba is None:
+        pytest.skip("numba not installed")
+    sc = _reversed_joints(name.split()[1]) if name.startswith("reversed") else scene(name)
+    system = System(sc, kernel=kernel)
+    rng = np.random.default_rng(7)
+    q, lam = rng.normal(size=system.n), rng.normal(size=system.m)
+    _, J = system.constraints(0.3, q, extended=True)        # dense, ground columns last
+    cols = 3 * system.joint_bj[:, None, None] + np.arange(3)[None, None, :]
+    blocks = J[system.joint_rows[:, :, None], cols]
+    data = system.constraint_values(0.3, q)[1]
+    np.testing.assert_array_equal(np.append(data, 0.0)[system._reaction_entries], blocks)
+    np.testing.assert_array_equal(system.reactions(q, lam, 0.3),
+                                  system.reactions(q, lam, 0.3, data))
+    if name.startswith("reversed"):
+        assert (system.joint_bj == system.nb).any()

@@ -117,6 +117,17 @@ class JacobianPattern:
         J.flat[self.flat_with_ground] = data
         return J
 
+    def entries(self, rows, cols) -> np.ndarray:
+        """Where entries (rows, cols) of the extended Psi_q (ground columns last) are in
+        ``data``: indices into ``data`` with one zero appended, so that structural zeros
+        read that zero. ``np.append(data, 0.0)[entries(...)]`` gathers a block in O(size)."""
+        flat = np.asarray(rows, dtype=np.intp) * (self.n + 3) + np.asarray(cols, dtype=np.intp)
+        order = np.argsort(self.flat_with_ground)
+        known = self.flat_with_ground[order]
+        at = np.minimum(np.searchsorted(known, flat), max(known.size - 1, 0))
+        found = known[at] == flat if known.size else np.zeros(flat.shape, bool)
+        return np.where(found, order[at] if known.size else 0, self.flat_with_ground.size)
+
     def jacobian(self, data: np.ndarray, sparse: bool):
         """Psi_q from its values: a ``SparseJacobian`` when asked for and banded, else dense."""
         if sparse and self.banded:

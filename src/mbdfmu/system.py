@@ -183,6 +183,10 @@ class System:
         for a in (*self._no_motion, self._no_motion_steps):
             a.flags.writeable = False
         self._build_jacobian_pattern()
+        # the body_j blocks of each joint's rows in Psi_q's values (reactions, eqs. 9-10)
+        self._reaction_entries = self.jacobian_pattern.entries(
+            self.joint_rows[:, :, None],
+            3 * self.joint_bj[:, None, None] + np.arange(3)[None, None, :])
         self.kernel = _choose_kernel(kernel)
         p = self.jacobian_pattern
         self._jit_pattern = (p.rows, p.cols, p.pair_a, p.pair_b, p.pair_minv, p.band_index,
@@ -277,8 +281,18 @@ class System:
         ``linalg.SparseJacobian`` (supports ``J @ x``, ``J.T @ y`` and ``schur_solve``).
         With ``extended`` a dense Psi_q keeps the ground's three columns (for reactions).
         """
+        Psi, data, nu, gamma = self.constraint_values(t, q, qd)
+        pattern = self.jacobian_pattern
+        J = pattern.dense_with_ground(data) if extended else pattern.jacobian(data, sparse)
+        if qd is None:
+            return Psi, J
+        return Psi, J, nu, gamma
+
+    def constraint_values(self, t: float, q: np.ndarray, qd: np.ndarray | None = None):
+        """Psi (m,), Psi_q's values on ``jacobian_pattern`` (its ``data``), nu and gamma
+        (None without qd): ``constraints`` without building Psi_q."""
         if self.kernel == "numba":
-            return self._constraints_compiled(t, q, qd, extended, sparse)
+            return self._constraint_values_compiled(t, q, qd)
         r, cs, sn, phi = self._poses(q)
         Psi = np.empty(self.m)
         data = np.empty(self._jac_nnz)
@@ -319,16 +333,12 @@ class System:
             Psi[a.rows] = phi[a.bj] - phi[a.bi]
         cval, cd, cdd = self.motion_values(t)
         Psi -= cval
-        if extended:
-            J = self.jacobian_pattern.dense_with_ground(data)
-        else:
-            J = self.jacobian_pattern.jacobian(data, sparse)
         if not with_v:
-            return Psi, J
-        return Psi, J, cd, gamma + cdd
+            return Psi, data, None, None
+        return Psi, data, cd, gamma + cdd
 
-    def _constraints_compiled(self, t, q, qd, extended, sparse):
-        """``constraints`` through the numba kernel (``kernel_jit.py``), same results."""
+    def _constraint_values_compiled(self, t, q, qd):
+        """``constraint_values`` through the numba kernel (``kernel_jit.py``), same results."""
         n = self.n
         qe = np.zeros(n + 3)
         qe[:n] = q
@@ -340,13 +350,10 @@ class System:
         Psi, gamma = np.empty(self.m), np.empty(self.m)
         data = np.empty(self._jac_nnz)
         data[:self._jac_constants.size] = self._jac_constants
-        kernel_jit.constraint_terms(qe, qde, cval, *self._jit_args,
-                                             Psi, data, gamma)
-        pattern = self.jacobian_pattern
-        J = pattern.dense_with_ground(data) if extended else pattern.jacobian(data, sparse)
+        kernel_jit.constraint_terms(qe, qde, cval, *self._jit_args, Psi, data, gamma)
         if not with_v:
-            return Psi, J
-        return Psi, J, cd, gamma + cdd
+            return Psi, data, None, None
+        return Psi, data, cd, gamma + cdd
 
     def constraint_hessian(self, q: np.ndarray, mu: np.ndarray) -> np.ndarray:
         """Geometric stiffness ``d(Psi_q^T mu)/dq = sum_k mu_k d2 Psi_k / dq2`` (n, n), mu fixed.
@@ -621,7 +628,8 @@ class System:
                 energy -= f.value[0] * (r[b, 0] + As[0]) + f.value[1] * (r[b, 1] + As[1])
         return energy
 
-    def reactions(self, q: np.ndarray, lam: np.ndarray, t: float = 0.0) -> np.ndarray:
+    def reactions(self, q: np.ndarray, lam: np.ndarray, t: float = 0.0,
+                  data: np.ndarray | None = None) -> np.ndarray:
         """Force and torque each joint exerts on its body_j, in the joint frame (nj, 3).
 
         Seed eqs. (9), (10): F = -C^T A^T [Psi_r rows]^T lam, T = -Psi_phi lam - (A s) x F,
@@ -631,10 +639,10 @@ class System:
         nj = len(self.joint_rows)
         if nj == 0:
             return np.zeros((0, 3))
-        _, J = self.constraints(t, q, extended=True)
+        if data is None:
+            data = self.constraint_values(t, q)[1]
         rows = self.joint_rows
-        cols = 3 * self.joint_bj[:, None, None] + np.arange(3)[None, None, :]
-        G = J[rows[:, :, None], cols]               # (nj, 2, 3): body_j blocks
+        G = np.append(data, 0.0)[self._reaction_entries]  # (nj, 2, 3): body_j blocks
         gen = -np.einsum("kab,ka->kb", G, lam[rows])  # generalized force on body_j
         r, cs, sn, phi = self._poses(q)
         sj = np.array([j.point_j for j in self.scene.joints], dtype=float)
@@ -704,9 +712,10 @@ class System:
 
     def output_values(self, t, q, qd, qdd, lam) -> np.ndarray:
         """Every output of ``self.outputs`` at one instant, in that order."""
-        Psi, J, nu, _ = self.constraints(t, q, qd, sparse=True)
+        Psi, data, nu, _ = self.constraint_values(t, q, qd)   # one evaluation for all
+        J = self.jacobian_pattern.jacobian(data, sparse=True)
         parts = [np.concatenate((q.reshape(-1, 3), qd.reshape(-1, 3)), axis=1).ravel(),
-                 self.reactions(q, lam, t).ravel(), self.driver_efforts(lam),
+                 self.reactions(q, lam, t, data).ravel(), self.driver_efforts(lam),
                  self.spring_states(t, q, qd).ravel(),
                  [self.kinetic_energy(qd), self.potential_energy(q),
                   float(np.linalg.norm(Psi)), float(np.linalg.norm(J @ qd - nu))]]
