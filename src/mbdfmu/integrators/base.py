@@ -217,4 +217,8 @@ def _copy(value):
         return value
     if isinstance(value, np.ndarray):
         return value.copy()
+    fields = getattr(value, "__dict__", None)   # counters and audits: scalars only
+    if fields is not None and all(v is None or isinstance(v, (float, int, bool, str))
+                                  for v in fields.values()):
+        return copy.copy(value)
     return copy.deepcopy(value)
