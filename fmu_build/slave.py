@@ -258,7 +258,7 @@ class MbdfmuSlave(Fmi2Slave):
         try:  # outputs only (what a master reads every step): straight from the list
             out, slot = self._out, self._out_slot
             return [out[slot[vr]] for vr in vrs]
-        except (KeyError, TypeError):
+        except KeyError:          # an input, a parameter or an unknown reference
             pass
         try:
             return super().get_real(vrs)

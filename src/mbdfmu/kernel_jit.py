@@ -180,15 +180,14 @@ def schur_solve(values, pattern, b, rank_tol):
 
 
 @_compiled
-def accelerations(q, qd, cval, cdd, F, minv, rank_tol, args, jac_constants, keep,
-                        pattern):
+def accelerations(q, qd, cval, cdd, F, minv, rank_tol, args, jac_constants, keep, pattern):
     """Eq. 14 by the Schur complement, all in one compiled call.
 
     Same steps as ``System.accelerations``: ``S = J M^-1 J^T``, Cholesky,
     ``lam = S^-1 (J M^-1 F - gamma)``, ``q'' = M^-1 (F - J^T lam)``. q, qd with the ground's
     three zeros appended; ``pattern`` = (rows, cols, pair_a, pair_b, pair_minv, band_index,
-    perm, kd) of ``JacobianPattern``. Returns (q'', lam, ok); ok is False when S is too close to singular
-    for Cholesky (the caller then takes the minimum-norm path).
+    perm, kd) of ``JacobianPattern``. Returns (q'', lam, ok); ok is False when S is too
+    close to singular for Cholesky (the caller then takes the minimum-norm path).
     """
     m, n = cval.shape[0], F.shape[0]
     rows, cols = pattern[0], pattern[1]
@@ -223,7 +222,7 @@ def rk4p_step(q, qd, f, h, motion, F, minv, rank_tol, tol, max_iter, args, jac_c
         qde[:n] = qd + a * k_v
         k_q = qde[:n].copy()
         k_v, _, ok = accelerations(qe, qde, motion[row, 0], motion[row, 2], F, minv,
-                                         rank_tol, args, jac_constants, keep, pattern)
+                                   rank_tol, args, jac_constants, keep, pattern)
         if not ok:
             return q, qd, f, 1
         w = 2.0 if stage < 3 else 1.0
@@ -253,7 +252,7 @@ def rk4p_step(q, qd, f, h, motion, F, minv, rank_tol, tol, max_iter, args, jac_c
     vn = vn - minv * jac_t_mul(values, rows, cols, x, n)
     qde[:n] = vn
     fn, _, ok = accelerations(qe, qde, motion[2, 0], motion[2, 2], F, minv, rank_tol,
-                                    args, jac_constants, keep, pattern)
+                              args, jac_constants, keep, pattern)
     if not ok:
         return q, qd, f, 1
     return qn, vn, fn, 0

@@ -122,11 +122,10 @@ class JacobianPattern:
         ``data``: indices into ``data`` with one zero appended, so that structural zeros
         read that zero. ``np.append(data, 0.0)[entries(...)]`` gathers a block in O(size)."""
         flat = np.asarray(rows, dtype=np.intp) * (self.n + 3) + np.asarray(cols, dtype=np.intp)
-        order = np.argsort(self.flat_with_ground)
-        known = self.flat_with_ground[order]
-        at = np.minimum(np.searchsorted(known, flat), max(known.size - 1, 0))
-        found = known[at] == flat if known.size else np.zeros(flat.shape, bool)
-        return np.where(found, order[at] if known.size else 0, self.flat_with_ground.size)
+        position = {int(f): k for k, f in enumerate(self.flat_with_ground)}
+        zero = self.flat_with_ground.size
+        return np.fromiter((position.get(int(f), zero) for f in flat.ravel()), dtype=np.intp,
+                           count=flat.size).reshape(flat.shape)
 
     def jacobian(self, data: np.ndarray, sparse: bool):
         """Psi_q from its values: a ``SparseJacobian`` when asked for and banded, else dense."""

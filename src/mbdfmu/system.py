@@ -60,6 +60,12 @@ def _choose_kernel(kernel: str | None) -> str:
     return kernel
 
 
+def _independent_of_state(force) -> bool:
+    """A torque, or a force at a centre of mass (no moment arm A(phi) s): its generalized
+    force does not depend on (q, q'), only on its value or input."""
+    return isinstance(force, Torque) or (isinstance(force, PointForce) and not any(force.point))
+
+
 def _rot90(v: np.ndarray) -> np.ndarray:
     """Rotate 2-vectors (..., 2) by +90 degrees: B s = rot90(A s)."""
     out = np.empty_like(v)
@@ -200,10 +206,9 @@ class System:
         self._F_constant = self.F_gravity.copy()
         self._state_forces = []
         for f, b in self._forces:
-            if isinstance(f, Torque) and not f.input:
-                self._F_constant[3 * b + 2] += f.value
-            elif isinstance(f, PointForce) and not f.input and not any(f.point):
-                self._F_constant[3 * b:3 * b + 2] += f.value
+            if _independent_of_state(f) and not f.input:
+                self._F_constant[3 * b:3 * b + 3] += (
+                    (0.0, 0.0, f.value) if isinstance(f, Torque) else (*f.value, 0.0))
             else:
                 self._state_forces.append((f, b))
         self.length_scale = max([1.0] + [abs(v) for b in scene.bodies for v in b.position])
@@ -399,8 +404,7 @@ class System:
     def forces_depend_on_state(self) -> bool:
         """False when F does not depend on (q, q'): gravity, torques and forces at a centre of
         mass only (constant or inputs); then there is no force Jacobian."""
-        return any(not (isinstance(f, Torque) or (isinstance(f, PointForce) and not any(f.point)))
-                   for f in self.scene.forces)
+        return not all(_independent_of_state(f) for f in self.scene.forces)
 
     def force_jacobians(self, t: float, q: np.ndarray, qd: np.ndarray):
         """(dF/dq, dF/dq') (n, n) each, by forward differences; zeros when F is constant."""

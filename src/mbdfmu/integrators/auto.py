@@ -4,9 +4,9 @@ Rules, checked in this order on the scene and its assembled state at t0 (no more
 the scene needs):
 
 0. No degrees of freedom (every coordinate follows from the constraints and drivers, as in
-   the driven slider-crank): the motion is the projections' (``assembly.py``), exact to
-   their tolerance whatever the integrator, so the cheapest one, ``rk4p`` at its step,
-   whose RK4 predictor only starts the Newton projection close.
+   the driven slider-crank): the position projection (``assembly.py``) fixes the motion to
+   its tolerance whatever the integrator, whose prediction only starts Newton close; so
+   the cheapest one, ``rk4p`` at its step.
 1. A singular configuration at t0: the constraint Jacobian loses rank there
    (``assembly.rank_report``) but regains it a little way along the motion
    (MOVE_FRACTION of the mechanism's size), or the smallest singular value of its

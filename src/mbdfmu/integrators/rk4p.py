@@ -39,7 +39,7 @@ class RK4P(ProjectedRK):
     """Classic RK4, fixed step, with mass-weighted coordinate projection after each step.
 
     Mechanisms whose applied forces are constant (``System.fused_steps``: numba kernel,
-    gravity and constant torques) run whole sequences of steps compiled in one call
+    gravity, constant torques, constant forces at centres of mass) run whole sequences of steps compiled in one call
     (``kernel_jit.rk4p_steps``), with the same time grid, projections and checks.
     """
 
