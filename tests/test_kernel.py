@@ -290,3 +290,18 @@ def test_reaction_blocks_gathered_from_the_pattern_equal_the_dense_jacobian(name
                                   system.reactions(q, lam, 0.3, data))
     if name.startswith("reversed"):
         assert (system.joint_bj == system.nb).any()
+
+
+@needs_numba
+def test_each_compiled_function_has_one_signature_whatever_the_scene():
+    # driven and undriven scenes, the general and the compiled rk4p paths, projections and
+    # outputs: every call has the same argument types, so a fresh install compiles once
+    for name, method in (("slider_crank", "rk4p"), ("pendulum", "rk4p"),
+                         ("four_bar", "dop853p"), ("andrews", "rk4p")):
+        sim = mbdfmu.Simulation(scene(name), method=method, step=1e-3, kernel="numba")
+        sim.advance(0.01)
+        sim.output_vector()
+    for name in ("constraint_terms", "terms", "jac_mul", "jac_t_mul", "schur_solve",
+                 "accelerations", "rk4p_step", "rk4p_steps"):
+        # 0 when only called from compiled callers loaded from numba's disk cache
+        assert len(getattr(kernel_jit, name).signatures) <= 1, name
