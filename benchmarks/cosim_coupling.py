@@ -59,23 +59,23 @@ FIELDS = ["scenario", "label", "algorithm", "variable", "step", "rtol", "steps",
 
 def run_one(task) -> dict:
     """One run of the fmpy master; a CSV row."""
-    from mbdfmu.cosim import master
-    from mbdfmu.cosim.fmus import build_fmus
-    from mbdfmu.cosim.master import CosimError, MasterSettings
-    from mbdfmu.cosim.scenario import load_scenario, reference_function
+    from mbdfmu.cosim.fmpy_master import run_fmpy
+    from mbdfmu.cosim.scenario import reference_function
+    from mbdfmu.cosim.scenario_reader import load_scenario
+    from mbdfmu.cosim.settings import CosimError, CosimSettings
 
     name, label, overrides, algorithm, step, rtol = task
     scenario = load_scenario(name)
     scenario = replace(scenario, parameters={**scenario.parameters, **overrides})
-    fmus = build_fmus(scenario, WORK / scenario.folder.name)
+    fmus = _build(scenario)
     row = dict(scenario=name.split(":")[0], label=label, algorithm=algorithm,
                variable=int(rtol is not None), step=step, rtol=rtol or "", steps="",
                rejected="", jumps="", error="", failed=0, fail_time="", reason="", seconds="")
-    settings = MasterSettings(algorithm=algorithm, step=step, variable_step=rtol is not None,
-                              rtol=rtol)
+    settings = CosimSettings(algorithm=algorithm, step=step, variable_step=rtol is not None,
+                             rtol=rtol)
     t0 = time.perf_counter()
     try:
-        result = master.run(scenario, fmus, settings)
+        result = run_fmpy(scenario, fmus, settings)
     except CosimError as exc:
         row.update(failed=1, fail_time=exc.t, reason=str(exc)[:160],
                    seconds=round(time.perf_counter() - t0, 2))
@@ -103,6 +103,13 @@ def run_one(task) -> dict:
     return row
 
 
+def _build(scenario):
+    from mbdfmu.fmu_build.cache import build_fmus
+
+    return build_fmus({i.name: i.source for i in scenario.instances},
+                      WORK / scenario.folder.name)
+
+
 def tasks():
     for name, label, overrides, steps, rtols in CASES:
         for algorithm in ("jacobi", "gauss-seidel"):
@@ -119,13 +126,11 @@ def _selected(scenario: str, variable: bool, scenarios, kind: str) -> bool:
 
 def run_all(workers: int, scenarios=None, kind: str = "all") -> None:
     """Run the selected cases; with a selection, the other rows of the CSV are kept."""
-    from mbdfmu.cosim.fmus import build_fmus
-    from mbdfmu.cosim.scenario import load_scenario
+    from mbdfmu.cosim.scenario_reader import load_scenario
 
     RESULTS.mkdir(parents=True, exist_ok=True)
     for name, *_ in CASES:  # build once, before the workers share the folders
-        scenario = load_scenario(name)
-        build_fmus(scenario, WORK / scenario.folder.name)
+        _build(load_scenario(name))
     kept = []
     if (scenarios or kind != "all") and (RESULTS / "cosim_coupling.csv").is_file():
         kept = [r for r in read_rows()
@@ -244,7 +249,7 @@ def plot_all() -> list[Path]:
 
 
 def _t_end(scenario: str) -> float:
-    from mbdfmu.cosim.scenario import load_scenario
+    from mbdfmu.cosim.scenario_reader import load_scenario
 
     return load_scenario(scenario).t_end
 

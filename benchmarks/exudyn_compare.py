@@ -67,7 +67,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 import mbdfmu  # noqa: E402
-from mbdfmu import references  # noqa: E402
+from mbdfmu.bench import closed_forms as references  # noqa: E402
 
 try:
     import exudyn as exu
@@ -189,8 +189,8 @@ def exudyn_model(scene) -> ExudynModel:
         mbs.AddLoad(LoadMassProportional(markerNumber=mass, loadVector=[gx, gy, 0.0]))
         bodies[b.name] = body
     for j in scene.joints:
-        if j.type != "revolute":
-            raise ValueError(f'{scene.name}: joint "{j.name}" ({j.type}) is not translated')
+        if j.TYPE != "revolute":
+            raise ValueError(f'{scene.name}: joint "{j.name}" ({j.TYPE}) is not translated')
         mi = mbs.AddMarker(MarkerBodyPosition(bodyNumber=bodies[j.body_i],
                                               localPosition=[j.point_i[0], j.point_i[1], 0.0]))
         mj = mbs.AddMarker(MarkerBodyPosition(bodyNumber=bodies[j.body_j],
@@ -623,8 +623,8 @@ def run_header(sweep: Sweep, repeat: int, quick: bool) -> str:
     except (OSError, subprocess.SubprocessError):
         commit = "?"
     try:
-        from mbdfmu import kernel_jit  # present once the compiled kernel lands
-        kernel = "numba" if kernel_jit.available() else "numpy"
+        from mbdfmu.equations.constraints import choose_kernel
+        kernel = choose_kernel(None)
     except ImportError:
         kernel = "numpy"
     return (f"# mbdfmu vs Exudyn ({'quick' if quick else 'full'} run)\n\n"

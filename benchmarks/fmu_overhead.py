@@ -40,7 +40,7 @@ from fmpy import extract, read_model_description, simulate_fmu  # noqa: E402
 from fmpy.fmi2 import FMU2Slave  # noqa: E402
 
 import mbdfmu  # noqa: E402
-from fmu_build.build import build_fmu  # noqa: E402
+from mbdfmu.fmu_build.scene_fmu import build_fmu  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -109,9 +109,9 @@ def main(argv=None):
             fmu.append(f)
             rtf.append(real_time_factor(fmu_path, args.t_end, args.step))
     sim = mbdfmu.Simulation(scene, kernel=args.kernel)
-    names = [v.name for v in sim.system.outputs]
-    selected = [names.index(v.name) for v in sim.system.outputs
-                if v.name.split(".")[0] in {b.name for b in scene.bodies}
+    names = sim.output_names
+    selected = [names.index(v) for v in sim.output_names
+                if v.split(".")[0] in {b.name for b in scene.bodies}
                 | {j.name for j in scene.joints} | {d.name for d in scene.drivers}]
     agree = np.max(np.abs(last_direct[selected] - last_fmu)) if len(selected) == len(last_fmu) else float("nan")
     # the fastest repetition of each: load on a shared machine only ever adds time

@@ -1,7 +1,7 @@
 """The two constraint kernels side by side: vectorised numpy against numba-compiled loops.
 
-For each scene and kernel: CPU µs per evaluation of ``System.constraints`` (Psi, Psi_q,
-nu, gamma), of ``System.accelerations`` (eq. 14) and per step of ``rk4p`` at h = 1 ms and
+For each scene and kernel: CPU µs per evaluation of ``Equations.constraints`` (Psi, Psi_q,
+nu, gamma), of ``Equations.accelerations`` (eq. 14) and per step of ``rk4p`` at h = 1 ms and
 of ``dop853p`` at its default tolerance, best of ``--repeat`` (process CPU time, one run;
 numba's compilation is excluded by a warm-up call). The large P2 mechanisms use the banded
 Schur complement with either kernel (``linalg.py``).
@@ -32,11 +32,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import mbdfmu  # noqa: E402
-from mbdfmu import kernel_jit  # noqa: E402
-from mbdfmu.assembly import assemble  # noqa: E402
-from mbdfmu.scene import scene_from_dict  # noqa: E402
+from mbdfmu.equations import Equations  # noqa: E402
+from mbdfmu.equations.constraints import numba_installed  # noqa: E402
+from mbdfmu.equations.projection import assemble  # noqa: E402
+from mbdfmu.model import scene_from_dict  # noqa: E402
 from mbdfmu.scenes.generate_n_four_bar import scene_text  # noqa: E402
-from mbdfmu.system import System  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ("slider_crank", "andrews", "n_four_bar_2", "P2 N = 40", "P2 N = 160")
@@ -78,10 +78,10 @@ def per_step(scene, kernel: str, method: str, repeat: int, **settings) -> float:
 
 def measure(name: str, kernel: str, repeat: int) -> dict:
     scene = load(name)
-    system = System(scene, kernel=kernel)
+    system = Equations(scene, kernel=kernel)
     q, qd = assemble(system)
     return {"scene": name, "kernel": kernel, "n": system.n, "m": system.m,
-            "banded": system.jacobian_pattern.banded,
+            "banded": system.pattern.banded,
             "constraints": per_call(lambda: system.constraints(0.1, q, qd, sparse=True), repeat),
             "accelerations": per_call(lambda: system.accelerations(0.1, q, qd), repeat),
             "rk4p step": per_step(scene, kernel, "rk4p", repeat, step=1e-3),
@@ -93,7 +93,7 @@ def main(argv=None):
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("-o", "--output", default=str(ROOT / "docs" / "figures" / "performance"))
     args = parser.parse_args(argv)
-    if kernel_jit.numba is None:
+    if not numba_installed():
         raise SystemExit('benchmarks/kernel.py compares with numba: pip install "mbdfmu[jit]"')
     rows = []
     for name in SCENES:

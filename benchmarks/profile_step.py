@@ -52,7 +52,7 @@ def main(argv=None):
         sim.output_vector()
     profiler.stop()
     print(f"{path.name}: {n} steps of {args.step:g} s, method {sim.method_name}, "
-          f"kernel {getattr(sim.system, 'kernel', 'numpy (before kernels)')}")
+          f"kernel {sim.equations.kernel}")
     print(profiler.output_text(unicode=False, color=False, show_all=False))
 
 

@@ -35,7 +35,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import mbdfmu  # noqa: E402
-from mbdfmu import references  # noqa: E402
+from mbdfmu.bench import closed_forms as references  # noqa: E402
 from mbdfmu.scene import scene_from_dict  # noqa: E402
 from mbdfmu.scenes.generate_n_four_bar import scene_text  # noqa: E402
 
@@ -60,7 +60,7 @@ def time_run(scene, t_end: float, settings: dict, repeat: int) -> dict:
     error = float(np.hypot(b0[0] - ref["x"][-1], b0[1] - ref["y"][-1]))
     return {"cpu_s": best, "nsteps": sim.integrator.stats.nsteps,
             "naccel": sim.integrator.stats.naccel, "error": error,
-            "kernel": sim.system.kernel, "banded": sim.system.jacobian_pattern.banded}
+            "kernel": sim.equations.kernel, "banded": sim.equations.pattern.banded}
 
 
 def slope(x, y) -> float:

@@ -1,5 +1,21 @@
-"""What turns a scene into an FMI 2.0 co-simulation FMU: the slave template and the build step."""
+"""Everything that turns a source into an FMU: ``build(path, output)`` takes a scene
+(``.toml``, or a shipped scene's name) or a companion source (``.py``)."""
 
-from .build import BuildError, build_fmu
+from __future__ import annotations
 
-__all__ = ["BuildError", "build_fmu"]
+from pathlib import Path
+
+from .common import BuildError
+
+
+def build(path, output=None) -> Path:
+    """``mbdfmu build``: a scene or a companion source into an FMI 2.0 co-simulation FMU;
+    returns the FMU's path."""
+    if Path(path).suffix == ".py":
+        from .companion import build_companion
+        return build_companion(path, output)
+    from .scene_fmu import build_fmu
+    return build_fmu(path, output)
+
+
+__all__ = ["BuildError", "build"]

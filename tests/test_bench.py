@@ -9,10 +9,13 @@ import math
 import numpy as np
 import pytest
 
-import references as ref  # tests/references.py: independent of mbdfmu
-from mbdfmu import METHODS, bench, bench_charts, cli
-from mbdfmu import references as pkg_ref
-from mbdfmu.scene import load_scene
+import exact_solutions as ref  # tests/exact_solutions.py: independent of mbdfmu
+from mbdfmu import METHODS, cli
+from mbdfmu import load_scene
+from mbdfmu.bench import cases, sweep
+from mbdfmu.bench import charts as bench_charts
+from mbdfmu.bench import closed_forms as pkg_ref
+from mbdfmu.model.reader import bundled_scene
 
 pytest.importorskip("dask.distributed")
 
@@ -21,12 +24,12 @@ COMPARED = ("scene", "method", "kind", "setting", "status", "stability", "error"
 
 
 def test_quick_sweep_same_errors_on_local_cluster_and_synchronous():
-    case = bench.CASES["P1"]
-    refs = {"P1": bench.reference_for(case, True, None)[0]}
-    tasks = bench.make_tasks(["P1"], list(METHODS), True, refs)
+    case = cases.CASES["P1"]
+    refs = {"P1": sweep.reference_for(case, True, None)[0]}
+    tasks = sweep.make_tasks(["P1"], list(METHODS), True, refs)
     assert {t["method"] for t in tasks} == set(METHODS)  # every registered method, none hard-coded
-    sync = bench.run_tasks(tasks, "synchronous", progress=False)
-    local = bench.run_tasks(tasks, None, progress=False)
+    sync = sweep.run_tasks(tasks, "synchronous", progress=False)
+    local = sweep.run_tasks(tasks, None, progress=False)
     assert [[r[k] for k in COMPARED] for r in sync] == [[r[k] for k in COMPARED] for r in local]
     ok = [r for r in sync if r["status"] == "ok"]
     assert ok and all(r["error"] >= 0 and r["cpu_s"] > 0 for r in ok)
@@ -43,23 +46,23 @@ def test_package_pendulum_reference_matches_the_independent_one():
 def test_pendulum_error_is_the_distance_to_the_elliptic_solution():
     """A tight run of the true pendulum has a tiny error; one with gravity 1e-4 stronger has
     the error the exact solutions predict (the distance between the two elliptic motions)."""
-    case = bench.CASES["P1"]
-    scene = load_scene(bench.bundled_scene_path(case.scene))
+    case = cases.CASES["P1"]
+    scene = load_scene(bundled_scene(case.scene))
     t_out = np.linspace(0.0, 2.0, 21)
-    out, _, _, reason = bench.simulate_outputs(scene, t_out, "dop853p", "rtol", 1e-11, math.inf)
+    out, _, _, reason = sweep.simulate_outputs(scene, t_out, "dop853p", "rtol", 1e-11, math.inf)
     assert not reason
-    assert bench.ERRORS["P1"](case, scene, t_out, out, {}) < 1e-9
+    assert cases.ERRORS["P1"](case, scene, t_out, out, {}) < 1e-9
 
     eps = 1e-4
     heavier = dataclasses.replace(scene, gravity=(0.0, -ref.G * (1 + eps)))
-    out, _, _, reason = bench.simulate_outputs(heavier, t_out, "dop853p", "rtol", 1e-11, math.inf)
+    out, _, _, reason = sweep.simulate_outputs(heavier, t_out, "dop853p", "rtol", 1e-11, math.inf)
     assert not reason
     bob = scene.bodies[0]
     true = ref.simple_pendulum(t_out, m=bob.mass, J=bob.inertia)
     fast = ref.simple_pendulum(t_out, m=bob.mass, J=bob.inertia, g=ref.G * (1 + eps))
     expected = np.max(np.hypot(fast["x"] - true["x"], fast["y"] - true["y"]))
     assert expected > 1e-4  # a perturbation well above the solver's error
-    got = bench.ERRORS["P1"](case, scene, t_out, out, {})
+    got = cases.ERRORS["P1"](case, scene, t_out, out, {})
     assert got == pytest.approx(expected, rel=1e-5)
 
 
@@ -100,7 +103,7 @@ def test_bench_command_quick_synchronous(tmp_path, capsys):
     code = cli.main(["bench", "P1", "--quick", "--methods", "rk4p", "taylor", "dop853p",
                      "--scheduler", "synchronous", "--no-progress", "-o", str(out)])
     assert code == 0
-    rows = bench.read_rows(out / "results.csv")
+    rows = sweep.read_rows(out / "results.csv")
     assert {r["method"] for r in rows} == {"rk4p", "taylor", "dop853p"}
     assert all(r["stability"] in bench_charts.STABILITY_CLASSES for r in rows)
     for name in ("summary.md", "work_precision_P1.png", "stability_P1.png"):

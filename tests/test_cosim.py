@@ -1,4 +1,4 @@
-"""Co-simulation scenarios (scenarios/) in the three masters: fmpy (mbdfmu.cosim.master),
+"""Co-simulation scenarios (scenarios/) in the three masters: fmpy (mbdfmu.cosim.fmpy_master),
 fmpy's SSP runner and OSP libcosim.
 
 Each scenario's FMUs are built once per session (``built`` fixture). References are
@@ -17,11 +17,19 @@ import pytest
 fmpy = pytest.importorskip("fmpy")
 
 from mbdfmu.cli import main  # noqa: E402
-from mbdfmu.cosim import libcosim, master, ssp  # noqa: E402
-from mbdfmu.cosim.fmus import build_fmus  # noqa: E402
-from mbdfmu.cosim.master import CosimError, MasterSettings  # noqa: E402
+from mbdfmu.cosim import fmpy_master, ssp_runner  # noqa: E402
+from mbdfmu.cosim.fmpy_master import run_fmpy  # noqa: E402
+from mbdfmu.cosim.libcosim_runner import run_libcosim  # noqa: E402
 from mbdfmu.cosim.scenario import (SCENARIOS, ScenarioError, check_variables,  # noqa: E402
-                                   load_scenario, reference_function)
+                                   reference_function)
+from mbdfmu.cosim.scenario_reader import load_scenario  # noqa: E402
+from mbdfmu.cosim.settings import CosimError, CosimSettings  # noqa: E402
+from mbdfmu.errors import SettingError  # noqa: E402
+from mbdfmu.fmu_build.cache import build_fmus as build_sources  # noqa: E402
+
+
+def build_fmus(scenario, folder):
+    return build_sources({i.name: i.source for i in scenario.instances}, folder)
 
 NAMES = ["dc_motor_slider_crank", "hydraulic_crane", "prescribed_motion",
          "prescribed_motion:derivatives", "cart_pendulum_pid"]
@@ -98,7 +106,7 @@ def test_a_connection_to_an_output_is_refused_with_the_fmus(built, tmp_path):
     swapped = replace(scenario, connections=(
         type(scenario.connections[0])("motor.speed", "mechanism.crank.omega"),))
     with pytest.raises(ScenarioError, match=r'"motor.speed" has causality input, not output'):
-        master.run(swapped, fmus)
+        run_fmpy(swapped, fmus)
 
 
 def test_unknown_scenario_names_suggest_the_known_ones():
@@ -115,11 +123,11 @@ def test_every_master_gives_the_same_jacobi_result(name, built, tmp_path):
     SSP runner starts its connections at 0.0: equal to the fmpy master's zero start."""
     scenario, fmus = built(name)
     h, t_end = SHORT[name]
-    ours = master.run(scenario, fmus, MasterSettings(algorithm="jacobi", step=h, t_end=t_end))
-    lc = libcosim.run(scenario, fmus, step=h, t_end=t_end)
+    ours = run_fmpy(scenario, fmus, CosimSettings(algorithm="jacobi", step=h, t_end=t_end))
+    lc = run_libcosim(scenario, fmus, step=h, t_end=t_end)
     path = tmp_path / "s.ssp"
-    runner = ssp.run(scenario, fmus, path, step=h, t_end=t_end)
-    lc_ssp = libcosim.run(scenario, fmus, step=h, t_end=t_end, ssp_path=path)
+    runner = ssp_runner.run_ssp(scenario, fmus, path, step=h, t_end=t_end)
+    lc_ssp = run_libcosim(scenario, fmus, step=h, t_end=t_end, ssp_path=path)
     n = round(t_end / h)
     assert ours.names == lc.names == runner.names == lc_ssp.names
     assert len(ours.time) == len(lc.time) == n + 1 and len(runner.time) == n
@@ -129,24 +137,24 @@ def test_every_master_gives_the_same_jacobi_result(name, built, tmp_path):
     assert _rel(ours.values, lc_ssp.values) < 1e-9
     assert _rel(ours.values[1:], runner.values) < 1e-9
     if name != "hydraulic_crane":  # a cylinder of length 0 cannot take the first step
-        zero = master.run(scenario, fmus, MasterSettings(algorithm="jacobi", step=h,
+        zero = run_fmpy(scenario, fmus, CosimSettings(algorithm="jacobi", step=h,
                                                          t_end=t_end, start="zero"))
-        untouched = ssp.run(scenario, fmus, path, step=h, t_end=t_end, start="zero")
+        untouched = ssp_runner.run_ssp(scenario, fmus, path, step=h, t_end=t_end, start="zero")
         assert _rel(zero.values[1:], untouched.values) < 1e-9
 
 
 def test_the_untouched_ssp_runner_cannot_start_the_crane(built, tmp_path):
     scenario, fmus = built("hydraulic_crane")
     with pytest.raises(CosimError, match="discard"):
-        ssp.run(scenario, fmus, tmp_path / "c.ssp", step=2e-3, t_end=4e-3, start="zero")
+        ssp_runner.run_ssp(scenario, fmus, tmp_path / "c.ssp", step=2e-3, t_end=4e-3, start="zero")
 
 
 def test_the_other_masters_refuse_gauss_seidel(built, tmp_path):
     scenario, fmus = built("dc_motor_slider_crank")
     with pytest.raises(CosimError, match="Jacobi"):
-        libcosim.run(scenario, fmus, algorithm="gauss-seidel")
+        run_libcosim(scenario, fmus, algorithm="gauss-seidel")
     with pytest.raises(CosimError, match="Jacobi"):
-        ssp.run(scenario, fmus, tmp_path / "x.ssp", algorithm="gauss-seidel")
+        ssp_runner.run_ssp(scenario, fmus, tmp_path / "x.ssp", algorithm="gauss-seidel")
 
 
 def test_the_ssp_file_holds_the_system_and_the_fmus(built, tmp_path):
@@ -155,11 +163,11 @@ def test_the_ssp_file_holds_the_system_and_the_fmus(built, tmp_path):
     from fmpy.ssp.ssd import read_ssd
 
     scenario, fmus = built("hydraulic_crane")
-    path = ssp.export_ssp(scenario, fmus, tmp_path / "crane.ssp")
+    path = ssp_runner.export_ssp(scenario, fmus, tmp_path / "crane.ssp")
     ssd = read_ssd(str(path))  # validates against the SSP 1.0 schema
     assert {c.name for c in ssd.system.elements} == {"command", "hydraulics", "mechanism"}
     assert len(ssd.system.connections) == len(scenario.connections)
-    values = {p.name: float(p.value) for p in ssp.start_values(path).parameters}
+    values = {p.name: float(p.value) for p in ssp_runner.start_values(path).parameters}
     assert values == scenario.parameters
     with zipfile.ZipFile(path) as z:
         assert {"resources/crane.fmu", "resources/hydraulic_cylinder.fmu",
@@ -177,7 +185,7 @@ def test_motor_and_crank_converge_to_the_monolithic_ode_at_first_order(algorithm
     scenario, fmus = built("dc_motor_slider_crank")
     errors = []
     for h in (4e-3, 2e-3, 1e-3):
-        r = master.run(scenario, fmus, MasterSettings(algorithm=algorithm, step=h, t_end=0.12))
+        r = run_fmpy(scenario, fmus, CosimSettings(algorithm=algorithm, step=h, t_end=0.12))
         errors.append(_error(scenario, r, "mechanism.crank.omega"))
     assert all(0.85 < p < 1.15 for p in _orders(errors)), errors
     assert errors[-1] < 1.0  # rad/s, speeds up to 60 rad/s
@@ -190,14 +198,14 @@ def test_prescribed_crank_gives_p4s_torque(name, built):
     step with velocity and acceleration. Gauss-Seidel hands the end-of-step position over
     as the start's: a lead of one step, a first-order error."""
     scenario, fmus = built(name)
-    jac = master.run(scenario, fmus, MasterSettings(algorithm="jacobi", step=2e-4, t_end=0.02))
+    jac = run_fmpy(scenario, fmus, CosimSettings(algorithm="jacobi", step=2e-4, t_end=0.02))
     ref = reference_function(scenario)(jac.time)["mechanism.motor.effort"]
     first = 1 if name.endswith("derivatives") else 4
     scale = np.abs(ref).max()
     assert np.abs(jac["mechanism.motor.effort"] - ref)[first:].max() < 1e-9 * scale
     errors = []
     for h in (4e-4, 2e-4):
-        gs = master.run(scenario, fmus, MasterSettings(algorithm="gauss-seidel", step=h,
+        gs = run_fmpy(scenario, fmus, CosimSettings(algorithm="gauss-seidel", step=h,
                                                        t_end=0.02))
         errors.append(_error(scenario, gs, "mechanism.motor.effort", skip=round(2e-3 / h)))
     assert 0.9 < _orders(errors)[0] < 1.1, errors
@@ -215,7 +223,7 @@ def test_an_unsteady_crank_rate_converges_at_the_order_of_the_input_derivation(n
                                              "trajectory.frequency": 40.0})
     errors = []
     for h in (4e-4, 2e-4, 1e-4):
-        r = master.run(scenario, fmus, MasterSettings(algorithm="jacobi", step=h, t_end=0.012))
+        r = run_fmpy(scenario, fmus, CosimSettings(algorithm="jacobi", step=h, t_end=0.012))
         errors.append(_error(scenario, r, "mechanism.motor.effort", skip=round(2e-3 / h)))
     assert all(abs(p - order) < 0.2 for p in _orders(errors)), errors
 
@@ -227,7 +235,7 @@ def test_crane_converges_to_the_monolithic_ode_at_first_order(algorithm, built):
     scenario, fmus = built("hydraulic_crane")
     errors = []
     for h in (2e-3, 1e-3, 5e-4):
-        r = master.run(scenario, fmus, MasterSettings(algorithm=algorithm, step=h, t_end=0.3))
+        r = run_fmpy(scenario, fmus, CosimSettings(algorithm=algorithm, step=h, t_end=0.3))
         errors.append(_error(scenario, r, "mechanism.boom.phi"))
     orders = _orders(errors)
     assert all(0.9 < p < 1.4 for p in orders) and orders[-1] < 1.25, errors
@@ -237,7 +245,7 @@ def test_controlled_cart_converges_to_the_monolithic_closed_loop_at_first_order(
     scenario, fmus = built("cart_pendulum_pid")
     errors = []
     for h in (2e-2, 1e-2, 5e-3):
-        r = master.run(scenario, fmus, MasterSettings(algorithm="gauss-seidel", step=h,
+        r = run_fmpy(scenario, fmus, CosimSettings(algorithm="gauss-seidel", step=h,
                                                       t_end=1.5))
         errors.append(_error(scenario, r, "mechanism.pole.phi"))
     assert all(0.9 < p < 1.1 for p in _orders(errors)), errors
@@ -253,11 +261,11 @@ def test_jacobi_loses_the_crane_where_gauss_seidel_and_the_variable_step_keep_it
     where the coupling error grows and finishes."""
     scenario, fmus = built("hydraulic_crane")
     with pytest.raises(CosimError, match="hydraulics: doStep returned discard"):
-        master.run(scenario, fmus, MasterSettings(algorithm="jacobi", step=2e-2, t_end=0.8))
-    gs = master.run(scenario, fmus, MasterSettings(algorithm="gauss-seidel", step=2e-2,
+        run_fmpy(scenario, fmus, CosimSettings(algorithm="jacobi", step=2e-2, t_end=0.8))
+    gs = run_fmpy(scenario, fmus, CosimSettings(algorithm="gauss-seidel", step=2e-2,
                                                    t_end=0.8))
     assert _error(scenario, gs, "mechanism.boom.phi") < 1e-3
-    vs = master.run(scenario, fmus, MasterSettings(algorithm="jacobi", step=2e-2, t_end=0.8,
+    vs = run_fmpy(scenario, fmus, CosimSettings(algorithm="jacobi", step=2e-2, t_end=0.8,
                                                    variable_step=True, rtol=3e-2, h_max=2e-2))
     assert vs.time[-1] == 0.8 and vs.stats["h_max"] <= 2e-2 * (1 + 1e-9)
     assert _error(scenario, vs, "mechanism.boom.phi") < 2e-3
@@ -267,13 +275,13 @@ def test_a_variable_step_run_replays_exactly_after_its_rollbacks(built):
     """Rejected steps are undone through fmi2SetFMUstate: stepping the accepted times again
     in a fresh system gives the same outputs bit for bit."""
     scenario, fmus = built("cart_pendulum_pid")
-    vs = master.run(scenario, fmus, MasterSettings(algorithm="gauss-seidel", step=1e-2,
+    vs = run_fmpy(scenario, fmus, CosimSettings(algorithm="gauss-seidel", step=1e-2,
                                                    t_end=1.2, variable_step=True, rtol=5e-3))
     assert vs.stats["rollbacks"] > 0
-    system = master.System(scenario, fmus)
+    system = fmpy_master.CoupledSystem(scenario, fmus)
     try:
         system.initialize(0.0, 1.2, "exchange")
-        algorithm = master.GaussSeidel(scenario)
+        algorithm = fmpy_master.GaussSeidel(scenario)
         rows = [system.sample()]
         for t0, t1 in zip(vs.time[:-1], vs.time[1:]):
             algorithm.step(system, t0, t1 - t0)
@@ -310,3 +318,16 @@ def test_cli_builds_a_companion_source(tmp_path, capsys):
     assert main(["build", str(source), "-o", str(tmp_path / "m.fmu")]) == 0
     assert Path(capsys.readouterr().out.strip()).name == "m.fmu"
     assert fmpy.read_model_description(str(tmp_path / "m.fmu")).modelName == "DCMotor"
+
+
+@pytest.mark.parametrize("settings, words", [
+    (dict(master="fmpi"), 'master "fmpi" is not one of'),
+    (dict(algorithm="newton"), 'algorithm "newton" is not one of'),
+    (dict(step=0.0), "step must be positive and finite"),
+    (dict(t_end=float("nan")), "t_end must be positive and finite"),
+    (dict(master="ssp", variable_step=True), "variable-step master is the fmpy master's"),
+    (dict(master="libcosim", start="zero"), "libcosim always starts"),
+])
+def test_bad_cosim_settings_are_refused_before_any_work(settings, words):
+    with pytest.raises(SettingError, match=words):
+        CosimSettings(**settings)

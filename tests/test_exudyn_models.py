@@ -1,5 +1,5 @@
 """The Exudyn models of benchmarks/exudyn_compare.py are the same physics as our scenes:
-checked against the independent closed forms of tests/references.py (P1 elliptic, P2's
+checked against the independent closed forms of tests/exact_solutions.py (P1 elliptic, P2's
 one-DOF reduction), genalpha's second order, and the script's bookkeeping (failed runs are
 rows, the CPU time to a level, the exit status without Exudyn). No timing asserts."""
 
@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import references as ref  # tests/references.py: independent of mbdfmu
+import exact_solutions as ref  # tests/exact_solutions.py: independent of mbdfmu
 
 exu = pytest.importorskip("exudyn")
 

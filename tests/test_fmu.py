@@ -3,7 +3,7 @@
 Each FMU is built once per session (``fmu`` fixture). ``Slave`` drives one instance through
 fmpy's ``FMU2Slave`` with logging on, so every failure can be checked for its status and its
 logged reason. The reference is always mbdfmu itself (``simulate`` or ``Simulation``) or a
-closed form from ``references.py``.
+closed form from ``exact_solutions.py``.
 """
 from __future__ import annotations
 
@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 
 import mbdfmu
-import references as ref
-from fmu_build import build_fmu
+import exact_solutions as ref
+from mbdfmu.fmu_build.scene_fmu import build_fmu
 
 fmpy = pytest.importorskip("fmpy")
 from fmpy import extract, read_model_description, simulate_fmu  # noqa: E402

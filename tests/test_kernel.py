@@ -16,21 +16,22 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import mbdfmu
-from mbdfmu import kernel_jit, linalg
-from mbdfmu.assembly import assemble
+from mbdfmu.equations.constraints import numba_installed
+from mbdfmu.equations import sparsity as linalg
+from mbdfmu.equations.projection import assemble
 from mbdfmu.errors import InputError, SolverError
-from mbdfmu.scene import scene_from_dict
+from mbdfmu.model import scene_from_dict
 from mbdfmu.scenes.generate_n_four_bar import scene_text
-from mbdfmu.system import System
+from mbdfmu.equations import Equations
 
-import references as ref
+import exact_solutions as ref
 from conftest import SCENES as SCENE_DIR
 
 
 def scene(name):
     return mbdfmu.load_scene(SCENE_DIR / f"{name}.toml")
 
-needs_numba = pytest.mark.skipif(kernel_jit.numba is None, reason="numba not installed")
+needs_numba = pytest.mark.skipif(not numba_installed(), reason="numba not installed")
 SCENES = ["slider_crank", "andrews", "four_bar", "parallelogram", "slider_force",
           "double_pendulum", "n_four_bar_2"]
 
@@ -39,7 +40,7 @@ def n_four_bar(n: int):
     return scene_from_dict(tomllib.loads(scene_text(n)), source=f"<P2 N = {n}>")
 
 
-def augmented_solve(system: System, t, q, qd):
+def augmented_solve(system: Equations, t, q, qd):
     """q'' and lam from the dense augmented matrix [[M, J^T], [J, 0]] of eq. 14 (numpy):
     its minimum-norm least-squares solution, so redundant constraints get the minimum-norm
     lam (q'' is unique either way)."""
@@ -56,7 +57,7 @@ def augmented_solve(system: System, t, q, qd):
 @settings(max_examples=15, deadline=None)
 @given(data=st.data())
 def test_numba_kernel_equals_numpy_kernel(name, data):
-    plain, fast = System(scene(name), kernel="numpy"), System(scene(name), kernel="numba")
+    plain, fast = Equations(scene(name), kernel="numpy"), Equations(scene(name), kernel="numba")
     q0, qd0 = assemble(plain)
     rng = np.random.default_rng(data.draw(st.integers(0, 2**31)))
     q = q0 + rng.normal(scale=0.3, size=q0.size)
@@ -75,13 +76,13 @@ def test_numba_kernel_equals_numpy_kernel(name, data):
 
 def test_kernel_choice_errors_name_the_choices():
     with pytest.raises(InputError, match="numpy, numba"):
-        System(scene("pendulum"), kernel="fortran")
+        Equations(scene("pendulum"), kernel="fortran")
 
 
 @pytest.mark.parametrize("kernel", ["numpy", pytest.param("numba", marks=needs_numba)])
 def test_banded_accelerations_equal_the_augmented_solve(kernel):
-    system = System(n_four_bar(40), kernel=kernel)
-    assert system.jacobian_pattern.banded and system.jacobian_pattern.kd < 20
+    system = Equations(n_four_bar(40), kernel=kernel)
+    assert system.pattern.banded and system.pattern.kd < 20
     q, qd = assemble(system)
     rng = np.random.default_rng(1)
     qd = qd + rng.normal(scale=0.5, size=qd.size)   # any velocity: gamma changes, not J
@@ -92,7 +93,7 @@ def test_banded_accelerations_equal_the_augmented_solve(kernel):
 
 
 def test_banded_products_equal_dense_products():
-    system = System(n_four_bar(20))
+    system = Equations(n_four_bar(20))
     q, qd = assemble(system)
     _, Js = system.constraints(0.0, q, sparse=True)
     _, Jd = system.constraints(0.0, q)
@@ -106,7 +107,7 @@ def test_banded_products_equal_dense_products():
 def test_banded_min_norm_at_the_singular_crossing_equals_the_pseudo_inverse():
     # P2 with the cranks horizontal: Psi_q loses rank N; lam is the minimum-norm solution
     N = 40
-    system = System(n_four_bar(N), kernel="numpy")
+    system = Equations(n_four_bar(N), kernel="numpy")
     theta, rate = 0.0, -2.0
     q = np.empty(system.n)
     qd = np.empty(system.n)
@@ -140,7 +141,7 @@ def test_p2_n20_banded_run_follows_the_reduction_through_a_crossing():
     # the banded path (m = 122) in a whole run, through the first singular crossing
     t_end = 1.0
     sim = mbdfmu.Simulation(n_four_bar(20), method="rk4p", step=1e-3)
-    assert sim.system.jacobian_pattern.banded
+    assert sim.equations.pattern.banded
     sim.advance(t_end)
     b0 = (sim.q[0] + 0.5 * math.cos(sim.q[2]), sim.q[1] + 0.5 * math.sin(sim.q[2]))
     exact = ref.n_four_bar(np.array([t_end]), 20)
@@ -178,7 +179,7 @@ def test_compiled_rk4p_steps_equal_the_general_steps(name):
     runs = {}
     for kernel in ("numba", "numpy"):
         sim = mbdfmu.Simulation(scene(name), method="rk4p", step=1e-3, kernel=kernel)
-        assert sim.system.fused_steps == (kernel == "numba")
+        assert sim.integrator.compiled_steps == (kernel == "numba")
         sim.advance(0.3)                                  # 300 steps, compiled in one call
         runs[kernel] = sim.integrator
     fast, plain = runs["numba"], runs["numpy"]
@@ -211,10 +212,13 @@ def test_compiled_rk4p_fails_where_the_general_path_fails_and_says_the_same():
 @needs_numba
 def test_only_state_dependent_or_input_forces_take_the_general_path():
     # a spring; an input force; gravity and a constant force at the slider's centre
-    assert not System(scene("andrews"), kernel="numba").fused_steps
-    assert not System(scene("slider_force"), kernel="numba").fused_steps
-    assert System(scene("slider_crank"), kernel="numba").fused_steps
-    assert not System(scene("slider_crank"), kernel="numpy").fused_steps
+    def compiled_steps(name, kernel):
+        return mbdfmu.Simulation(scene(name), method="rk4p", kernel=kernel).integrator.compiled_steps
+
+    assert not compiled_steps("andrews", "numba")
+    assert not compiled_steps("slider_force", "numba")
+    assert compiled_steps("slider_crank", "numba")
+    assert not compiled_steps("slider_crank", "numpy")
 
 
 PUSHED_SLIDER = """
@@ -246,11 +250,11 @@ value = [3.0, 7.0]
 
 @pytest.mark.parametrize("kernel", ["numba", "numpy"])
 def test_constant_force_at_a_centre_is_a_constant_generalized_force(kernel):
-    if kernel == "numba" and kernel_jit.numba is None:
+    if kernel == "numba" and not numba_installed():
         pytest.skip("numba not installed")
     sim = mbdfmu.Simulation(scene_from_dict(tomllib.loads(PUSHED_SLIDER)), method="rk4p",
                             step=1e-2, kernel=kernel)
-    assert sim.system.fused_steps == (kernel == "numba")
+    assert sim.integrator.compiled_steps == (kernel == "numba")
     sim.advance(2.0)
     out = sim.outputs()
     # x = x0 + v0 t + F t^2 / (2 m); the guide carries F_y - m g and no moment
@@ -275,21 +279,21 @@ def _reversed_joints(name):
 @pytest.mark.parametrize("kernel", ["numpy", "numba"])
 @pytest.mark.parametrize("name", SCENES + ["pendulum", "reversed pendulum", "reversed four_bar"])
 def test_reaction_blocks_gathered_from_the_pattern_equal_the_dense_jacobian(name, kernel):
-    if kernel == "numba" and kernel_jit.numba is None:
+    if kernel == "numba" and not numba_installed():
         pytest.skip("numba not installed")
     sc = _reversed_joints(name.split()[1]) if name.startswith("reversed") else scene(name)
-    system = System(sc, kernel=kernel)
+    system = Equations(sc, kernel=kernel)
     rng = np.random.default_rng(7)
     q, lam = rng.normal(size=system.n), rng.normal(size=system.m)
     _, J = system.constraints(0.3, q, extended=True)        # dense, ground columns last
-    cols = 3 * system.joint_bj[:, None, None] + np.arange(3)[None, None, :]
-    blocks = J[system.joint_rows[:, :, None], cols]
+    cols = 3 * system.constraint_set.joint_bj[:, None, None] + np.arange(3)[None, None, :]
+    blocks = J[system.constraint_set.joint_rows[:, :, None], cols]
     data = system.constraint_values(0.3, q)[1]
     np.testing.assert_array_equal(np.append(data, 0.0)[system._reaction_entries], blocks)
     np.testing.assert_array_equal(system.reactions(q, lam, 0.3),
                                   system.reactions(q, lam, 0.3, data))
     if name.startswith("reversed"):
-        assert (system.joint_bj == system.nb).any()
+        assert (system.constraint_set.joint_bj == system.nb).any()
 
 
 @needs_numba
@@ -301,7 +305,12 @@ def test_each_compiled_function_has_one_signature_whatever_the_scene():
         sim = mbdfmu.Simulation(scene(name), method=method, step=1e-3, kernel="numba")
         sim.advance(0.01)
         sim.output_vector()
-    for name in ("constraint_terms", "terms", "jac_mul", "jac_t_mul", "schur_solve",
-                 "accelerations", "rk4p_step", "rk4p_steps"):
+    from mbdfmu.equations import compiled as kernel_jit
+    from mbdfmu.integrators import rk4p_compiled
+
+    for module, name in ((kernel_jit, "constraint_terms"), (kernel_jit, "terms"),
+                         (kernel_jit, "jac_mul"), (kernel_jit, "jac_t_mul"),
+                         (kernel_jit, "schur_solve"), (kernel_jit, "accelerations"),
+                         (rk4p_compiled, "rk4p_step"), (rk4p_compiled, "rk4p_steps")):
         # 0 when only called from compiled callers loaded from numba's disk cache
-        assert len(getattr(kernel_jit, name).signatures) <= 1, name
+        assert len(getattr(module, name).signatures) <= 1, name

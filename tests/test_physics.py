@@ -1,4 +1,4 @@
-"""The solver against exact answers from outside the code (tests/references.py).
+"""The solver against exact answers from outside the code (tests/exact_solutions.py).
 
 Each test runs a shipped scene through the public API (``mbdfmu.load_scene``, ``mbdfmu.simulate``,
 ``mbdfmu.Simulation``) and compares positions, velocities, reactions, driver efforts and energies
@@ -11,7 +11,7 @@ import os
 import numpy as np
 import pytest
 
-import references as ref
+import exact_solutions as ref
 
 mbdfmu = pytest.importorskip("mbdfmu")
 

@@ -1,4 +1,4 @@
-"""Checks of the references themselves (tests/references.py) and of the scene files' data.
+"""Checks of the references themselves (tests/exact_solutions.py) and of the scene files' data.
 
 Nothing here imports mbdfmu: these tests establish that the numbers the solver is later compared
 with are right, and that every scene starts on its constraints with the intended data.
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-import references as ref
+import exact_solutions as ref
 
 SCENE_FILES = sorted(ref.SCENES.glob("*.toml"))
 BODY_KEYS = ("name", "mass", "inertia", "position", "angle", "velocity", "angular_velocity")

@@ -21,9 +21,8 @@ Over a communication step the inputs hold, and the length follows its rate:
 substeps of at most ``max_substep``. The force reads the rate input: direct feedthrough.
 """
 
-import math
 
-from mbdfmu.cosim import companion_base as base
+from mbdfmu.fmu_build import companion_base as base
 
 
 def orifice(dp, dp_t):

@@ -1,19 +1,21 @@
 """mbdfmu: planar multibody dynamics in absolute coordinates, packaged as FMI 2.0 FMUs.
 
     >>> import mbdfmu
-    >>> scene = mbdfmu.load_scene("scenes/slider_crank.toml")
+    >>> scene = mbdfmu.load_scene("slider_crank")          # a file, or a shipped scene
     >>> result = mbdfmu.simulate(scene, t_end=0.1)
     >>> result["motor.effort"]
 """
 
-from .errors import AssemblyError, InputError, MbdfmuError, SceneError, SolverError
-from .integrators import METHODS
+from .errors import (AssemblyError, InputError, MbdfmuError, SceneError, SettingError,
+                     SolverError)
+from .integrators import METHOD_NAMES, METHODS, SolverSettings
+from .model import Scene, load_scene, parameters, rod_inertia, with_parameters
 from .result import Result, read_csv
-from .scene import Scene, load_scene, parameters, rod_inertia, with_parameters
 from .simulation import Simulation, simulate
 
 __version__ = "0.1.0"
 
-__all__ = ["AssemblyError", "InputError", "MbdfmuError", "SceneError", "SolverError",
-           "METHODS", "Result", "read_csv", "Scene", "load_scene", "parameters",
-           "rod_inertia", "with_parameters", "Simulation", "simulate", "__version__"]
+__all__ = ["AssemblyError", "InputError", "MbdfmuError", "SceneError", "SettingError",
+           "SolverError", "METHODS", "METHOD_NAMES", "SolverSettings", "Result", "read_csv",
+           "Scene", "load_scene", "parameters", "rod_inertia", "with_parameters",
+           "Simulation", "simulate", "__version__"]

@@ -8,14 +8,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from . import __version__
 from .errors import InputError, MbdfmuError
-from .integrators import DEFAULT_METHOD, METHODS
+from .integrators import DEFAULT_METHOD, METHOD_NAMES, SUMMARIES
 
 EXAMPLES = """examples:
   mbdfmu demo                                   slider-crank FMU run in fmpy: CSV, plot, GIF
@@ -29,23 +28,26 @@ EXAMPLES = """examples:
 """
 
 
-def bundled_scene(name: str) -> Path:
-    """A scene shipped with the package (scenes/ of the source tree)."""
-    return Path(str(resources.files("mbdfmu.scenes").joinpath(f"{name}.toml")))
+# The CLI's names of the solver settings, for error messages.
+FLAGS = {"method": "--method", "step": "--step", "rtol": "--rtol", "atol": "--atol",
+         "output_interval": "--output-interval"}
 
 
 def _methods_help() -> str:
-    return "; ".join(f"{n}: {c.summary}" for n, c in METHODS.items())
+    return "; ".join(f"{n}: {summary}" for n, summary in SUMMARIES.items())
 
 
 def cmd_check(args) -> int:
-    from .assembly import assemble, rank_report
-    from .scene import load_scene
-    from .system import System
+    from .equations import Equations
+    from .equations.projection import assemble, initial_estimates, rank_report
+    from .integrators.settings import settings_from_scene
+    from .model import load_scene
+    from .model.variables import inputs
 
     scene = load_scene(args.scene)
-    system = System(scene)
-    q_est = np.array([[*b.position, b.angle] for b in scene.bodies], dtype=float).ravel()
+    settings_from_scene(scene)          # the [simulation] table's values, checked
+    system = Equations(scene)
+    q_est, _ = initial_estimates(system)
     residual0 = float(np.linalg.norm(system.constraints(0.0, q_est)[0])) if system.m else 0.0
     q, qd = assemble(system)
     residual = float(np.linalg.norm(system.constraints(0.0, q)[0])) if system.m else 0.0
@@ -56,7 +58,7 @@ def cmd_check(args) -> int:
         print(f"    {b.name}: mass {b.mass:g} kg, inertia {b.inertia:g} kg.m2")
     print(f"  joints ({len(scene.joints)}):")
     for j in scene.joints:
-        print(f"    {j.name}: {j.type} {j.body_i} - {j.body_j}")
+        print(f"    {j.name}: {j.TYPE} {j.body_i} - {j.body_j}")
     print(f"  drivers ({len(scene.drivers)}):")
     for d in scene.drivers:
         target = f"joint {d.joint}" if d.joint else f"{d.body}.{d.coordinate}"
@@ -67,7 +69,7 @@ def cmd_check(args) -> int:
           f"degrees of freedom {report.dof}")
     print("  redundant constraints: " + (", ".join(report.redundant) or "none"))
     print(f"  assembly residual: {residual0:.3g} as given, {residual:.3g} after assembly")
-    print(f"  inputs: {', '.join(v.name for v in system.inputs) or 'none'}")
+    print(f"  inputs: {', '.join(v.name for v in inputs(scene)) or 'none'}")
     return 0
 
 
@@ -75,21 +77,27 @@ def _read_inputs(path: str):
     try:
         table = np.genfromtxt(path, delimiter=",", names=True, dtype=float,
                               deletechars="", ndmin=1)
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: cannot read the input table: {exc}") from None
+    except (OSError, ValueError, IndexError) as exc:
+        raise InputError(f"{path}: cannot read the input table: {exc or 'empty file'}") from None
     if table.dtype.names is None:
         raise InputError(f"{path}: the input table needs a header row")
+    if table.size == 0:
+        raise InputError(f"{path}: the input table has a header but no rows")
     return table
 
 
 def cmd_simulate(args) -> int:
-    from .scene import load_scene
-    from .simulation import simulate
+    from .integrators.settings import settings_from_scene
+    from .model import load_scene
+    from .simulation import check_t_end, simulate
 
     scene = load_scene(args.scene)
+    settings = settings_from_scene(scene).updated(
+        names=FLAGS, method=args.method, step=args.step, rtol=args.rtol, atol=args.atol,
+        output_interval=args.output_interval)
+    t_end = check_t_end(args.t_end, "--t-end") if args.t_end is not None else None
     inputs = _read_inputs(args.input) if args.input else None
-    result = simulate(scene, args.t_end, method=args.method, step=args.step, rtol=args.rtol,
-                      atol=args.atol, output_interval=args.output_interval, inputs=inputs)
+    result = simulate(scene, t_end, inputs=inputs, settings=settings)
     out = Path(args.out or f"{scene.name}.csv")
     result.to_csv(out)
     print(f"{scene.name}: {len(result.time)} points to t = {result.time[-1]:g} s with "
@@ -108,9 +116,9 @@ def cmd_plot(args) -> int:
 
 
 def cmd_animate(args) -> int:
+    from .model import load_scene
     from .plotting import animate
     from .result import read_csv
-    from .scene import load_scene
 
     out = animate(load_scene(args.scene), read_csv(args.result), args.output)
     print(out)
@@ -120,12 +128,13 @@ def cmd_animate(args) -> int:
 def cmd_demo(args) -> int:
     """The product end to end: scene -> FMU -> fmpy run -> CSV, plot, animation."""
     from fmpy import simulate_fmu
-    from fmu_build.build import build_fmu
 
+    from .fmu_build.scene_fmu import build_fmu
+    from .model import load_scene
+    from .model.reader import bundled_scene
+    from .model.variables import outputs
     from .plotting import animate, plot_result
     from .result import Result
-    from .scene import load_scene
-    from .system import System
 
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
@@ -137,7 +146,7 @@ def cmd_demo(args) -> int:
     names = list(table.dtype.names[1:])
     result = Result(time=np.asarray(table["time"]), names=names,
                     values=np.column_stack([table[n] for n in names]),
-                    units={v.name: v.unit for v in System(scene).outputs})
+                    units={v.name: v.unit for v in outputs(scene)})
     csv = result.to_csv(out / "slider_crank.csv")
     png = plot_result(result, ["slider.x", "motor.effort", "B.Fx", "B.Fy"],
                       out / "slider_crank.png", title="Slider-crank FMU in fmpy, 3000 rpm")
@@ -153,7 +162,7 @@ def cmd_demo(args) -> int:
 
 
 def cmd_build(args) -> int:
-    from .cosim.companion import build  # a scene (.toml) or a companion source (.py)
+    from .fmu_build import build  # a scene (.toml) or a companion source (.py)
 
     path = build(args.scene, output=args.output)
     print(path)
@@ -161,12 +170,12 @@ def cmd_build(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    from . import bench
+    from .bench import sweep
 
     if args.from_csv:
-        done = bench.redraw(args.from_csv, args.output)
+        done = sweep.redraw(args.from_csv, args.output)
     else:
-        done = bench.run_bench(args.scenes, methods=args.methods, scheduler=args.scheduler,
+        done = sweep.run_bench(args.scenes, methods=args.methods, scheduler=args.scheduler,
                                output=args.output, quick=args.quick, progress=not args.no_progress)
     print(f"{len(done['rows'])} runs -> {done['csv']}, {done['summary']}, "
           f"{len(done['charts'])} charts in {Path(done['summary']).parent}")
@@ -174,7 +183,8 @@ def cmd_bench(args) -> int:
 
 
 def cmd_cosim(args) -> int:
-    from .cosim.run import CosimSettings, cosimulate, write
+    from .cosim.cosimulate import cosimulate, write
+    from .cosim.settings import CosimSettings
 
     out = Path(args.output)
     run = cosimulate(args.scenario, CosimSettings(
@@ -207,7 +217,7 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog=f"methods: {_methods_help()}")
     p.add_argument("scene")
     p.add_argument("--t-end", type=float, default=None, help="end time (s); default from the scene")
-    p.add_argument("--method", choices=list(METHODS), default=None,
+    p.add_argument("--method", choices=list(METHOD_NAMES), default=None,
                    help=f"integration method (default {DEFAULT_METHOD})")
     p.add_argument("--step", type=float, default=None,
                    help="fixed step (s) of fixed-step methods; the largest step of adaptive ones")
@@ -241,7 +251,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", default=None, help="FMU file (default <scene name>.fmu)")
     p.set_defaults(func=cmd_build)
 
-    from .bench import CASES
+    from .bench.cases import CASES
+    from .integrators import METHODS
     p = sub.add_parser("bench", help="work-precision and stability benchmark of every method "
                        "(needs mbdfmu[bench])", formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="scenes: " + "; ".join(f"{k}: {c.title}" for k, c in CASES.items())
@@ -297,8 +308,8 @@ def main(argv: list[str] | None = None) -> int:
     except MbdfmuError as exc:
         print(f"mbdfmu {args.command}: {exc}", file=sys.stderr)
         return 2
-    except (OSError, ValueError) as exc:  # files that cannot be written, bad numbers
-        print(f"mbdfmu {args.command}: {exc}", file=sys.stderr)
+    except (OSError, ValueError, ArithmeticError) as exc:  # files, bad numbers
+        print(f"mbdfmu {args.command}: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 2
 
 

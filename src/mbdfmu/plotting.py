@@ -1,23 +1,33 @@
-"""Charts and animations of results (matplotlib, no screen needed)."""
+"""Charts and animations of results (matplotlib, no screen needed).
+
+Figures are made with ``matplotlib.figure.Figure`` and drawn by the Agg canvas directly:
+nothing here touches pyplot or the process-wide backend, so importing this module changes
+nothing for a notebook or a host that uses matplotlib itself.
+"""
 
 from __future__ import annotations
 
 import fnmatch
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from PIL import Image  # noqa: E402
-
-from .errors import InputError  # noqa: E402
-from .result import Result  # noqa: E402
-from .scene import GROUND, PointForce, Scene, SpringDamper, Torque  # noqa: E402
+from .errors import InputError
+from .model.scene import GROUND, PointForce, Scene, SpringDamper
+from .result import Result
 
 # Frames in an animation at most; longer results are subsampled.
 MAX_FRAMES = 150
+
+
+def figure(**kwargs):
+    """A figure on the Agg canvas, without pyplot."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(**kwargs)
+    FigureCanvasAgg(fig)
+    return fig
 
 
 def select(result: Result, patterns: list[str] | None) -> list[str]:
@@ -36,8 +46,8 @@ def plot_result(result: Result, variables: list[str] | None, path: str | Path,
     names = select(result, variables)
     units = [result.units.get(n, "") for n in names]
     groups = list(dict.fromkeys(units))
-    fig, axes = plt.subplots(len(groups), 1, sharex=True, squeeze=False,
-                             figsize=(8, 2.6 * len(groups) + 0.6))
+    fig = figure(figsize=(8, 2.6 * len(groups) + 0.6))
+    axes = fig.subplots(len(groups), 1, sharex=True, squeeze=False)
     for ax, unit in zip(axes[:, 0], groups):
         for n, u in zip(names, units):
             if u == unit:
@@ -51,7 +61,6 @@ def plot_result(result: Result, variables: list[str] | None, path: str | Path,
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 
@@ -68,8 +77,6 @@ def body_outlines(scene: Scene) -> dict[str, np.ndarray]:
         elif isinstance(f, SpringDamper):
             points[f.body_i].append(f.point_i)
             points[f.body_j].append(f.point_j)
-        elif isinstance(f, Torque):
-            pass
     return {k: np.array(v, dtype=float).reshape(-1, 2) for k, v in points.items()}
 
 
@@ -93,7 +100,10 @@ def animate(scene: Scene, result: Result, path: str | Path, fps: int = 25) -> Pa
                        + [outlines[GROUND]])
     lo, hi = allpts.min(axis=0), allpts.max(axis=0)
     pad = 0.1 * max(hi - lo) + 1e-3
-    fig, ax = plt.subplots(figsize=(5, 5), dpi=80)
+    from PIL import Image
+
+    fig = figure(figsize=(5, 5), dpi=80)
+    ax = fig.subplots()
     ax.set_xlim(lo[0] - pad, hi[0] + pad)
     ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax.set_aspect("equal")
@@ -135,7 +145,6 @@ def animate(scene: Scene, result: Result, path: str | Path, fps: int = 25) -> Pa
         rgba = Image.frombuffer("RGBA", fig.canvas.get_width_height(),
                                 fig.canvas.buffer_rgba(), "raw", "RGBA", 0, 1)
         images.append(rgba.convert("RGB").quantize(colors=64, method=Image.Quantize.FASTOCTREE))
-    plt.close(fig)
     path = Path(path)
     images[0].save(path, save_all=True, append_images=images[1:], loop=0,
                    duration=int(1000 / fps))

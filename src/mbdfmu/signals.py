@@ -1,7 +1,8 @@
 """Run-time inputs as functions of time: held values, tables, and sampled driver positions.
 
-Every signal is a small picklable object called as ``signal(t)``. Driver signals return
-``(f, f', f'')``; force signals return the force components.
+Every signal is a small object called as ``signal(t)``, saved with a run's state as plain
+data (``plain.Plain``). Driver signals return ``(f, f', f'')``; force signals return the
+force components.
 
 Sampled driver positions (an FMU's inputs, set once per communication step): when the
 master gives position, velocity and acceleration at t_n, the motion over the next step is
@@ -17,12 +18,16 @@ import numpy as np
 from numpy.polynomial import polynomial as P
 from scipy.interpolate import BPoly, CubicSpline
 
+from .plain import Plain
+
 # Samples of driver position kept to derive its velocity and acceleration.
 HISTORY_LENGTH = 4
 
 
-class Held:
+class Held(Plain):
     """A value held constant until replaced (zero-order hold)."""
+
+    plain_fields = ("value",)
 
     def __init__(self, value):
         self.value = np.atleast_1d(np.asarray(value, dtype=float))
@@ -31,8 +36,10 @@ class Held:
         return self.value
 
 
-class LinearTable:
+class LinearTable(Plain):
     """Linear interpolation in a table (values held beyond its ends), as fmpy does."""
+
+    plain_fields = ("times", "values")
 
     def __init__(self, times, values):
         self.times = np.asarray(times, dtype=float)
@@ -42,25 +49,39 @@ class LinearTable:
         return np.array([np.interp(t, self.times, col) for col in self.values.T])
 
 
-class DriverTable:
+class DriverTable(Plain):
     """A driver position from a table: a C2 cubic spline, or a quintic Hermite spline that
     honours velocity and acceleration columns when the table has them."""
 
+    plain_fields = ("times", "positions", "velocities", "accelerations")
+
     def __init__(self, times, positions, velocities=None, accelerations=None):
-        times = np.asarray(times, dtype=float)
-        if velocities is not None and accelerations is not None:
-            derivs = np.stack([positions, velocities, accelerations], axis=1)
-            self.curve = BPoly.from_derivatives(times, derivs)
-        else:
-            self.curve = CubicSpline(times, positions)
+        self.times = np.asarray(times, dtype=float)
+        self.positions = np.asarray(positions, dtype=float)
+        self.velocities = None if velocities is None else np.asarray(velocities, dtype=float)
+        self.accelerations = (None if accelerations is None
+                              else np.asarray(accelerations, dtype=float))
+        self._curve = None
+
+    @property
+    def curve(self):
+        if getattr(self, "_curve", None) is None:   # built on first use (not part of the state)
+            if self.velocities is not None and self.accelerations is not None:
+                derivs = np.stack([self.positions, self.velocities, self.accelerations], axis=1)
+                self._curve = BPoly.from_derivatives(self.times, derivs)
+            else:
+                self._curve = CubicSpline(self.times, self.positions)
+        return self._curve
 
     def __call__(self, t):
         c = self.curve
         return float(c(t)), float(c(t, 1)), float(c(t, 2))
 
 
-class SampledDriver:
+class SampledDriver(Plain):
     """A driver position set at discrete times; derivatives given or from the history."""
+
+    plain_fields = ("times", "positions", "velocity", "acceleration", "fresh")
 
     def __init__(self, initial: float):
         self.times = [0.0]

@@ -42,19 +42,11 @@ and units once the model descriptions are known.
 
 from __future__ import annotations
 
-import difflib
-import math
 import re
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import MbdfmuError
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
+from ..errors import ReadError, suggest
 
 def _scenarios_folder() -> Path:
     """Where ``mbdfmu cosim NAME`` looks: $MBDFMU_SCENARIOS, scenarios/ of the source tree,
@@ -86,12 +78,8 @@ TOP_KEYS = {"name", "description", "t_end", "step", "algorithm", "order", "recor
 VARIABLE_STEP_KEYS = {"rtol", "atol", "h_min", "h_max", "h_initial", "nominal"}
 
 
-class ScenarioError(MbdfmuError):
+class ScenarioError(ReadError):
     """A connections file that cannot be read or does not fit its FMUs (every problem)."""
-
-    def __init__(self, problems: list[str] | str):
-        self.problems = [problems] if isinstance(problems, str) else list(problems)
-        super().__init__("; ".join(self.problems))
 
 
 @dataclass(frozen=True)
@@ -198,172 +186,9 @@ def resolve(name_or_path: str | Path) -> Path:
     known = sorted(p.parent.name for p in SCENARIOS.glob(f"*/{CONNECTIONS_FILE}"))
     variants = sorted(f"{p.parent.name}:{p.stem.removeprefix('connections_')}"
                       for p in SCENARIOS.glob("*/connections_*.toml"))
-    hint = difflib.get_close_matches(text, known + variants, n=1)
-    raise ScenarioError(f'no scenario "{text}"' + (f' (did you mean "{hint[0]}"?)' if hint else "")
-                        + f"; scenarios: {', '.join(known + variants) or 'none'} "
-                        f"(or give a folder or a connections file)")
-
-
-def _positive(value, where: str, problems: list[str]) -> float | None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
-            not (math.isfinite(value) and value > 0):
-        problems.append(f"{where} must be a positive number, got {value!r}")
-        return None
-    return float(value)
-
-
-def _names(value, where: str, problems: list[str]) -> tuple[str, ...]:
-    if value is None:
-        return ()
-    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-        problems.append(f"{where} must be a list of names, got {value!r}")
-        return ()
-    return tuple(value)
-
-
-def load_scenario(name_or_path: str | Path) -> Scenario:
-    """Read and check a connections file (see the module docstring for the format)."""
-    path = resolve(name_or_path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, tomllib.TOMLDecodeError) as exc:
-        raise ScenarioError(f"{path}: {exc}") from None
-    where = path.name
-    problems: list[str] = []
-
-    def problem(text: str) -> None:
-        problems.append(f"{where}: {text}")
-
-    for key in sorted(set(data) - TOP_KEYS):
-        hint = difflib.get_close_matches(key, TOP_KEYS, n=1)
-        problem(f'unknown key "{key}"' + (f' (did you mean "{hint[0]}"?)' if hint else ""))
-
-    raw_instances = data.get("instances")
-    instances: list[Instance] = []
-    if not isinstance(raw_instances, dict) or not raw_instances:
-        problem('[instances] must map instance names to FMU sources (scene .toml or companion .py)')
-        raw_instances = {}
-    for name, source in raw_instances.items():
-        if not IDENTIFIER.fullmatch(name):
-            problem(f'instance "{name}": a name must be an identifier (no dots)')
-        if not isinstance(source, str):
-            problem(f'instance "{name}": the source must be a file name, got {source!r}')
-            continue
-        file = (path.parent / source).resolve()
-        if file.suffix not in (".toml", ".py"):
-            problem(f'instance "{name}": "{source}" is neither a scene (.toml) nor a companion '
-                    "source (.py)")
-        elif not file.is_file():
-            problem(f'instance "{name}": no file "{source}" next to {path.name}')
-        instances.append(Instance(name, file))
-    names = [i.name for i in instances]
-    for a in names:
-        for b in names:
-            if a != b and b.startswith(a):
-                problem(f'instance "{a}" is a prefix of instance "{b}": fmpy\'s SSP runner '
-                        "would give one's parameters to the other; rename one")
-
-    def variable(ref, where_: str) -> str | None:
-        if not isinstance(ref, str) or "." not in ref:
-            problem(f"{where_}: {ref!r} is not <instance>.<variable>")
-            return None
-        inst = ref.split(".", 1)[0]
-        if inst not in names:
-            hint = difflib.get_close_matches(inst, names, n=1)
-            problem(f'{where_}: unknown instance "{inst}" in "{ref}"'
-                    + (f' (did you mean "{hint[0]}"?)' if hint else ""))
-            return None
-        return ref
-
-    connections: list[Connection] = []
-    raw_connections = data.get("connections", [])
-    if not isinstance(raw_connections, list):
-        problem("[[connections]] must be an array of tables")
-        raw_connections = []
-    targets: dict[str, str] = {}
-    for k, c in enumerate(raw_connections):
-        label = f"connection {k + 1}"
-        if not isinstance(c, dict) or set(c) != {"from", "to"}:
-            problem(f"{label}: needs exactly the keys from and to, got {c!r}")
-            continue
-        src, dst = variable(c["from"], label), variable(c["to"], label)
-        if src is None or dst is None:
-            continue
-        if src.split(".", 1)[0] == dst.split(".", 1)[0]:
-            problem(f'{label}: "{src}" -> "{dst}" connects an instance to itself')
-        if dst in targets:
-            problem(f'{label}: input "{dst}" is already driven by "{targets[dst]}"')
-        targets[dst] = src
-        connections.append(Connection(src, dst))
-
-    parameters: dict[str, float] = {}
-    raw_parameters = data.get("parameters", {})
-    if not isinstance(raw_parameters, dict):
-        problem("[parameters] must be a table")
-        raw_parameters = {}
-    for key, value in raw_parameters.items():
-        if variable(key, "parameters") is None:
-            continue
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            problem(f'parameter "{key}" = {value!r}: only finite numbers (set strings such as '
-                    "solver.method in the scene file: fmpy's SSP runner sets Reals only)")
-            continue
-        if key in targets:
-            problem(f'parameter "{key}" is an input driven by "{targets[key]}"')
-        parameters[key] = float(value)
-
-    t_end = _positive(data.get("t_end"), f"{where}: t_end", problems)
-    step = _positive(data.get("step"), f"{where}: step", problems)
-    algorithm = data.get("algorithm", "jacobi")
-    if algorithm not in ALGORITHMS:
-        problem(f'algorithm "{algorithm}" is not one of {", ".join(ALGORITHMS)}')
-    order = _names(data.get("order"), f"{where}: order", problems) or tuple(names)
-    if sorted(order) != sorted(names):
-        problem(f"order {list(order)} must list every instance once: {names}")
-    lists = {}
-    for key in ("record", "plot", "compare"):
-        lists[key] = _names(data.get(key), f"{where}: {key}", problems)
-        for ref in lists[key]:
-            variable(ref, key)
-    reference = None
-    if data.get("reference") is not None:
-        reference = (path.parent / str(data["reference"])).resolve()
-        if not reference.is_file():
-            problem(f'reference "{data["reference"]}": no such file next to {path.name}')
-
-    raw_vs = data.get("variable_step", {})
-    vs = VariableStepSettings()
-    if not isinstance(raw_vs, dict):
-        problem("[variable_step] must be a table")
-    else:
-        for key in sorted(set(raw_vs) - VARIABLE_STEP_KEYS):
-            problem(f'[variable_step]: unknown key "{key}" (known: {", ".join(sorted(VARIABLE_STEP_KEYS))})')
-        values = {k: _positive(v, f"{where}: variable_step.{k}", problems)
-                  for k, v in raw_vs.items() if k in VARIABLE_STEP_KEYS - {"nominal"}}
-        nominal = raw_vs.get("nominal", {})
-        if not isinstance(nominal, dict):
-            problem("[variable_step] nominal must be a table of output magnitudes")
-            nominal = {}
-        # (every declared source, valid or not: a broken connection is reported once)
-        sources = {c.get("from") for c in raw_connections if isinstance(c, dict)}
-        for key, value in nominal.items():
-            if key not in sources:
-                problem(f'[variable_step] nominal: "{key}" is not a connected output')
-            _positive(value, f'{where}: variable_step.nominal "{key}"', problems)
-        vs = VariableStepSettings(nominal={k: float(v) for k, v in nominal.items()
-                                           if isinstance(v, (int, float))},
-                                  **{k: v for k, v in values.items() if v is not None})
-
-    name = data.get("name", path.parent.name)
-    if not isinstance(name, str) or not name:
-        problem(f"name must be a non-empty string, got {name!r}")
-    if problems:
-        raise ScenarioError(problems)
-    return Scenario(name=name, description=str(data.get("description", "")), path=path,
-                    instances=tuple(instances), connections=tuple(connections),
-                    parameters=parameters, t_end=t_end, step=step, algorithm=algorithm,
-                    order=tuple(order), record=lists["record"], plot=lists["plot"],
-                    compare=lists["compare"], reference=reference, variable_step=vs)
+    raise ScenarioError(f'no scenario "{text}"{suggest(text, known + variants)}; scenarios: '
+                        f"{', '.join(known + variants) or 'none'} "
+                        "(or give a folder or a connections file)")
 
 
 def check_variables(scenario: Scenario, descriptions: dict) -> None:
@@ -377,9 +202,8 @@ def check_variables(scenario: Scenario, descriptions: dict) -> None:
         inst, var = ref.split(".", 1)
         table = variables[inst]
         if var not in table:
-            hint = difflib.get_close_matches(var, list(table), n=1)
-            problems.append(f'{where}: {what} "{ref}": {inst} has no variable "{var}"'
-                            + (f' (did you mean "{inst}.{hint[0]}"?)' if hint else ""))
+            hint = suggest(var, list(table)).replace('"', f'"{inst}.', 1)
+            problems.append(f'{where}: {what} "{ref}": {inst} has no variable "{var}"{hint}')
             return None
         v = table[var]
         if v.causality not in causalities:

@@ -1,49 +1,75 @@
 """Integrators: one small class per method behind one stepping interface (``base.py``).
 
-``METHODS`` maps each name to its class; ``make_integrator`` also accepts a class.
+``METHODS`` maps each method's name to its class; ``METHOD_NAMES`` adds ``auto``, which is
+not a method but a choice among them (``choose.py``). ``make_integrator`` builds the
+integrator of a ``SolverSettings`` (or of a method name or class and keyword settings).
 """
 
 from __future__ import annotations
 
-from ..errors import SolverError
+import numpy as np
+
+from ..errors import SettingError
 from .ali3p import ALI3P
-from .auto import Auto
 from .base import Integrator
 from .baumgarte import Baumgarte
+from .choose import choose_method
 from .genalpha import GeneralizedAlpha
 from .projected_rk import DOP853P, RK45P
 from .rk4p import RK4P
+from .settings import DEFAULT_METHOD, SolverSettings
 from .taylor import Taylor
 
 METHODS: dict[str, type[Integrator]] = {
-    cls.name: cls for cls in (Auto, DOP853P, RK45P, RK4P, Taylor, Baumgarte, GeneralizedAlpha,
-                              ALI3P)}
-DEFAULT_METHOD = "auto"
+    cls.name: cls for cls in (DOP853P, RK45P, RK4P, Taylor, Baumgarte, GeneralizedAlpha, ALI3P)}
+AUTO = "auto"
+METHOD_NAMES = (AUTO, *METHODS)
+SUMMARIES = {AUTO: "picks per scene: rk4p without degrees of freedom, ali3p for "
+                   "redundant/singular constraints, genalpha for stiff springs, else dop853p; "
+                   "says why"} | {name: cls.summary for name, cls in METHODS.items()}
 
 
-def method_class(method: str | type[Integrator] | None) -> type[Integrator]:
-    """The class of a method given by name (None: the default) or as a class."""
-    if method is None:
-        return METHODS[DEFAULT_METHOD]
+class Auto(Integrator):
+    """Stands for ``auto`` where a class is expected: it has no options of its own."""
+
+    name = AUTO
+    summary = SUMMARIES[AUTO]
+
+
+def method_class(method) -> type[Integrator]:
+    """The class of a method given by name or as a class (``Auto`` for "auto")."""
     if isinstance(method, type) and issubclass(method, Integrator):
         return method
+    if method == AUTO:
+        return Auto
     if method not in METHODS:
-        raise SolverError(f'unknown method "{method}"; expected one of {", ".join(METHODS)}')
+        raise SettingError("method", f'unknown method "{method}"; expected one of '
+                           f"{', '.join(METHOD_NAMES)}")
     return METHODS[method]
 
 
-def make_integrator(method, system, t0, q0, qd0, *, step=None, rtol=None, atol=None,
-                    options: dict | None = None) -> Integrator:
-    """An integrator of ``method``; ``options`` are its own keyword settings (e.g. Baumgarte's
-    alpha and beta), rejected with a clear error when the method has no such setting."""
-    cls = method_class(method)
-    options = dict(options or {})
-    unknown = sorted(set(options) - set(cls.option_names))
-    if unknown:
-        allowed = ", ".join(cls.option_names) or "none"
-        raise SolverError(f'method "{cls.name}" has no option {", ".join(unknown)} '
-                          f"(its options: {allowed})")
-    return cls(system, t0, q0, qd0, step=step, rtol=rtol, atol=atol, **options)
+def make_integrator(method, equations, t0: float, q0: np.ndarray, qd0: np.ndarray,
+                    settings: SolverSettings | None = None, *, inputs=None,
+                    output_interval: float | None = None, **values):
+    """The integrator of ``method`` (a name, a class, or None for ``settings.method``) with
+    the settings given (checked here), starting from (t0, q0, qd0).
+
+    For ``auto`` the method is chosen first (``choose_method``, with ``output_interval``);
+    the integrator then carries ``picked_by = "auto"`` and ``reason``.
+    """
+    settings = (settings or SolverSettings()).updated(method=method, **values)
+    cls = method_class(settings.method)
+    reason = ""
+    if cls is Auto:
+        interval = output_interval or settings.output_interval or 1.0
+        u = inputs(t0) if inputs is not None else None
+        cls, reason = choose_method(equations, t0, np.asarray(q0, dtype=float), interval, u)
+    integrator = cls(equations, t0, q0, qd0, step=settings.step_for(cls), rtol=settings.rtol,
+                     atol=settings.atol, inputs=inputs, **settings.options)
+    integrator.picked_by = AUTO if reason else ""
+    integrator.reason = reason
+    return integrator
 
 
-__all__ = ["METHODS", "DEFAULT_METHOD", "Integrator", "make_integrator", "method_class"]
+__all__ = ["METHODS", "METHOD_NAMES", "DEFAULT_METHOD", "Integrator", "SolverSettings",
+           "make_integrator", "method_class", "choose_method"]

@@ -15,7 +15,7 @@ step, ``f_q dq = -f`` with f = h^2/4 (M q'' + Psi_q^T (lam* + alpha Psi) - F) an
 
     f_q = M + h/2 C + h^2/4 (Psi_q^T alpha Psi_q + K),   C = -dF/dq',  K = H(lam) - dF/dq,
 
-H being the geometric stiffness (``System.constraint_hessian``). Here the same iteration is
+H being the geometric stiffness (``Equations.constraint_hessian``). Here the same iteration is
 computed in its augmented (quasi-definite) form, eq. (AL) below, which eliminating dmu turns
 back into Bayo's f_q and his multiplier update (with Psi_{i+1} linearised):
 
@@ -35,7 +35,7 @@ loses rank, and the trapezoidal equations then hold exactly (Psi = 0 to the tole
 Projections (Bayo and Ledesma's mass-orthogonal projections): after convergence q' and q''
 from the trapezoidal rule are projected onto Psi_q q' = nu and Psi_q q'' = gamma with the
 smallest change in the mass metric, ``x - M^-1 Psi_q^T (Psi_q M^-1 Psi_q^T)^+ (Psi_q x - rhs)``,
-minimum-norm at singular configurations (``linalg.spd_solver``). Cuadrado et al. weight the
+minimum-norm at singular configurations (``sparsity.spd_solver``). Cuadrado et al. weight the
 projections with f_q instead, which needs no extra factorisation in their sparse code; with
 a diagonal M the mass metric costs one small Cholesky and is exact.
 
@@ -47,12 +47,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import SolverError
-from ..linalg import spd_solver
-from .base import Integrator
-from .implicit import (NEWTON_MAX_ITER, IterationMatrix, NewtonFailure, advance_with_halving,
-                       check_rate, converged, increment_converged,
-                       newton_tolerance)
+from ..equations.sparsity import spd_solver
+from .base import Integrator, Option, number_in
+from .newton import IterationMatrix, advance_with_halving, newton_iterate, newton_tolerance
 
 # How much the penalty outweighs the largest mass (per unit of constraint gradient): large,
 # so that the iteration converges fast where the Jacobian nearly loses rank (1e8: a singular
@@ -61,13 +58,13 @@ from .implicit import (NEWTON_MAX_ITER, IterationMatrix, NewtonFailure, advance_
 PENALTY_RATIO = 1e8
 
 
-def mass_projector(system, J: np.ndarray):
+def mass_projector(equations, J: np.ndarray):
     """The projection x -> x - M^-1 J^T (J M^-1 J^T)^+ (J x - rhs) (n,): the closest point to
     x in the mass metric on J x = rhs; minimum-norm where J loses rank. J M^-1 J^T is
     factorised once for the velocity and the acceleration projection."""
     if J.shape[0] == 0:
         return lambda x, rhs: x
-    JMi = J * system.minv
+    JMi = J * equations.minv
     solve = spd_solver(JMi @ J.T)
     return lambda x, rhs: x - JMi.T @ solve(J @ x - rhs)
 
@@ -79,27 +76,25 @@ class ALI3P(Integrator):
     summary = ("augmented Lagrangian index-3 with mass-orthogonal projections (ALI3-P), "
                "trapezoidal, fixed step; passes singular and redundant constraints")
     default_step = 1e-3
-    option_names = ("alpha",)
+    options = (Option("alpha", "a positive number (N/m)", number_in(0.0, np.inf, low_open=True)),)
     state_fields = ("qdd", "lam", "matrix")
 
-    def __init__(self, system, t0, q0, qd0, *, alpha: float | None = None, **common):
-        if alpha is not None and not float(alpha) > 0:
-            raise SolverError(f"ali3p: the penalty alpha must be positive, got {alpha}")
+    def __init__(self, equations, t0, q0, qd0, *, alpha: float | None = None, **common):
         self.alpha_option = None if alpha is None else float(alpha)
         self.matrix = IterationMatrix()
-        super().__init__(system, t0, q0, qd0, **common)
+        super().__init__(equations, t0, q0, qd0, **common)
         self.penalty_base = self._penalty_base()
 
     def _penalty_base(self) -> float:
         """P = PENALTY_RATIO * max_i M_ii / (Psi_q^T Psi_q)_ii over the constrained coordinates."""
-        if self.system.m == 0:
+        if self.equations.m == 0:
             return 1.0
-        _, J = self.system.constraints(self.t, self.q)
+        _, J = self.constraints(self.t, self.q)
         weight = np.sum(J * J, axis=0)
         used = weight > 0
         if not used.any():
             return 1.0
-        return PENALTY_RATIO * float(np.max(self.system.mass[used] / weight[used]))
+        return PENALTY_RATIO * float(np.max(self.equations.mass[used] / weight[used]))
 
     def alpha(self, h: float) -> float:
         """The penalty alpha (Bayo's) used with step h: 4 P / h^2."""
@@ -117,65 +112,52 @@ class ALI3P(Integrator):
 
     def _augmented_matrix(self, t, q, qd, J, lam, h, P):
         """The matrix of eq. (AL), (n + m) square."""
-        system, n = self.system, self.system.n
-        S = np.zeros((n + system.m, n + system.m))
-        S[:n, :n] = np.diag(system.mass) + (0.25 * h * h) * system.constraint_hessian(q, lam)
-        if system.forces_depend_on_state():
-            dFdq, dFdv = system.force_jacobians(t, q, qd)
+        eq, n = self.equations, self.equations.n
+        S = np.zeros((n + eq.m, n + eq.m))
+        S[:n, :n] = np.diag(eq.mass) + (0.25 * h * h) * eq.constraint_hessian(q, lam)
+        if eq.forces_depend_on_state():
+            dFdq, dFdv = eq.force_jacobians(t, q, qd, self.inputs(t))
             S[:n, :n] -= 0.5 * h * dFdv + 0.25 * h * h * dFdq
         S[:n, n:] = J.T
         S[n:, :n] = J
-        S[n:, n:] = -np.eye(system.m) / P
+        S[n:, n:] = -np.eye(eq.m) / P
         return S
 
     def _try_step(self, t, h):
-        system, n = self.system, self.system.n
+        eq, n = self.equations, self.equations.n
         t1 = t + h
         P = 0.25 * h * h * self.alpha(h)
         q_n, v_n, a_n = self.q, self.qd, self.qdd
-        q = q_n + h * v_n + 0.5 * h * h * a_n              # Taylor predictor
-        lam = self.lam.copy()
-        tol = newton_tolerance(self.atol, h, system.length_scale)
-        matrix = self.matrix
-        if not matrix.valid_for(h):
-            matrix.lu = None
-        matrix.fresh = False
-        previous, size = None, np.inf
-        for _ in range(NEWTON_MAX_ITER):
-            self.stats.nnewton += 1
-            dq_total = q - q_n
-            qd = (2.0 / h) * dq_total - v_n
-            qdd = (4.0 / (h * h)) * dq_total - (4.0 / h) * v_n - a_n
-            Psi, J = system.constraints(t1, q)
-            F = system.forces(t1, q, qd)
-            dynamic = (0.25 * h * h) * (system.mass * qdd + J.T @ lam - F)
-            if not np.all(np.isfinite(dynamic)):
-                raise NewtonFailure("non-finite residual")
-            if converged(size, dynamic / system.mass, Psi, tol):
-                break
-            if matrix.lu is None:
-                matrix.factor(self._augmented_matrix(t1, q, qd, J, lam, h, P), h, self.stats)
-            dx = -matrix.solve(np.concatenate((dynamic, Psi)))
-            size = float(np.max(np.abs(dx[:n])))
-            if not np.isfinite(size):
-                raise NewtonFailure("non-finite Newton increment")
-            q = q + dx[:n]
-            lam = lam + (4.0 / (h * h)) * dx[n:]
-            if increment_converged(size, previous, tol):
-                dq_total = q - q_n
-                qd = (2.0 / h) * dq_total - v_n
-                qdd = (4.0 / (h * h)) * dq_total - (4.0 / h) * v_n - a_n
-                break
-            previous = check_rate(matrix, size, previous)
-        else:
-            raise NewtonFailure(f"Newton did not converge in {NEWTON_MAX_ITER} iterations "
-                                f"(last increment {size:.3g}, constraint residual "
-                                f"{np.max(np.abs(Psi), initial=0.0):.3g}, tolerance {tol:.3g})")
+
+        def rates(q):
+            """q' and q'' of the trapezoidal rule for the positions q at t1."""
+            dq = q - q_n
+            return (2.0 / h) * dq - v_n, (4.0 / (h * h)) * dq - (4.0 / h) * v_n - a_n
+
+        x = {"q": q_n + h * v_n + 0.5 * h * h * a_n, "lam": self.lam.copy()}   # Taylor predictor
+
+        def evaluate():
+            x["qd"], qdd = rates(x["q"])
+            Psi, x["J"] = self.constraints(t1, x["q"])
+            F = self.forces(t1, x["q"], x["qd"])
+            return (0.25 * h * h) * (eq.mass * qdd + x["J"].T @ x["lam"] - F), Psi
+
+        def apply(dx):
+            x["q"] = x["q"] + dx[:n]
+            x["lam"] = x["lam"] + (4.0 / (h * h)) * dx[n:]
+
+        newton_iterate(evaluate, lambda: self._augmented_matrix(t1, x["q"], x["qd"], x["J"],
+                                                               x["lam"], h, P),
+                       apply, self.matrix, h, newton_tolerance(self.atol, h, eq.length_scale),
+                       eq.mass, self.stats)
+        q, lam = x["q"], x["lam"]
+        qd, qdd = rates(q)
         # mass-orthogonal projections of q' and q'' (Bayo and Ledesma 1996)
-        _, J, nu, _ = system.constraints(t1, q, qd)
-        project = mass_projector(system, J)
+        u = self.inputs(t1)
+        _, J, nu, _ = eq.constraints(t1, q, qd, u)
+        project = mass_projector(eq, J)
         qd = project(qd, nu)
-        _, _, _, gamma = system.constraints(t1, q, qd)
+        _, _, _, gamma = eq.constraints(t1, q, qd, u)
         qdd = project(qdd, gamma)
         self.stats.nprojections += 1
         self.check_finite(t1, q, qd, qdd)

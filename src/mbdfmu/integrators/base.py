@@ -2,30 +2,35 @@
 
 A method is a subclass of ``Integrator`` that
 
-1. sets ``name``, a one-line ``summary``, ``adaptive`` and its defaults;
+1. sets ``name``, a one-line ``summary``, ``adaptive``, ``default_step`` and the
+   ``options`` it takes beyond the common settings (with the rule each must meet);
 2. implements ``_step_impl(h) -> (accepted, h_next)``: a step from ``self.t`` that on
    acceptance updates ``self.q``, ``self.qd`` and any private state, and on rejection
    changes nothing (the base class then retries with ``h_next``); the base class moves
-   ``self.t``;
-3. lists in ``state_fields`` any private attribute that must be saved with the state, and
-   in ``option_names`` the keyword settings its ``__init__`` takes beyond the common ones;
+   ``self.t``. A step it cannot take at all raises ``SolverError``;
+3. lists in ``state_fields`` any private attribute that must be saved with the state;
 4. may override ``restart()``, called when (q, q') or the inputs change from outside.
 
-The public ``advance(t_target)`` does the bookkeeping: it lands exactly on ``t_target``,
-counts the work, checks the energy balance of conservative scenes after every accepted step
+The equations are pure functions of (t, q, q', u); the integrator gets the inputs as a
+function ``inputs(t) -> InputValues`` from whoever runs it (``Simulation``) and passes them
+on through ``accelerations``, ``constraints`` and ``forces`` below. The public
+``advance(t_target)`` does the bookkeeping: it lands exactly on ``t_target``, counts the
+work, checks the energy balance of conservative scenes after every accepted step
 (``energy_audit.py``) and raises ``SolverError`` (with time and reason) on any failure.
 """
 
 from __future__ import annotations
 
-import copy
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
+from typing import Callable, NamedTuple
 
 import numpy as np
 
-from ..errors import SolverError
-from ..system import System
+from ..equations import Equations
+from ..errors import SettingError, SolverError
+from ..model.variables import InputValues
+from ..plain import Plain, decode, encode
 from .energy_audit import ENERGY_TOL_FACTOR, EnergyAudit
 
 # The smallest step, relative to the time, before an adaptive method gives up.
@@ -37,10 +42,29 @@ DIVERGENCE_FRACTION = 0.5
 # Failure messages mention a singular configuration when the smallest singular value of
 # Psi_q is below this fraction of the largest.
 SINGULAR_HINT = 1e-2
+# Fixed steps per communication interval are counted as ceil(interval / h - this), so that
+# an interval that is a whole number of steps up to round-off is not given one step more.
+STEP_COUNT_SLACK = 1e-9
+
+
+class Option(NamedTuple):
+    """A method's own setting: its name, the rule it must meet and how to check it."""
+
+    name: str
+    rule: str
+    valid: Callable[[object], bool]
+
+
+def number_in(low: float, high: float, *, low_open: bool = False) -> Callable:
+    def valid(v) -> bool:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            return False
+        return (low < v if low_open else low <= v) and v <= high
+    return valid
 
 
 @dataclass
-class Counters:
+class Counters(Plain):
     """Work done, as scipy counts it: steps, rejections, q'' evaluations, projections,
     Newton iterations, iteration-matrix evaluations and factorisations (implicit methods)."""
 
@@ -53,35 +77,53 @@ class Counters:
     nlu: int = 0
 
 
+Counters.plain_fields = tuple(f.name for f in fields(Counters))
+
+
 class Integrator:
-    """Base class: advances (t, q, q') of a ``System`` in time."""
+    """Base class: advances (t, q, q') of the ``Equations`` of a scene in time."""
 
     name = ""
     summary = ""
     adaptive = False
-    default_step: float | None = 1e-3
-    default_rtol = 1e-6
-    default_atol = 1e-8
-    state_fields: tuple[str, ...] = ()
+    default_step: float = 1e-3
+    options: tuple[Option, ...] = ()
     option_names: tuple[str, ...] = ()
+    state_fields: tuple[str, ...] = ()
 
-    def __init__(self, system: System, t0: float, q0: np.ndarray, qd0: np.ndarray, *,
-                 step: float | None = None, rtol: float | None = None,
-                 atol: float | None = None):
-        self.system = system
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        cls.option_names = tuple(o.name for o in cls.options)
+
+    def __init__(self, equations: Equations, t0: float, q0: np.ndarray, qd0: np.ndarray, *,
+                 step: float, rtol: float, atol: float,
+                 inputs: Callable[[float], InputValues] | None = None):
+        self.equations = equations
+        self.inputs = inputs if inputs is not None else (lambda t: equations.no_inputs)
         self.t = float(t0)
         self.q = np.array(q0, dtype=float)
         self.qd = np.array(qd0, dtype=float)
-        self.rtol = float(rtol if rtol is not None else self.default_rtol)
-        self.atol = float(atol if atol is not None else self.default_atol)
+        self.rtol, self.atol = float(rtol), float(atol)
         if self.adaptive:
-            self.max_step = float(step) if step is not None else math.inf
-            self.h = None  # chosen by restart()
+            self.max_step, self.h = float(step), None   # h chosen by restart()
         else:
-            self.h = float(step if step is not None else self.default_step)
+            self.h = float(step)
         self.stats = Counters()
         self.restart()
         self.audit = self._start_audit()
+
+    @classmethod
+    def check_options(cls, options: dict, name: str = "options", where: str = "") -> None:
+        """Every option known to this method and within its rule, else ``SettingError``."""
+        rules = {o.name: o for o in cls.options}
+        for key, value in options.items():
+            if key not in rules:
+                allowed = ", ".join(rules) or "none"
+                raise SettingError(name, f'method "{cls.name}" has no option {key} '
+                                   f"(its options: {allowed})", where)
+            if not rules[key].valid(value):
+                raise SettingError(name, f"{cls.name}: {key} must be {rules[key].rule}, "
+                                   f"got {value!r}", where)
 
     # ------------------------------------------------------------------ for subclasses
 
@@ -91,6 +133,18 @@ class Integrator:
     def restart(self) -> None:
         """Forget anything derived from the current (q, q') (called after outside changes)."""
 
+    def accelerations(self, t: float, q: np.ndarray, qd: np.ndarray):
+        """q'' and lam from eq. (14) with the inputs at t, counted."""
+        self.stats.naccel += 1
+        return self.equations.accelerations(t, q, qd, self.inputs(t))
+
+    def constraints(self, t: float, q: np.ndarray, qd: np.ndarray | None = None, **kwargs):
+        """Psi, Psi_q (and nu, gamma with qd) with the driver inputs at t."""
+        return self.equations.constraints(t, q, qd, self.inputs(t), **kwargs)
+
+    def forces(self, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        return self.equations.forces(t, q, qd, self.inputs(t))
+
     def _start_audit(self) -> EnergyAudit | None:
         """The energy check of this run (None for scenes whose energy is not conserved)."""
         if self.adaptive:
@@ -99,31 +153,26 @@ class Integrator:
         else:
             rtol, atol, factor = 0.0, 0.0, 0.0
             what = "a fixed-step method's divergence check"
-        return EnergyAudit.start(self.system, self.q, self.qd, method=self.name, rtol=rtol,
+        return EnergyAudit.start(self.equations, self.q, self.qd, method=self.name, rtol=rtol,
                                  atol=atol, factor=factor, what=what)
 
     def _after_step(self) -> None:
         """Checks on an accepted step (self.t already moved)."""
         if self.audit is not None:
-            problem = self.audit.check(self.system, self.t, self.q, self.qd)
+            problem = self.audit.check(self.equations, self.t, self.q, self.qd)
             if problem:
                 raise SolverError(problem + self.singularity_hint(), self.t)
 
     def singularity_hint(self) -> str:
         """For failure messages: a note when Psi_q is nearly singular at the current state."""
-        if self.system.m == 0:
+        if self.equations.m == 0:
             return ""
-        _, J = self.system.constraints(self.t, self.q)
+        _, J = self.constraints(self.t, self.q)
         sv = np.linalg.svd(J, compute_uv=False)
         if not np.all(np.isfinite(sv)) or sv[-1] >= SINGULAR_HINT * sv[0]:
             return ""
         return (f" (the constraint Jacobian is nearly singular here, singular values "
                 f"{sv[-1]:.2g} / {sv[0]:.2g}: a singular configuration, which method ali3p passes)")
-
-    def accelerations(self, t: float, q: np.ndarray, qd: np.ndarray):
-        """q'' and lam from the seed's eq. (14), counted."""
-        self.stats.naccel += 1
-        return self.system.accelerations(t, q, qd)
 
     def check_finite(self, t: float, *arrays) -> None:
         for a in arrays:
@@ -132,9 +181,9 @@ class Integrator:
 
     def check_drift(self, t: float, q: np.ndarray) -> None:
         """For methods without projection: a violation beyond the mechanism's size is divergence."""
-        Psi, _ = self.system.constraints(t, q)
+        Psi, _ = self.constraints(t, q)
         err = float(np.max(np.abs(Psi))) if Psi.size else 0.0
-        limit = DIVERGENCE_FRACTION * self.system.length_scale
+        limit = DIVERGENCE_FRACTION * self.equations.length_scale
         if not err <= limit:
             raise SolverError(f"{self.name}: constraint violation {err:.3g} exceeds {limit:.3g} "
                               "(half the mechanism's size): the solution has diverged", t)
@@ -143,6 +192,8 @@ class Integrator:
 
     def advance(self, t_target: float) -> None:
         """Integrate to exactly ``t_target`` (>= self.t)."""
+        if not math.isfinite(t_target):
+            raise SolverError(f"cannot integrate to t = {t_target}", self.t)
         if t_target < self.t:
             raise SolverError(f"cannot integrate backwards to t = {t_target}", self.t)
         if t_target == self.t:
@@ -152,11 +203,15 @@ class Integrator:
         else:
             self._advance_fixed(t_target)
 
-    def _advance_fixed(self, t_target: float) -> None:
-        # Equal steps no longer than self.h; times are t0 + k h, never accumulated.
+    def fixed_grid(self, t_target: float) -> tuple[float, int, float]:
+        """(t0, steps, step) of equal steps no longer than ``self.h`` up to ``t_target``."""
         t0 = self.t
-        n = max(1, math.ceil((t_target - t0) / self.h - 1e-9))
-        h = (t_target - t0) / n
+        n = max(1, math.ceil((t_target - t0) / self.h - STEP_COUNT_SLACK))
+        return t0, n, (t_target - t0) / n
+
+    def _advance_fixed(self, t_target: float) -> None:
+        # Times are t0 + k h, never accumulated.
+        t0, n, h = self.fixed_grid(t_target)
         for k in range(1, n + 1):
             accepted, _ = self._step_impl(h)
             if not accepted:
@@ -193,13 +248,13 @@ class Integrator:
                         self.t)
 
     def get_state(self) -> dict:
-        """A deep copy of everything needed to continue bit for bit."""
+        """Everything needed to continue bit for bit, as plain data (``plain.py``)."""
         names = ("t", "q", "qd", "h", "stats", "audit") + self.state_fields
-        return {k: _copy(getattr(self, k)) for k in names}
+        return {k: encode(getattr(self, k)) for k in names}
 
     def set_state(self, state: dict) -> None:
         for k, v in state.items():
-            setattr(self, k, _copy(v))
+            setattr(self, k, decode(v))
 
     def reset_state(self, q: np.ndarray, qd: np.ndarray) -> None:
         """Replace (q, q') at the current time (after an input jump) and restart."""
@@ -210,15 +265,3 @@ class Integrator:
         if self.adaptive and h is not None:
             self.h = h
 
-
-def _copy(value):
-    """A deep copy, without deepcopy's bookkeeping for the common cheap cases."""
-    if value is None or isinstance(value, (float, int, bool, str)):
-        return value
-    if isinstance(value, np.ndarray):
-        return value.copy()
-    fields = getattr(value, "__dict__", None)   # counters and audits: scalars only
-    if fields is not None and all(v is None or isinstance(v, (float, int, bool, str))
-                                  for v in fields.values()):
-        return copy.copy(value)
-    return copy.deepcopy(value)

@@ -1,6 +1,6 @@
 """Baumgarte's stabilisation of the index-1 form, fixed-step classic RK4.
 
-The acceleration equation Psi_q q'' = gamma of the seed's eq. (14) is replaced by
+The acceleration equation Psi_q q'' = gamma of eq. (14) is replaced by
 (Baumgarte 1972, Comput. Methods Appl. Mech. Eng. 1, eq. 12; Nikravesh, Computer-Aided
 Analysis of Mechanical Systems, sec. 13.4)
 
@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Integrator
+from .base import Integrator, Option, number_in
 from .rk4p import rk4_step
 
 # Default alpha h = beta h: a violation is damped within about ten steps, far inside RK4's
@@ -39,15 +39,16 @@ class Baumgarte(Integrator):
     name = "baumgarte"
     summary = "index-1 with Baumgarte stabilisation (alpha, beta), classic RK4, fixed step"
     default_step = 1e-3
-    option_names = ("alpha", "beta")
+    options = (Option("alpha", "a number >= 0 (1/s)", number_in(0.0, float("inf"))),
+               Option("beta", "a number >= 0 (1/s)", number_in(0.0, float("inf"))))
     state_fields = ("f",)
 
-    def __init__(self, system, t0, q0, qd0, *, alpha: float | None = None,
+    def __init__(self, equations, t0, q0, qd0, *, alpha: float | None = None,
                  beta: float | None = None, **common):
-        h = common.get("step") or self.default_step
+        h = common["step"]
         self.alpha = float(alpha) if alpha is not None else BAUMGARTE_RATE_STEP / h
         self.beta = float(beta) if beta is not None else BAUMGARTE_RATE_STEP / h
-        super().__init__(system, t0, q0, qd0, **common)
+        super().__init__(equations, t0, q0, qd0, **common)
 
     def restart(self):
         self.f = self._rhs(self.t, np.concatenate((self.q, self.qd)))
@@ -55,7 +56,8 @@ class Baumgarte(Integrator):
     def _rhs(self, t, y):
         q, qd = np.split(y, [self.q.size])
         self.stats.naccel += 1
-        qdd, _ = self.system.accelerations(t, q, qd, baumgarte=(self.alpha, self.beta))
+        qdd, _ = self.equations.accelerations(t, q, qd, self.inputs(t),
+                                              baumgarte=(self.alpha, self.beta))
         return np.concatenate((qd, qdd))
 
     def _step_impl(self, h):

@@ -1,19 +1,17 @@
 """A running check of the energy balance: the integrators' own guard against silent errors.
 
-In a scene whose energy is conserved (``System.nonconservative_reason() is None``) the total
-energy ``E = T + V`` (``System.total_energy``) must stay at its initial value. Every method
-checks it after every accepted step (a dense check, not only at output times) against a
-budget relative to the energy in motion, ``scale = max(max T, max |V - V0|)`` so far:
+In a scene whose energy is conserved (``Equations.nonconservative_reason() is None``) the
+total energy ``E = T + V`` (``Equations.total_energy``) must stay at its initial value.
+Every method checks it after every accepted step (a dense check, not only at output times)
+against a budget relative to the energy in motion, ``scale = max(max T, max |V - V0|)``:
 
 * adaptive methods: ``ENERGY_TOL_FACTOR`` times the energy change that errors at the
   tolerances would make, ``sum |F_i| (atol + rtol |q_i|) + |M_i q'_i| (atol + rtol |q'_i|)``
   (largest so far; dE = -F.dq + M q'.dq'). Local error control bounds the error of each
-  step, not the sum over many steps; smooth scenes stay well within the factor (see
-  tests/test_integrators.py, which pins it for six scenes, two methods, four tolerances).
-  A fast transient that the step control skims over (the light cart-pole's one-microsecond
-  spike: dop853p at rtol 1e-6 ends 25 times over) or a singular crossing taken on the wrong
-  branch (P2 with dop853p at rtol 1e-4: half the energy lost) shows up here, and the run
-  stops with that reason instead of returning an answer that is wrong by far more than the
+  step, not the sum over many steps; smooth scenes stay well within the factor
+  (tests/test_integrators.py pins it). A fast transient that the step control skims over,
+  or a singular crossing taken on the wrong branch, shows up here, and the run stops with
+  that reason instead of returning an answer that is wrong by far more than the
   tolerances. It is a gross-error detector, not a global error bound;
 * fixed-step methods (no error control): ``ENERGY_DIVERGENCE_FRACTION * scale``: only
   divergence, since a fixed step is the user's statement of the accuracy wanted (and a
@@ -21,25 +19,24 @@ budget relative to the energy in motion, ``scale = max(max T, max |V - V0|)`` so
 
 Adaptive methods also use the energy as an error estimate of each step: a step whose own
 energy change exceeds ENERGY_STEP_FACTOR of what the tolerances allow is rejected and retried
-smaller (``step_error``). On the light cart-pole the energy error of an under-resolved spike
-sits in a few steps, and rejecting them takes the error in theta'^2 at rtol 1e-6 from 1.5e-5
-to 2.3e-7 with dop853p (1652 steps instead of 1646) and from 3.1e-6 to 2.3e-7 with rk45p
-(2004 instead of 1984); smooth scenes take 0-10 % more steps.
-
+smaller (``step_error``); docs/accuracy.md shows what that does on the light cart-pole.
 The check costs an energy and a force evaluation per step. Scenes with drivers, inputs or
-dampers are not checked (their energy balance needs the work of those, which is not tracked here).
+dampers are not checked (their energy balance needs the work of those, not tracked here).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
+from ..plain import Plain
+
 
 # An adaptive step whose own energy change exceeds this fraction of what the tolerances
-# allow is rejected and retried smaller (an error estimate of its own, see the docstring).
-# 0.1 leaves rk45p at 1.7e-6 on P6; 0.01 costs smooth scenes many rejections.
+# allow is rejected and retried smaller (an error estimate of its own, see the docstring);
+# larger values let the light cart-pole's spike through, smaller ones cost smooth scenes
+# many rejections (docs/accuracy.md).
 ENERGY_STEP_FACTOR = 0.05
 # An adaptive run may drift in energy by this many times what its tolerances allow
 # (rtol of the energy in motion plus atol converted to joules); see the module docstring.
@@ -52,7 +49,7 @@ ENERGY_ROUNDOFF = 1e-13
 
 
 @dataclass
-class EnergyAudit:
+class EnergyAudit(Plain):
     """Initial energy and the largest energies seen; ``check`` reports a broken balance."""
 
     method: str
@@ -71,36 +68,36 @@ class EnergyAudit:
     worst: float = 0.0     # largest |E - E0| / allowance seen
 
     @classmethod
-    def start(cls, system, q, qd, *, method: str, rtol: float, atol: float, factor: float,
+    def start(cls, equations, q, qd, *, method: str, rtol: float, atol: float, factor: float,
               what: str):
-        """An audit of ``system`` from (q, q'), or None when its energy is not conserved."""
-        if system.nonconservative_reason() is not None:
+        """An audit of ``equations`` from (q, q'), or None when its energy is not conserved."""
+        if equations.nonconservative_reason() is not None:
             return None
-        e0 = system.total_energy(q, qd)
-        t0 = system.kinetic_energy(qd)
+        e0 = equations.total_energy(q, qd)
+        t0 = equations.kinetic_energy(qd)
         audit = cls(method, rtol, atol, factor, what, e0, e0 - t0)
         audit.kinetic_max, audit.magnitude, audit.last_energy = t0, abs(e0), e0
         return audit
 
-    def joules(self, system, t: float, q: np.ndarray, qd: np.ndarray) -> float:
+    def joules(self, equations, t: float, q: np.ndarray, qd: np.ndarray) -> float:
         """The energy change errors at the tolerances would make: dE = -F.dq + M q'.dq'."""
-        F, p = system.forces(t, q, qd), system.mass * qd
+        F, p = equations.forces(t, q, qd), equations.mass * qd
         return (float(np.abs(F) @ (self.atol + self.rtol * np.abs(q)))
                 + float(np.abs(p) @ (self.atol + self.rtol * np.abs(qd))))
 
-    def step_error(self, system, t: float, q: np.ndarray, qd: np.ndarray) -> float:
+    def step_error(self, equations, t: float, q: np.ndarray, qd: np.ndarray) -> float:
         """A proposed step's energy change over ENERGY_STEP_FACTOR times what the tolerances
         allow at its end: above 1, the step should be rejected."""
-        change = abs(system.total_energy(q, qd) - self.last_energy)
+        change = abs(equations.total_energy(q, qd) - self.last_energy)
         if change <= 10 * ENERGY_ROUNDOFF * self.magnitude:
             return 0.0
-        allowed = ENERGY_STEP_FACTOR * self.joules(system, t, q, qd)
+        allowed = ENERGY_STEP_FACTOR * self.joules(equations, t, q, qd)
         return change / allowed if allowed > 0 else np.inf
 
-    def check(self, system, t: float, q: np.ndarray, qd: np.ndarray) -> str | None:
+    def check(self, equations, t: float, q: np.ndarray, qd: np.ndarray) -> str | None:
         """None while the balance holds; otherwise the reason (without the time)."""
-        kinetic = system.kinetic_energy(qd)
-        energy = system.total_energy(q, qd)
+        kinetic = equations.kinetic_energy(qd)
+        energy = equations.total_energy(q, qd)
         if not np.isfinite(energy):
             return f"{self.method}: the energy became non-finite (the method diverged)"
         self.kinetic_max = max(self.kinetic_max, kinetic)
@@ -110,7 +107,7 @@ class EnergyAudit:
         scale = max(self.kinetic_max, self.potential_swing)
         if self.factor:
             # dE = -F . dq + (M q') . dq' for errors dq, dq' at the tolerances
-            self.tolerance_joules = max(self.tolerance_joules, self.joules(system, t, q, qd))
+            self.tolerance_joules = max(self.tolerance_joules, self.joules(equations, t, q, qd))
             allowance = min(self.factor * self.tolerance_joules, ENERGY_DIVERGENCE_FRACTION * scale)
         else:
             allowance = ENERGY_DIVERGENCE_FRACTION * scale
@@ -128,3 +125,6 @@ class EnergyAudit:
                    "crossing; use a smaller rtol or another method"
                    if allowance < ENERGY_DIVERGENCE_FRACTION * scale else
                    "the solution has diverged; use a smaller step"))
+
+
+EnergyAudit.plain_fields = tuple(f.name for f in fields(EnergyAudit))

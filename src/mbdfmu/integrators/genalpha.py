@@ -26,13 +26,13 @@ the dynamic rows are multiplied by D, so the iteration matrix
      [Psi_q,              0      ]]     K_t = d(Psi_q^T lam)/dq - dF/dq,  C_t = -dF/dq',
 
 tends to eq. 14's matrix as h -> 0 instead of growing like 1/h^2. K_t's geometric part is
-``System.constraint_hessian``; the force Jacobians are forward differences (skipped when F is
+``Equations.constraint_hessian``; the force Jacobians are forward differences (skipped when F is
 constant). ``jacobian="mass"`` keeps only [[M, Psi_q^T], [Psi_q, 0]], which suffices at small
 steps.
 
 Velocities: the index-3 scheme does not satisfy Psi_q q' = nu exactly (an O(h^2) violation
 in Arnold-Bruls); here q'_{n+1} is additionally projected onto it with the smallest
-kinetic-energy change (``assembly.project_velocities``), as ALI3-P does, so that outputs and
+kinetic-energy change (``equations.projection.project_velocities``), as ALI3-P does, so that outputs and
 reactions see consistent velocities. The algorithmic acceleration a is kept as computed.
 
 The iteration matrix of a mechanism at a singular configuration or with redundant
@@ -44,12 +44,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..assembly import project_velocities
-from ..errors import SolverError
-from .base import Integrator
-from .implicit import (NEWTON_MAX_ITER, IterationMatrix, NewtonFailure, advance_with_halving,
-                       check_rate, converged, increment_converged,
-                       newton_tolerance)
+from ..equations.projection import project_velocities
+from .base import Integrator, Option, number_in
+from .newton import IterationMatrix, advance_with_halving, newton_iterate, newton_tolerance
 
 # Numerical damping: spectral radius at infinite frequency (1: none, 0: the most).
 RHO_INF = 0.8
@@ -70,19 +67,16 @@ class GeneralizedAlpha(Integrator):
     summary = ("index-3 generalized-alpha (Arnold-Bruls), implicit, fixed step, numerical "
                "damping rho_inf, scaled Newton matrix")
     default_step = 1e-3
-    option_names = ("rho_inf", "jacobian")
+    options = (Option("rho_inf", "a number in [0, 1]", number_in(0.0, 1.0)),
+               Option("jacobian", '"full" or "mass"', lambda v: v in ("full", "mass")))
     state_fields = ("a", "qdd", "lam", "matrix")
 
-    def __init__(self, system, t0, q0, qd0, *, rho_inf: float = RHO_INF,
+    def __init__(self, equations, t0, q0, qd0, *, rho_inf: float = RHO_INF,
                  jacobian: str = "full", **common):
-        if not 0.0 <= float(rho_inf) <= 1.0:
-            raise SolverError(f"genalpha: rho_inf must be in [0, 1], got {rho_inf}")
-        if jacobian not in ("full", "mass"):
-            raise SolverError(f'genalpha: jacobian must be "full" or "mass", got "{jacobian}"')
         self.rho_inf, self.jacobian = float(rho_inf), jacobian
         self.coefficients = genalpha_coefficients(self.rho_inf)
         self.matrix = IterationMatrix()
-        super().__init__(system, t0, q0, qd0, **common)
+        super().__init__(equations, t0, q0, qd0, **common)
 
     def restart(self):
         self.qdd, self.lam = self.accelerations(self.t, self.q, self.qd)
@@ -94,19 +88,19 @@ class GeneralizedAlpha(Integrator):
         return True, h
 
     def _iteration_matrix(self, t, q, qd, J, lam, D, G):
-        system, n = self.system, self.system.n
-        S = np.zeros((n + system.m, n + system.m))
-        S[:n, :n] = np.diag(system.mass)
+        eq, n = self.equations, self.equations.n
+        S = np.zeros((n + eq.m, n + eq.m))
+        S[:n, :n] = np.diag(eq.mass)
         if self.jacobian == "full":
-            dFdq, dFdv = system.force_jacobians(t, q, qd)
-            S[:n, :n] += D * (system.constraint_hessian(q, lam) - dFdq) - G * dFdv
+            dFdq, dFdv = eq.force_jacobians(t, q, qd, self.inputs(t))
+            S[:n, :n] += D * (eq.constraint_hessian(q, lam) - dFdq) - G * dFdv
         S[:n, n:] = J.T
         S[n:, :n] = J
         return S
 
     def _try_step(self, t, h):
         """One step from (t, self.q, ...) to t + h; updates the state or raises NewtonFailure."""
-        system, n = self.system, self.system.n
+        eq, n = self.equations, self.equations.n
         am, af, beta, gamma = self.coefficients
         t1 = t + h
         D = h * h * beta * (1.0 - af) / (1.0 - am)
@@ -114,43 +108,27 @@ class GeneralizedAlpha(Integrator):
         q_n, v_n, a_n, qdd_n = self.q, self.qd, self.a, self.qdd
         # predictor: Newmark with q''_{n+1} = q''_n (a_{n+1} then follows)
         a = (af * qdd_n - am * a_n + (1.0 - af) * qdd_n) / (1.0 - am)
-        q = q_n + h * v_n + h * h * ((0.5 - beta) * a_n + beta * a)
-        qd = v_n + h * ((1.0 - gamma) * a_n + gamma * a)
-        qdd, lam = qdd_n.copy(), self.lam.copy()
-        tol = newton_tolerance(self.atol, h, system.length_scale)
-        matrix = self.matrix
-        if not matrix.valid_for(h):
-            matrix.lu = None
-        matrix.fresh = False
-        previous, size = None, np.inf
-        for _ in range(NEWTON_MAX_ITER):
-            self.stats.nnewton += 1
-            Psi, J = system.constraints(t1, q)
-            F = system.forces(t1, q, qd)
-            dynamic = D * (system.mass * qdd + J.T @ lam - F)
-            if not np.all(np.isfinite(dynamic)):
-                raise NewtonFailure("non-finite residual")
-            if converged(size, dynamic / system.mass, Psi, tol):
-                break
-            if matrix.lu is None:
-                matrix.factor(self._iteration_matrix(t1, q, qd, J, lam, D, G), h, self.stats)
-            dx = -matrix.solve(np.concatenate((dynamic, Psi)))
-            size = float(np.max(np.abs(dx[:n])))
-            if not np.isfinite(size):
-                raise NewtonFailure("non-finite Newton increment")
-            q = q + dx[:n]
-            qd = qd + (G / D) * dx[:n]
-            qdd = qdd + dx[:n] / D
-            lam = lam + dx[n:] / D
-            if increment_converged(size, previous, tol):
-                break
-            previous = check_rate(matrix, size, previous)
-        else:
-            raise NewtonFailure(f"Newton did not converge in {NEWTON_MAX_ITER} iterations "
-                                f"(last increment {size:.3g}, constraint residual "
-                                f"{np.max(np.abs(Psi), initial=0.0):.3g}, tolerance {tol:.3g})")
-        self.a = (af * qdd_n - am * a_n + (1.0 - af) * qdd) / (1.0 - am)
-        self.q, self.qdd, self.lam = q, qdd, lam
-        self.qd = project_velocities(system, t1, q, qd)
+        x = {"q": q_n + h * v_n + h * h * ((0.5 - beta) * a_n + beta * a),
+             "qd": v_n + h * ((1.0 - gamma) * a_n + gamma * a),
+             "qdd": qdd_n.copy(), "lam": self.lam.copy()}
+
+        def evaluate():
+            Psi, x["J"] = self.constraints(t1, x["q"])
+            F = self.forces(t1, x["q"], x["qd"])
+            return D * (eq.mass * x["qdd"] + x["J"].T @ x["lam"] - F), Psi
+
+        def apply(dx):
+            x["q"] = x["q"] + dx[:n]
+            x["qd"] = x["qd"] + (G / D) * dx[:n]
+            x["qdd"] = x["qdd"] + dx[:n] / D
+            x["lam"] = x["lam"] + dx[n:] / D
+
+        newton_iterate(evaluate, lambda: self._iteration_matrix(t1, x["q"], x["qd"], x["J"],
+                                                               x["lam"], D, G),
+                       apply, self.matrix, h, newton_tolerance(self.atol, h, eq.length_scale),
+                       eq.mass, self.stats)
+        self.a = (af * qdd_n - am * a_n + (1.0 - af) * x["qdd"]) / (1.0 - am)
+        self.q, self.qdd, self.lam = x["q"], x["qdd"], x["lam"]
+        self.qd = project_velocities(eq, t1, x["q"], x["qd"], self.inputs(t1))
         self.stats.nprojections += 1
         self.check_finite(t1, self.q, self.qd)

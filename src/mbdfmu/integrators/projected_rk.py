@@ -1,8 +1,8 @@
 """Index-1 form integrated by an embedded Runge-Kutta pair, with coordinate projection.
 
-The state y = (q, q') follows y' = (q', q''(t, q, q')) with q'' from the seed's eq. (14)
-(the index-1 form). After every accepted step, q is projected onto Psi(q, t) = 0 and q'
-onto Psi_q q' = nu, each with the smallest mass-weighted change (``assembly.py``), which
+The state y = (q, q') follows y' = (q', q''(t, q, q')) with q'' from eq. (14) (the index-1
+form). After every accepted step, q is projected onto Psi(q, t) = 0 and q' onto
+Psi_q q' = nu, each with the smallest mass-weighted change (``equations.projection``), which
 removes the drift of the index-1 form without changing its order. The Butcher tableaux are
 scipy's (``scipy.integrate.RK45`` and ``DOP853``): a method here is a tableau plus a name.
 """
@@ -14,7 +14,7 @@ import math
 import numpy as np
 from scipy.integrate import DOP853, RK45
 
-from ..assembly import project_positions, project_velocities
+from ..equations.projection import project_positions, project_velocities
 from ..errors import SolverError
 from .base import Integrator
 
@@ -49,8 +49,6 @@ class ProjectedRK(Integrator):
     """Base of the embedded pairs: subclasses give the tableau (A, B, C, error weights)."""
 
     adaptive = True
-    default_rtol = 1e-6
-    default_atol = 1e-8
     state_fields = ("f", "energy_rejected")
     A: np.ndarray
     B: np.ndarray
@@ -93,13 +91,19 @@ class ProjectedRK(Integrator):
         n = self.q.size
         return self._rhs(t, y[:n], y[n:])
 
+    def _projection_tol(self) -> float:
+        """Max-norm of Psi the position projection reaches (m or rad)."""
+        return (max(PROJECTION_TOL_FACTOR * self.atol, PROJECTION_TOL_FLOOR)
+                * self.equations.length_scale)
+
     def _project(self, t_new, y_new):
         """Mass-weighted projection of y_new = (q, q') onto the constraints at t_new;
         SolverError when Newton does not converge."""
         n = self.q.size
-        tol = max(PROJECTION_TOL_FACTOR * self.atol, PROJECTION_TOL_FLOOR) * self.system.length_scale
-        q, _ = project_positions(self.system, t_new, y_new[:n], tol=tol)
-        qd = project_velocities(self.system, t_new, q, y_new[n:])
+        u = self.inputs(t_new)
+        q, _ = project_positions(self.equations, t_new, y_new[:n], tol=self._projection_tol(),
+                                 u=u)
+        qd = project_velocities(self.equations, t_new, q, y_new[n:], u)
         self.stats.nprojections += 1
         return q, qd
 
@@ -123,7 +127,7 @@ class ProjectedRK(Integrator):
             # the step's energy change as a second error estimate (energy_audit.py); not
             # insisted on when a smaller step did not reduce it (a jump that does not come from
             # the step size, e.g. a projection at a singular configuration)
-            energy_err = self.audit.step_error(self.system, t_new, q, qd)
+            energy_err = self.audit.step_error(self.equations, t_new, q, qd)
             last, self.energy_rejected = self.energy_rejected, None
             if not energy_err <= 1.0 and (last is None or energy_err < ENERGY_MIN_GAIN * last):
                 self.energy_rejected = energy_err

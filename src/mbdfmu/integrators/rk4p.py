@@ -1,8 +1,8 @@
 """Classic fixed-step Runge-Kutta 4 on the index-1 form, with coordinate projection.
 
-The state y = (q, q') follows y' = (q', q''(t, q, q')) with q'' from the seed's eq. (14);
-after every step q is projected onto Psi(q, t) = 0 and q' onto Psi_q q' = nu with the
-smallest mass-weighted change (``assembly.project_positions`` / ``project_velocities``),
+The state y = (q, q') follows y' = (q', q''(t, q, q')) with q'' from eq. (14); after every
+step q is projected onto Psi(q, t) = 0 and q' onto Psi_q q' = nu with the smallest
+mass-weighted change (``equations.projection``, formulation.md eqs. 18-19),
 exactly as the adaptive pairs of ``projected_rk.py`` do (Hairer, Lubich, Roche 1989; Hairer
 and Wanner, Solving ODEs II, sec. VII.2). No error control: the step sets the accuracy
 (global error O(h^4)); divergence, a projection that fails and a non-finite state raise.
@@ -10,15 +10,14 @@ and Wanner, Solving ODEs II, sec. VII.2). No error control: the step sets the ac
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
-from .. import kernel_jit
-from ..assembly import PROJECTION_MAX_ITER
+from ..equations.projection import PROJECTION_MAX_ITER
+from ..equations.sparsity import RANK_TOLERANCE
 from ..errors import SolverError
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
-from .projected_rk import PROJECTION_TOL_FACTOR, PROJECTION_TOL_FLOOR, ProjectedRK, rk_stages
+from .projected_rk import ProjectedRK, rk_stages
 
 # The classic tableau (Kutta 1901; Hairer, Norsett, Wanner I, Table II.1.1).
 RK4_A = np.array([[0.0, 0.0, 0.0, 0.0],
@@ -38,9 +37,9 @@ def rk4_step(rhs, t: float, y: np.ndarray, h: float, f0: np.ndarray) -> np.ndarr
 class RK4P(ProjectedRK):
     """Classic RK4, fixed step, with mass-weighted coordinate projection after each step.
 
-    Mechanisms whose applied forces are constant (``System.fused_steps``: numba kernel,
-    gravity, constant torques, constant forces at centres of mass) run whole sequences of steps compiled in one call
-    (``kernel_jit.rk4p_steps``), with the same time grid, projections and checks.
+    Mechanisms whose applied forces never change run whole sequences of steps compiled in
+    one call when the numba kernel is in use (``rk4p_compiled.py``), with the same time
+    grid, projections and checks.
     """
 
     name = "rk4p"
@@ -55,55 +54,76 @@ class RK4P(ProjectedRK):
         try:
             q, qd = self._project(t_new, y_new)
         except SolverError as exc:
-            reason = str(exc).split(": ", 1)[1] if exc.t is not None else str(exc)
-            raise SolverError(f"{self.name}: step {h:.3g} s too large, {reason}", t_new) from None
+            raise SolverError(f"{self.name}: step {h:.3g} s too large, {exc.reason}",
+                              t_new) from None
         f = self._rhs(t_new, q, qd)
         self.check_finite(t_new, f)
         self.q, self.qd, self.f = q, qd, f
         return True, h
 
+    @property
+    def compiled_steps(self) -> bool:
+        """Whole runs of steps can be compiled: the numba kernel, constraints, and applied
+        forces that never change."""
+        eq = self.equations
+        return eq.kernel == "numba" and eq.m > 0 and eq.applied.is_constant
+
     def _advance_fixed(self, t_target: float) -> None:
         """The base class's loop, with runs of steps compiled in one call when possible."""
-        if not self.system.fused_steps:
+        if not self.compiled_steps:
             return super()._advance_fixed(t_target)
-        t0 = self.t
-        n = max(1, math.ceil((t_target - t0) / self.h - 1e-9))
-        h = (t_target - t0) / n
+        from .rk4p_compiled import StepStatus   # numba only when the compiled path runs
+        t0, n, h = self.fixed_grid(t_target)
         k = 0
         while k < n:
             done, status = self._compiled_steps(t0, h, k, n)
             k += done
             self.t = t0 + k * h if k < n else t_target
             self.stats.nsteps += done
-            if status in (3, 4):          # the check after the last step failed: say why
-                self.check_finite(self.t, self.q, self.qd, self.f)
+            if status in (StepStatus.ENERGY, StepStatus.NOT_FINITE):
+                self.check_finite(self.t, self.q, self.qd, self.f)   # say why
                 self._after_step()
-            elif status in (1, 2):
-                # a singular Schur complement (minimum-norm solves) or a failed projection
-                # (its message names the constraint): this step on the general path
+            elif status in (StepStatus.SINGULAR, StepStatus.PROJECTION):
+                # minimum-norm solves, or a failed projection whose message names the
+                # constraint: this step on the general path
                 self._step_impl(h)
                 k += 1
                 self.t = t0 + k * h if k < n else t_target
                 self.stats.nsteps += 1
                 self._after_step()
 
-    def _compiled_steps(self, t0: float, h: float, k: int, n: int) -> tuple[int, int]:
-        """Steps k..n-1 of the grid t0 + j h in one compiled call; (steps done, status of
-        ``kernel_jit.rk4p_steps``). The energy audit's running state goes in and out."""
-        audit = self.audit
-        state = np.zeros(len(kernel_jit.AUDIT_FIELDS))
+    def _stage_motions(self, times: np.ndarray, h: float) -> np.ndarray:
+        """c, c', c'' of every row at t, t + h/2 and t + h for each step start t, read-only
+        (one compiled signature)."""
+        eq = self.equations
+        motions = np.array([[eq.motion_values(t + a, self.inputs(t + a))
+                             for a in (0.0, 0.5 * h, h)] for t in times])
+        motions.flags.writeable = False
+        return motions
+
+    def _compiled_steps(self, t0: float, h: float, k: int, n: int):
+        """Steps k..n-1 of the grid t0 + j h in one compiled call; (steps done, status). The
+        energy audit's running state goes in and out."""
+        from .rk4p_compiled import AUDIT_ATTRIBUTES, AuditField, StepStatus, rk4p_steps
+        audit, eq = self.audit, self.equations
+        state = np.zeros(len(AuditField))
         if audit is not None:
-            state[:] = [1.0] + [getattr(audit, name) for name in kernel_jit.AUDIT_FIELDS[1:]]
-        tol = max(PROJECTION_TOL_FACTOR * self.atol, PROJECTION_TOL_FLOOR) * self.system.length_scale
+            state[AuditField.ACTIVE] = 1.0
+            for field, attribute in AUDIT_ATTRIBUTES.items():
+                state[field] = getattr(audit, attribute)
         size = self.q.size
-        q, qd, qdd, done, status = self.system.rk4p_steps(
-            t0 + h * np.arange(k, n), self.q, self.qd, self.f[size:], h, state, tol=tol,
-            max_iter=PROJECTION_MAX_ITER, divergence_fraction=ENERGY_DIVERGENCE_FRACTION,
-            roundoff=ENERGY_ROUNDOFF)
+        c = eq.constraint_set
+        q, qd, qdd, done, status = rk4p_steps(
+            self.q, self.qd, self.f[size:], h, self._stage_motions(t0 + h * np.arange(k, n), h),
+            eq.applied.constant, eq.minv, RANK_TOLERANCE, self._projection_tol(),
+            PROJECTION_MAX_ITER, c.primitives, c.plan, eq.mass, state,
+            ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF)
+        status = StepStatus(status)
         if audit is not None:
-            for name, value in zip(kernel_jit.AUDIT_FIELDS[1:], state[1:]):
-                setattr(audit, name, int(value) if name == "checks" else float(value))
-            if status == 3:               # _after_step checks this state again: count it once
+            for field, attribute in AUDIT_ATTRIBUTES.items():
+                value = state[field]
+                setattr(audit, attribute, int(value) if field == AuditField.CHECKS else float(value))
+            if status == StepStatus.ENERGY:   # _after_step checks this state again: count it once
                 audit.checks -= 1
         self.q, self.qd, self.f = q, qd, np.concatenate((qd, qdd))
         self.stats.naccel += 4 * done

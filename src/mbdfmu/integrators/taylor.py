@@ -1,10 +1,10 @@
-"""The seed's explicit second-order Taylor step, without any stabilisation.
+"""The explicit second-order Taylor step of the formulation, without any stabilisation.
 
     q_{n+1}  = q_n + h q'_n + h^2/2 q''_n,      q'_{n+1} = q'_n + h q''_n,
 
-with q'' and lam from eq. (14) at (t_n, q_n, q'_n). Nothing pulls the state back to the
-constraints, so position and velocity errors grow: it is the baseline the stabilised
-methods are charted against.
+with q'' and lam from eq. (14) at (t_n, q_n, q'_n) (formulation.md, eq. 21). Nothing pulls
+the state back to the constraints, so position and velocity errors grow: it is the baseline
+the stabilised methods are charted against.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from .base import Integrator
 
 class Taylor(Integrator):
     name = "taylor"
-    summary = "the seed's explicit 2nd-order Taylor step, fixed step, no stabilisation"
+    summary = "explicit 2nd-order Taylor step (formulation eq. 21), fixed step, no stabilisation"
     default_step = 1e-4
 
     def _step_impl(self, h):

@@ -1,34 +1,33 @@
-"""``auto``: pick a method per scene at construction, and say which and why.
+"""``auto``: choose a method for a scene at the start of a run, and say which and why.
 
-Rules, checked in this order on the scene and its assembled state at t0 (no more model than
-the scene needs):
+``choose_method`` applies these rules, in order, to the scene and its assembled state at
+t0 (no more model than the scene needs); the run then uses the chosen class like any
+named method (scipy keeps the choice outside the solver classes too):
 
 0. No degrees of freedom (every coordinate follows from the constraints and drivers, as in
-   the driven slider-crank): the position projection (``assembly.py``) fixes the motion to
-   its tolerance whatever the integrator, whose prediction only starts Newton close; so
-   the cheapest one, ``rk4p`` at its step.
+   the driven slider-crank): the position projection fixes the motion to its tolerance
+   whatever the integrator, whose prediction only starts Newton close; so the cheapest
+   one, ``rk4p`` at its step.
 1. A singular configuration at t0: the constraint Jacobian loses rank there
-   (``assembly.rank_report``) but regains it a little way along the motion
+   (``projection.rank_report``) but regains it a little way along the motion
    (MOVE_FRACTION of the mechanism's size), or the smallest singular value of its
    independent rows is below NEAR_SINGULAR of the largest: ``ali3p``, whose iteration
-   matrix stays non-singular there while eq. 14 has no unique multipliers. Rank that stays
-   lost as the mechanism moves is redundancy, not a singular configuration.
+   matrix stays non-singular there while eq. (14) has no unique multipliers. Rank that
+   stays lost as the mechanism moves is redundancy, not a singular configuration.
 2. A spring or damper much faster than the output interval (period 2 pi sqrt(m / k) or time
    constant m / c below STIFF_FRACTION of it, with m the lightest body it acts on):
    ``genalpha``, implicit, which damps what the output cannot show instead of resolving it
    with tiny explicit steps; ``ali3p`` if the constraints are also redundant (genalpha's
    matrix would be singular).
 3. Otherwise ``dop853p``: adaptive, high order, coordinate projection. Consistent redundant
-   constraints stay here: eq. 14's minimum-norm multipliers (``linalg.solve_spd``) handle
-   them, and the parallelogram runs 10 s with dop853p to 1.6e-12 in 2.8 s, against 2.5e-5
-   in 14 s with ali3p at its default step. A huge mass ratio (P6's light cart, beyond
-   MASS_RATIO) stays here too: its fast transients are physical, so they must be resolved,
-   not damped. dop853p's step control includes the energy of each step and its energy
-   audit stops a run that still drifts (``energy_audit.py``): P6 at the default rtol 1e-6
-   ends with theta'^2 within 2.3e-7 of the exact quadrature. The reason says so.
+   constraints stay here (eq. 14's minimum-norm multipliers handle them), and so does a
+   huge mass ratio (beyond MASS_RATIO): its fast transients are physical and must be
+   resolved, not damped; dop853p's step control includes the energy of each step and its
+   energy audit stops a run that still drifts (``energy_audit.py``). docs/accuracy.md has
+   the measurements behind these rules.
 
-It looks at t0 only: a mechanism that reaches a singular configuration later (P2's N-four-bar
-starts with vertical cranks) gets dop853p, whose failure message then points at ali3p.
+It looks at t0 only: a mechanism that reaches a singular configuration later gets dop853p,
+whose failure message then points at ali3p.
 """
 
 from __future__ import annotations
@@ -37,9 +36,9 @@ import math
 
 import numpy as np
 
-from ..assembly import project_positions, project_velocities, rank_report
+from ..equations.projection import project_positions, project_velocities, rank_report
 from ..errors import SolverError
-from ..scene import RotationalSpringDamper, SpringDamper
+from ..model.scene import RotationalSpringDamper, SpringDamper
 from .ali3p import ALI3P
 from .base import Integrator
 from .genalpha import GeneralizedAlpha
@@ -53,20 +52,13 @@ NEAR_SINGULAR = 1e-6
 MOVE_FRACTION = 1e-3
 # A spring period (or damper time constant) below this fraction of the output interval is stiff.
 STIFF_FRACTION = 0.01
-# Output points assumed when the scene gives no output interval (as ``simulate`` does).
-OUTPUT_POINTS = 500
-# Body mass ratio above which the reason warns of fast transients (P6: 1e6).
+# Body mass ratio above which the reason warns of fast transients (P6's light cart).
 MASS_RATIO = 1e4
 
 
-def _output_interval(scene) -> float:
-    s = scene.simulation
-    return s.output_interval or s.t_end / OUTPUT_POINTS
-
-
-def _fastest_force(system) -> tuple[float, str] | None:
+def _fastest_force(equations) -> tuple[float, str] | None:
     """(time scale in s, force name) of the fastest spring or damper, or None."""
-    scene = system.scene
+    scene = equations.scene
     masses = {b.name: (b.mass, b.inertia) for b in scene.bodies}
     fastest = None
     for f in scene.forces:
@@ -86,42 +78,44 @@ def _fastest_force(system) -> tuple[float, str] | None:
     return fastest
 
 
-def _rank_after_moving(system, t0: float, q0: np.ndarray) -> int:
+def _rank_after_moving(equations, t0: float, q0: np.ndarray, u) -> int:
     """Rank of Psi_q a little way along the motion from q0 (along q', or q'' from rest).
 
     Redundant constraints (the parallelogram's third crank) stay redundant as the mechanism
     moves; a singular configuration (cranks of a four-bar in line) is left at once.
     """
-    qd0 = np.array([[*b.velocity, b.angular_velocity] for b in system.scene.bodies],
+    qd0 = np.array([[*b.velocity, b.angular_velocity] for b in equations.scene.bodies],
                    dtype=float).ravel()
-    qd0 = project_velocities(system, t0, q0, qd0)
-    direction = qd0 if np.any(qd0) else system.accelerations(t0, q0, qd0)[0]
+    qd0 = project_velocities(equations, t0, q0, qd0, u)
+    direction = qd0 if np.any(qd0) else equations.accelerations(t0, q0, qd0, u)[0]
     size = float(np.max(np.abs(direction)))
     if size == 0.0:
-        return rank_report(system, t0, q0).rank
-    q1 = q0 + (MOVE_FRACTION * system.length_scale / size) * direction
+        return rank_report(equations, t0, q0).rank
+    q1 = q0 + (MOVE_FRACTION * equations.length_scale / size) * direction
     try:
-        q1, _ = project_positions(system, t0, q1, tol=1e-12 * system.length_scale)
+        q1, _ = project_positions(equations, t0, q1, tol=1e-12 * equations.length_scale, u=u)
     except SolverError:
-        return rank_report(system, t0, q0).rank
-    return rank_report(system, t0, q1).rank
+        return rank_report(equations, t0, q0).rank
+    return rank_report(equations, t0, q1).rank
 
 
-def choose_method(system, t0: float, q0: np.ndarray) -> tuple[type[Integrator], str]:
-    """The method for this scene and the reason, by the rules of this module."""
+def choose_method(equations, t0: float, q0: np.ndarray, output_interval: float,
+                  u=None) -> tuple[type[Integrator], str]:
+    """The method for this scene and the reason, by the rules of this module; ``u`` the
+    inputs at t0 and ``output_interval`` (s) the time between the outputs the run reports."""
     notes = []
     redundant = ()
-    if system.m:
-        report = rank_report(system, t0, q0)
+    if equations.m:
+        report = rank_report(equations, t0, q0)
         redundant = report.redundant
         if report.dof == 0 and not redundant:
             return RK4P, ("no degrees of freedom (the drivers prescribe the whole motion): "
                           "the projections give it, so the cheapest method, rk4p")
-        if redundant and _rank_after_moving(system, t0, q0) > report.rank:
+        if redundant and _rank_after_moving(equations, t0, q0, u) > report.rank:
             return ALI3P, (f"the constraint Jacobian loses rank {len(redundant)} at t = {t0:g} "
                            "and regains it as the mechanism moves (a singular configuration): "
                            "ali3p passes singular configurations")
-        _, J = system.constraints(t0, q0)
+        _, J = equations.constraints(t0, q0, u=u)
         sv = np.linalg.svd(J, compute_uv=False)[: report.rank]  # without the redundant rows
         if sv.size and sv[-1] < NEAR_SINGULAR * sv[0]:
             return ALI3P, (f"the constraint Jacobian is nearly singular at t = {t0:g} (singular "
@@ -130,8 +124,8 @@ def choose_method(system, t0: float, q0: np.ndarray) -> tuple[type[Integrator], 
         if redundant:
             notes.append("redundant constraints (" + ", ".join(redundant) + " repeat others) "
                          "are handled by eq. 14's minimum-norm multipliers")
-    fastest = _fastest_force(system)
-    interval = _output_interval(system.scene)
+    fastest = _fastest_force(equations)
+    interval = output_interval
     if fastest is not None and fastest[0] < STIFF_FRACTION * interval:
         stiff = (f'force "{fastest[1]}" acts on a time scale of {fastest[0]:.2g} s, far below '
                  f"the output interval {interval:.2g} s (stiff)")
@@ -139,26 +133,10 @@ def choose_method(system, t0: float, q0: np.ndarray) -> tuple[type[Integrator], 
             return ALI3P, (stiff + " and the constraints are redundant: implicit ali3p, whose "
                            "iteration matrix stays non-singular")
         return GeneralizedAlpha, stiff + ": implicit genalpha damps it"
-    masses = system.mass[0::3]
+    masses = equations.mass[0::3]
     ratio = float(masses.max() / masses.min())
     if ratio > MASS_RATIO:
         notes.append(f"body masses differ by {ratio:.2g}x: fast transients are likely; they "
                      "are physical and must be resolved, not damped: dop853p, whose step "
                      "control includes the energy (it stops with a reason if it cannot)")
     return DOP853P, "; ".join(notes) or "smooth scene (no singular constraints, nothing stiff)"
-
-
-class Auto(Integrator):
-    """Not a method of its own: constructing it returns the chosen method's integrator, with
-    ``picked_by = "auto"`` and ``reason`` set."""
-
-    name = "auto"
-    summary = ("picks per scene: rk4p without degrees of freedom, ali3p for redundant/singular "
-               "constraints, genalpha for stiff springs, else dop853p; says why")
-    adaptive = True  # the usual choice; the FMU's solver.step = 0 means the method's default
-
-    def __new__(cls, system, t0, q0, qd0, *, step=None, rtol=None, atol=None):
-        chosen, reason = choose_method(system, t0, np.asarray(q0, dtype=float))
-        integrator = chosen(system, t0, q0, qd0, step=step, rtol=rtol, atol=atol)
-        integrator.picked_by, integrator.reason = cls.name, reason
-        return integrator

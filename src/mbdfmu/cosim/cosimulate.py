@@ -9,26 +9,15 @@ from pathlib import Path
 
 import numpy as np
 
+from ..fmu_build.cache import build_fmus
+from ..plotting import figure
 from ..result import Result
-from . import libcosim, master, ssp
-from .fmus import build_fmus
-from .master import CosimError, MasterSettings
-from .scenario import Scenario, load_scenario, reference_function
-
-MASTERS = ("fmpy", "ssp", "libcosim")
-
-
-@dataclass(frozen=True)
-class CosimSettings:
-    """A run of a scenario (None: the scenario's own value)."""
-
-    master: str = "fmpy"
-    algorithm: str | None = None
-    step: float | None = None
-    t_end: float | None = None
-    variable_step: bool = False
-    rtol: float | None = None
-    start: str = "exchange"            # "zero": connected inputs start at 0.0 (fmpy, ssp)
+from .fmpy_master import run_fmpy
+from .libcosim_runner import run_libcosim
+from .scenario import Scenario, reference_function
+from .scenario_reader import load_scenario
+from .settings import CosimSettings
+from .ssp_runner import run_ssp
 
 
 @dataclass
@@ -51,29 +40,19 @@ def cosimulate(scenario: Scenario | str, settings: CosimSettings = CosimSettings
     ``work_dir/<scenario folder>``, the SSP written there too."""
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
-    if settings.master not in MASTERS:
-        raise CosimError(f'unknown master "{settings.master}"; known: {", ".join(MASTERS)}')
-    if settings.variable_step and settings.master != "fmpy":
-        raise CosimError("the variable-step master is the fmpy master's (--master fmpy)")
     # One folder per scenario folder: variants share their FMUs, other scenarios may have
     # sources of the same name.
     work_dir = Path(work_dir) / scenario.folder.name
-    fmus = build_fmus(scenario, work_dir)
-    # The SSP runner and libcosim are Jacobi masters: the scenario's default applies to fmpy.
-    algorithm = settings.algorithm or (scenario.algorithm if settings.master == "fmpy"
-                                       else "jacobi")
+    fmus = build_fmus({i.name: i.source for i in scenario.instances}, work_dir)
+    algorithm = settings.algorithm_for(scenario)
     t0 = time.perf_counter()
     if settings.master == "fmpy":
-        result = master.run(scenario, fmus, MasterSettings(
-            algorithm=algorithm, step=settings.step, t_end=settings.t_end,
-            variable_step=settings.variable_step, rtol=settings.rtol, start=settings.start))
+        result = run_fmpy(scenario, fmus, settings)
     elif settings.master == "ssp":
-        result = ssp.run(scenario, fmus, work_dir / f"{scenario.name}.ssp", step=settings.step,
+        result = run_ssp(scenario, fmus, work_dir / f"{scenario.name}.ssp", step=settings.step,
                          t_end=settings.t_end, algorithm=algorithm, start=settings.start)
     else:
-        if settings.start != "exchange":
-            raise CosimError('libcosim always starts by passing outputs to inputs ("exchange")')
-        result = libcosim.run(scenario, fmus, step=settings.step, t_end=settings.t_end,
+        result = run_libcosim(scenario, fmus, step=settings.step, t_end=settings.t_end,
                               algorithm=algorithm)
     seconds = time.perf_counter() - t0
     run = CosimRun(scenario, settings, result, seconds, algorithm=algorithm)
@@ -87,14 +66,9 @@ def cosimulate(scenario: Scenario | str, settings: CosimSettings = CosimSettings
 
 def plot(run: CosimRun, path: str | Path) -> Path:
     """One panel per plotted variable against time, with the reference dashed."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     names = [n for n in (run.scenario.plot or run.result.names) if n in run.result]
-    fig, axes = plt.subplots(len(names), 1, sharex=True, squeeze=False,
-                             figsize=(8, 1.9 * len(names) + 0.8))
+    fig = figure(figsize=(8, 1.9 * len(names) + 0.8))
+    axes = fig.subplots(len(names), 1, sharex=True, squeeze=False)
     for ax, name in zip(axes[:, 0], names):
         ax.plot(run.result.time, run.result[name], lw=1.2, label="co-simulation")
         if run.reference is not None and name in run.reference:
@@ -109,7 +83,6 @@ def plot(run: CosimRun, path: str | Path) -> Path:
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path
 
 

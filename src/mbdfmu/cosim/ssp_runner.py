@@ -16,15 +16,15 @@ master with three habits this module accounts for:
 
 * its connectors start at 0.0, so every connected input sees 0.0 over the first step. The
   hydraulic crane cannot start that way (a cylinder of length 0 is outside its stroke: the
-  hydraulics discard the first step), and the other scenarios start with a jolt. ``run``
+  hydraulics discard the first step), and the other scenarios start with a jolt. ``run_ssp``
   therefore starts the way libcosim and the fmpy master do (``start="exchange"``): while
   the runner instantiates the FMUs it passes outputs to inputs, as many rounds as there are
   components, after the last one is initialized (``_exchange_at_start`` wraps the runner's
   ``instantiate_fmu`` for the duration of the call; nothing else of the runner changes).
   ``start="zero"`` runs it untouched; the fmpy master's ``start="zero"`` reproduces that;
 * each result row is stamped with the start of its step while holding the outputs of its
-  end, so ``run`` re-stamps rows with the end times ``k h``;
-* it never reads the SSD's parameter bindings: ``run`` reads them from the SSP and passes
+  end, so ``run_ssp`` re-stamps rows with the end times ``k h``;
+* it never reads the SSD's parameter bindings: ``run_ssp`` reads them from the SSP and passes
   them on.
 """
 
@@ -39,7 +39,7 @@ import numpy as np
 
 from .. import __version__
 from ..result import Result
-from .master import CosimError
+from .settings import CosimError
 from .scenario import Scenario, check_variables
 
 NS = {
@@ -201,9 +201,10 @@ def _exchange_at_start():
         runner.instantiate_fmu = original
 
 
-def run(scenario: Scenario, fmus: dict[str, Path], ssp_path: str | Path, step: float | None = None,
-        t_end: float | None = None, record: list[str] | None = None,
-        algorithm: str | None = None, start: str = "exchange") -> Result:
+def run_ssp(scenario: Scenario, fmus: dict[str, Path], ssp_path: str | Path,
+            step: float | None = None, t_end: float | None = None,
+            record: list[str] | None = None, algorithm: str | None = None,
+            start: str = "exchange") -> Result:
     """Export the scenario to ``ssp_path`` and run it with ``fmpy.ssp.simulate_ssp``
     (``start``: "exchange" or "zero", see the module docstring).
 

@@ -6,9 +6,10 @@ The FMU holds, under ``resources/``:
   variable table, units) and its class renamed; ``<module>`` is
   ``mbdfmu_<Model>_<hash>``, unique to the model and to everything shipped, so two
   different mbdfmu FMUs never share a module in one process;
-* ``_mbdfmu_<hash>/``: a copy of the mbdfmu package (without ``cli``, ``plotting``, ``cosim``),
-  imported under that name, so the FMU never uses (and is never shadowed by) an mbdfmu
-  installed in the host;
+* ``_mbdfmu_<hash>/``: a copy of the parts of mbdfmu a simulation needs (``SHIPPED``: the
+  model, equations and integrators, the simulation; no CLI, plotting, benchmarks,
+  co-simulation or FMU building), imported under that name, so the FMU never uses (and is
+  never shadowed by) an mbdfmu installed in the host;
 * ``scene.json`` (the scene as read, what the FMU loads: no TOML reader needed at run
   time) and ``scene.toml`` (the source, for people);
 * ``pythonfmu/`` (pythonfmu adds it).
@@ -20,34 +21,34 @@ pythonfmu cannot express units, unit definitions or a generation tool of our own
 from __future__ import annotations
 
 import fnmatch
-import hashlib
 import json
 import re
 import shutil
-import sys
 import tempfile
 from pathlib import Path
 
-import mbdfmu
-from mbdfmu import integrators
-from mbdfmu.errors import MbdfmuError
-from mbdfmu.scene import parameters
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
+from .. import __file__ as core_init
+from .. import __version__
+from ..equations import Equations
+from ..equations.projection import assemble
+from ..integrators import METHOD_NAMES
+from ..integrators.settings import settings_from_scene
+from ..model.reader import resolve_scene_path, scene_from_dict
+from ..model.toml_table import load_toml
+from ..model.variables import inputs, outputs, parameters
+from ..errors import SceneError
+from .common import CAPABILITIES, BuildError, build_isolated, digest
 
 HERE = Path(__file__).resolve().parent
 TEMPLATE = HERE / "slave.py"
 TEMPLATE_CLASS = "MbdfmuSlave"
 GENERATED = re.compile(r"# >>> GENERATED.*?\n(.*?)# <<< GENERATED\n", re.S)
-# Modules of mbdfmu an FMU does not need (they would pull in matplotlib).
-NOT_SHIPPED = {"cli.py", "plotting.py", "__main__.py"}
-# Subpackages an FMU does not need: the co-simulation masters (they import fmpy, libcosimpy).
-NOT_SHIPPED_PACKAGES = {"cosim"}
-# Output points of the DefaultExperiment when the scene gives no output interval.
-DEFAULT_OUTPUT_POINTS = 500
+# What of mbdfmu an FMU ships: the layers a simulation runs on (no CLI, plotting,
+# benchmarks, co-simulation masters or FMU building: they would pull in matplotlib, dask,
+# fmpy or libcosimpy, and change the host's process).
+SHIPPED_PACKAGES = ("model", "equations", "integrators")
+SHIPPED_MODULES = ("__init__.py", "errors.py", "plain.py", "result.py", "signals.py",
+                   "simulation.py")
 
 # SI base-unit exponents of each unit symbol that may appear in a unit name.
 _SYMBOLS = {
@@ -55,10 +56,6 @@ _SYMBOLS = {
     "N": {"kg": 1, "m": 1, "s": -2}, "J": {"kg": 1, "m": 2, "s": -2},
     "Hz": {"s": -1}, "W": {"kg": 1, "m": 2, "s": -3},
 }
-
-
-class BuildError(MbdfmuError):
-    """A scene that cannot be turned into an FMU (the message says why)."""
 
 
 def base_units(unit: str) -> dict[str, int]:
@@ -91,71 +88,41 @@ def select_outputs(scene, variables) -> list:
 
 
 def solver_variables(scene) -> tuple[list[tuple], dict]:
-    """The solver parameters (table rows) and their start values, as ``simulate`` defaults them."""
-    settings = scene.simulation
-    method = integrators.method_class(settings.method)
-    step = settings.step if settings.step is not None else (
-        0.0 if method.adaptive else method.default_step)
+    """The solver parameters (table rows) and their start values: the scene's settings as
+    ``SolverSettings`` defaults and checks them (step 0: the method's default)."""
+    settings = settings_from_scene(scene)
     rows = [
         ("solver.method", "solver", "String", "",
-         f"integration method: {', '.join(integrators.METHODS)}"),
+         f"integration method: {', '.join(METHOD_NAMES)}"),
         ("solver.step", "solver", "Real", "s",
          "internal step of fixed-step methods; largest step of adaptive ones "
          "(0: the method's default, no limit for adaptive methods)"),
         ("solver.rtol", "solver", "Real", "1", "relative tolerance of adaptive methods"),
         ("solver.atol", "solver", "Real", "1", "absolute tolerance of adaptive methods"),
     ]
-    values = {"solver.method": method.name, "solver.step": float(step),
-              "solver.rtol": float(settings.rtol if settings.rtol is not None else method.default_rtol),
-              "solver.atol": float(settings.atol if settings.atol is not None else method.default_atol)}
+    values = {"solver.method": settings.method_name, "solver.step": float(settings.step or 0.0),
+              "solver.rtol": settings.rtol, "solver.atol": settings.atol}
     return rows, values
 
 
 def variable_table(scene) -> tuple[list[tuple], dict]:
-    """Every variable of the scene's FMU in value-reference order, and the solver starts."""
-    sim = mbdfmu.Simulation(scene)  # also proves that the scene assembles
+    """Every variable of the scene's FMU in value-reference order (from the variable table,
+    ``model/variables.py``), and the solver starts."""
     rows = [(p.name, "parameter", "Real", p.unit, p.description) for p in parameters(scene)]
     solver_rows, solver_values = solver_variables(scene)
     rows += solver_rows
-    rows += [(v.name, "input", "Real", v.unit, v.description) for v in sim.system.inputs]
+    rows += [(v.name, "input", "Real", v.unit, v.description) for v in inputs(scene)]
     rows += [(v.name, "output", "Real", v.unit, v.description)
-             for v in select_outputs(scene, sim.system.outputs)]
+             for v in select_outputs(scene, outputs(scene))]
     return rows, solver_values
 
 
-def _package_files(package_dir: Path) -> list[Path]:
-    return sorted(p for p in package_dir.rglob("*.py")
-                  if "__pycache__" not in p.parts and p.relative_to(package_dir).as_posix()
-                  not in NOT_SHIPPED and p.relative_to(package_dir).parts[0]
-                  not in NOT_SHIPPED_PACKAGES)
-
-
-def build_isolated(script: Path, dest: Path, own_modules: set[str], **options) -> Path:
-    """pythonfmu's ``build_FMU``, leaving this process as it found it.
-
-    pythonfmu imports the script (and what it ships) in this process and leaves its folder
-    on ``sys.path``: both are undone (for the FMU's own modules only; third-party modules
-    imported on the way stay), so this process later loads the FMU's own copy.
-    """
-    from pythonfmu.builder import FmuBuilder
-
-    saved_path, saved_modules = list(sys.path), set(sys.modules)
-    try:
-        return Path(FmuBuilder.build_FMU(script, dest=dest, **options))
-    finally:
-        sys.path[:] = saved_path
-        for m in set(sys.modules) - saved_modules:
-            if m.split(".")[0] in own_modules:
-                del sys.modules[m]
-
-
-def digest(*chunks: bytes) -> str:
-    """A short content hash that tells FMU modules apart (length-prefixed chunks)."""
-    h = hashlib.sha256()
-    for c in chunks:
-        h.update(len(c).to_bytes(8, "little"))
-        h.update(c)
-    return h.hexdigest()[:12]
+def shipped_files(package_dir: Path) -> list[Path]:
+    """The files of mbdfmu an FMU carries (``SHIPPED_PACKAGES`` and ``SHIPPED_MODULES``)."""
+    files = [package_dir / name for name in SHIPPED_MODULES]
+    for package in SHIPPED_PACKAGES:
+        files += [p for p in (package_dir / package).rglob("*.py") if "__pycache__" not in p.parts]
+    return sorted(files)
 
 
 def render_slave(model: dict, variables: list[tuple], class_name: str) -> str:
@@ -173,33 +140,32 @@ def render_slave(model: dict, variables: list[tuple], class_name: str) -> str:
 
 
 def build_fmu(scene_path, output=None) -> Path:
-    """Build the FMU of a scene file; returns its path (default ``<Model>.fmu`` in the cwd)."""
+    """Build the FMU of a scene file (or a shipped scene's name); returns its path (default
+    ``<Model>.fmu`` in the cwd)."""
     from pythonfmu import __version__ as pythonfmu_version
-    scene_path = Path(scene_path)
-    scene = mbdfmu.load_scene(scene_path)
+    scene_path = resolve_scene_path(scene_path)
+    scene_data = load_toml(scene_path, SceneError)
+    scene = scene_from_dict(scene_data, source=scene_path.name)
     name = scene.name
-    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
-        raise BuildError(f'{scene_path.name}: name "{name}" is not a valid identifier '
-                         "(it becomes the FMU's model identifier)")
+    assemble(Equations(scene, kernel="numpy"))   # a scene that cannot start is no FMU
     variables, solver_values = variable_table(scene)
-    scene_data = tomllib.loads(scene_path.read_text(encoding="utf-8"))
     scene_json = json.dumps(scene_data, indent=1, sort_keys=True).encode()
 
-    package_dir = Path(mbdfmu.__file__).resolve().parent
-    files = _package_files(package_dir)
+    package_dir = Path(core_init).resolve().parent
+    files = shipped_files(package_dir)
     package_tag = digest(*(f.relative_to(package_dir).as_posix().encode() + b"\0" + f.read_bytes()
                             for f in files))
-    settings = scene.simulation
-    interval = settings.output_interval or settings.t_end / DEFAULT_OUTPUT_POINTS
-    experiment = {"start": 0.0, "stop": settings.t_end, "step": interval}
-    if settings.rtol is not None:
-        experiment["tolerance"] = settings.rtol
+    run = scene.simulation
+    interval = settings_from_scene(scene).output_interval_for(run.t_end)
+    experiment = {"start": 0.0, "stop": run.t_end, "step": interval}
+    if run.rtol is not None:
+        experiment["tolerance"] = run.rtol
     model = {
         "name": name,
         "description": scene.description,
         "version": scene.version,
         "author": scene.author or "mbdfmu",
-        "generation_tool": f"mbdfmu {mbdfmu.__version__} (pythonfmu {pythonfmu_version})",
+        "generation_tool": f"mbdfmu {__version__} (pythonfmu {pythonfmu_version})",
         "default_experiment": experiment,
         "scene_file": "scene.json",
         "solver": solver_values,
@@ -227,8 +193,5 @@ def build_fmu(scene_path, output=None) -> Path:
         shutil.copyfile(scene_path, stage / "scene.toml")
         fmu = build_isolated(
             script, dest=output, own_modules={module, model["core_package"]},
-            project_files=[core, stage / "scene.json", stage / "scene.toml"],
-            needsExecutionTool=True, canHandleVariableCommunicationStepSize=True,
-            canGetAndSetFMUstate=True, canSerializeFMUstate=True,
-            canInterpolateInputs=False, canBeInstantiatedOnlyOncePerProcess=False)
+            project_files=[core, stage / "scene.json", stage / "scene.toml"], **CAPABILITIES)
     return Path(fmu)

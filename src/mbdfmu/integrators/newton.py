@@ -1,4 +1,4 @@
-"""Shared machinery of the implicit index-3 methods (``genalpha``, ``ali3p``).
+"""The Newton iteration shared by the implicit index-3 methods (``genalpha``, ``ali3p``).
 
 Both solve a nonlinear system per step by Newton's method with an iteration matrix that is
 evaluated (``njev``) and factorised (``nlu``) only when needed: it is kept across iterations
@@ -15,6 +15,7 @@ import numpy as np
 import scipy.linalg
 
 from ..errors import SolverError
+from ..plain import Plain
 
 _getrf, _getrs = scipy.linalg.lapack.dgetrf, scipy.linalg.lapack.dgetrs
 
@@ -82,8 +83,10 @@ class NewtonFailure(Exception):
     """A step's Newton iteration that did not converge: retried with a smaller step."""
 
 
-class IterationMatrix:
+class IterationMatrix(Plain):
     """An LU factorisation kept between Newton iterations and steps, with its step size."""
+
+    plain_fields = ("lu", "h", "fresh")
 
     def __init__(self):
         self.lu = None
@@ -111,12 +114,41 @@ class IterationMatrix:
         x, info = _getrs(self.lu[0], self.lu[1], b)
         return x
 
-    def __deepcopy__(self, memo):
-        other = IterationMatrix()
-        if self.lu is not None:
-            other.lu = (self.lu[0].copy(), self.lu[1].copy())
-        other.h, other.fresh = self.h, self.fresh
-        return other
+
+def newton_iterate(evaluate, build_matrix, apply, matrix: IterationMatrix, h: float,
+                   tol: float, mass: np.ndarray, stats) -> None:
+    """Newton's method on a step's equations until they hold to ``tol``.
+
+    ``evaluate()`` returns the residual at the current iterate as (dynamic (n,), Psi (m,)),
+    the dynamic rows already scaled to a displacement times the mass; ``build_matrix()``
+    the iteration matrix there (called only when the kept one is dropped); ``apply(dx)``
+    moves the iterate by the increment dx = -S^-1 (dynamic, Psi). Raises NewtonFailure.
+    """
+    if not matrix.valid_for(h):
+        matrix.lu = None
+    matrix.fresh = False
+    previous, size, Psi = None, np.inf, np.zeros(0)
+    n = mass.size
+    for _ in range(NEWTON_MAX_ITER):
+        stats.nnewton += 1
+        dynamic, Psi = evaluate()
+        if not np.all(np.isfinite(dynamic)):
+            raise NewtonFailure("non-finite residual")
+        if converged(size, dynamic / mass, Psi, tol):
+            return
+        if matrix.lu is None:
+            matrix.factor(build_matrix(), h, stats)
+        dx = -matrix.solve(np.concatenate((dynamic, Psi)))
+        size = float(np.max(np.abs(dx[:n])))
+        if not np.isfinite(size):
+            raise NewtonFailure("non-finite Newton increment")
+        apply(dx)
+        if increment_converged(size, previous, tol):
+            return
+        previous = check_rate(matrix, size, previous)
+    raise NewtonFailure(f"Newton did not converge in {NEWTON_MAX_ITER} iterations (last "
+                        f"increment {size:.3g}, constraint residual "
+                        f"{np.max(np.abs(Psi), initial=0.0):.3g}, tolerance {tol:.3g})")
 
 
 def advance_with_halving(try_step, t: float, h: float, name: str, depth: int = 0) -> int:

@@ -18,8 +18,9 @@ existing one (``scheduler="tcp://host:8786"``). A task records
 - ``status`` ok / failed, and for failures the reason (a ``SolverError``'s message, or the
   bench's CPU budget per run).
 
-``run_bench`` writes ``results.csv``; ``bench_charts`` draws the charts and the summary
-from that CSV (``mbdfmu bench --from-csv`` redraws them without running anything).
+``run_bench`` writes ``results.csv``; ``charts`` draws the charts and the summary from that
+CSV (``mbdfmu bench --from-csv`` redraws them without running anything). The cases
+(scenes, horizons, sweeps and error functions) are in ``cases.py``.
 """
 
 from __future__ import annotations
@@ -28,25 +29,22 @@ import csv
 import math
 import sys
 import time
-from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
-from . import references
-from .errors import MbdfmuError, SolverError
-from .integrators import METHODS
-from .scene import PointForce, Torque, load_scene
-from .simulation import Simulation, output_times
+from ..errors import SolverError
+from ..integrators import METHODS
+from ..model.scene import PointForce, Torque
+from ..simulation import Simulation
+from . import closed_forms
+from .cases import (ATOL_FACTOR, CASES, DEFAULT_SCENES, ERRORS, EXACT_P2, BenchError, Case,
+                    angles, case_of, case_scene, error_converged, get, horizon, length_scale)
 
 # The method and tolerance of converged references (scenes without an exact one).
 REFERENCE_METHOD = "dop853p"
 REFERENCE_RTOL = 1e-12
-REFERENCE_ATOL_FACTOR = 1e-2   # atol = rtol * this (times the scene's length scale)
 CHECK_RTOL = 1e-11             # a second converged run: its difference bounds the reference's error
-# Absolute tolerance of the sweep's adaptive runs, relative to rtol.
-ATOL_FACTOR = 1e-2
 # A run is stopped, and recorded as failed, once it has used this much CPU time.
 CPU_BUDGET_S = 60.0
 QUICK_CPU_BUDGET_S = 10.0
@@ -55,8 +53,6 @@ STABLE_CONSTRAINT_DRIFT = 1e-6  # times the scene's length scale
 STABLE_ENERGY_DRIFT = 1e-3      # relative to the largest kinetic energy
 UNSTABLE_CONSTRAINT_DRIFT = 1e-1
 UNSTABLE_ERROR = 1e-1           # in the scene's error units (m or rad on metre-sized scenes)
-# Error levels of the summary.
-LEVELS = (1e-4, 1e-6, 1e-8)
 # Dask: a local cluster of this many single-threaded worker processes.
 LOCAL_WORKERS = 2
 WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -67,140 +63,6 @@ CSV_FIELDS = ["scene", "method", "kind", "setting", "status", "stability", "erro
               "reason"]
 
 
-class BenchError(MbdfmuError):
-    """A benchmark that cannot run (unknown scene or method, missing Dask)."""
-
-
-@dataclass(frozen=True)
-class Case:
-    """A benchmark scene: the file, the horizon, the sweep ranges and the reference.
-
-    ``steps`` are the fixed steps (s) of fixed-step methods, ``tols`` the rtol of adaptive
-    ones (atol = rtol * ATOL_FACTOR); the ``quick_*`` ones are the ``--quick`` sweep.
-    ``reference`` says what the error is measured against (shown in the summary).
-    """
-
-    key: str
-    scene: str
-    title: str
-    t_end: float
-    steps: tuple[float, ...]
-    tols: tuple[float, ...]
-    reference: str
-    n_out: int = 20       # output times (errors are the largest over them); fewer if a step is longer
-    quick_t_end: float = 1.0
-    quick_steps: tuple[float, ...] = (1e-2, 5e-3)
-    quick_tols: tuple[float, ...] = (1e-4, 1e-6)
-
-
-TOLS = tuple(10.0 ** -k for k in range(2, 12))  # rtol 1e-2 .. 1e-11
-
-CASES: dict[str, Case] = {c.key: c for c in (
-    Case("P1", "pendulum", "P1 pendulum, t = 10 s", 10.0,
-         (1e-1, 5e-2, 2e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4), TOLS,
-         "exact: elliptic solution (bob position, m)"),
-    Case("P2N2", "n_four_bar_2", "P2 N-four-bar, N = 2, t = 10 s", 10.0,
-         (1e-1, 5e-2, 2e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4), TOLS,
-         "exact: one-DOF reduction at 1e-13 (B0 position, m)"),
-    Case("P2N40", "n_four_bar_40", "P2 N-four-bar, N = 40, t = 2.5 s (two singular passes)", 2.5,
-         (5e-2, 2e-2, 1e-2, 5e-3), (1e-3, 1e-4, 1e-6, 1e-8),
-         "exact: one-DOF reduction at 1e-13 (B0 position, m)", n_out=10,
-         quick_t_end=0.2, quick_steps=(2e-2,), quick_tols=(1e-4,)),
-    Case("P3", "andrews", "P3 Andrews' mechanism, t = 0.03 s", 0.03,
-         (5e-4, 2e-4, 1e-4, 5e-5, 2e-5, 1e-5, 5e-6, 2e-6), TOLS,
-         "converged run (body angles, rad)", n_out=30, quick_t_end=0.003,
-         quick_steps=(1e-4, 5e-5)),
-    Case("P4", "slider_crank", "slider-crank (P4), t = 0.04 s (two turns)", 0.04,
-         (5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4, 5e-5, 2e-5), TOLS,
-         "exact: P4 closed form (slider and rod centre, m)", quick_t_end=0.004,
-         quick_steps=(1e-3, 5e-4)),
-    Case("P6", "light_cart_pole", "P6 light cart-pole, t = 2 s (two spikes)", 2.0,
-         (1e-2, 1e-3, 1e-4), (1e-2, 1e-4, 1e-6, 1e-8, 1e-10),
-         "exact invariants: momentum (cart x / l) and energy (theta'^2 / its peak)"),
-)}
-DEFAULT_SCENES = tuple(CASES)
-
-
-def case_of(key: str) -> Case:
-    if key not in CASES:
-        raise BenchError(f'unknown bench scene "{key}"; expected one of {", ".join(CASES)}')
-    return CASES[key]
-
-
-# ---------------------------------------------------------------------------- scenes and errors
-
-def bundled_scene_path(name: str) -> Path:
-    """A scene shipped with the package (mbdfmu.scenes)."""
-    return Path(str(resources.files("mbdfmu.scenes").joinpath(f"{name}.toml")))
-
-
-def _scene(case: Case):
-    return load_scene(bundled_scene_path(case.scene))
-
-
-def _get(out: dict, name: str) -> np.ndarray:
-    return np.asarray(out[name], dtype=float)
-
-
-def _error_P1(case, scene, t, out, ref):
-    bob = scene.bodies[0]
-    exact = references.pendulum(t, L=1.0, m=bob.mass, J=bob.inertia)
-    return float(np.max(np.hypot(_get(out, "bob.x") - exact["x"], _get(out, "bob.y") - exact["y"])))
-
-
-def _B0(out):
-    phi = _get(out, "crank0.phi")
-    return _get(out, "crank0.x") + 0.5 * np.cos(phi), _get(out, "crank0.y") + 0.5 * np.sin(phi)
-
-
-def _error_P2(case, scene, t, out, ref):
-    x, y = _B0(out)
-    return float(np.max(np.hypot(x - ref["x"], y - ref["y"])))
-
-
-def _error_P4(case, scene, t, out, ref):
-    motor = scene.drivers[0].motion
-    exact = references.slider_crank(motor.start + motor.rate * t, r=0.1, l=0.3)
-    e_slider = np.abs(_get(out, "slider.x") - exact["xB"])
-    e_rod = np.hypot(_get(out, "rod.x") - exact["rod_x"], _get(out, "rod.y") - exact["rod_y"])
-    return float(max(e_slider.max(), e_rod.max()))
-
-
-def _error_P6(case, scene, t, out, ref):
-    cart, bob = scene.bodies
-    dx = _get(out, "bob.x") - _get(out, "cart.x")
-    dy = _get(out, "bob.y") - _get(out, "cart.y")
-    theta = np.arctan2(dx, -dy)
-    inv = references.cart_pole_invariants(theta, M=cart.mass, m=bob.mass, l=1.0, J=bob.inertia)
-    peak = float(references.cart_pole_invariants(0.0, M=cart.mass, m=bob.mass, l=1.0,
-                                                 J=bob.inertia)["theta_dot_sq"])
-    e_x = np.abs(_get(out, "cart.x") - inv["x"])
-    e_w = np.abs(_get(out, "bob.omega") ** 2 - inv["theta_dot_sq"]) / peak
-    return float(max(e_x.max(), e_w.max()))
-
-
-def _angles(scene, out):
-    return np.column_stack([_get(out, f"{b.name}.phi") for b in scene.bodies])
-
-
-def _error_converged(case, scene, t, out, ref):
-    return float(np.max(np.abs(_angles(scene, out) - ref["angles"])))
-
-
-ERRORS = {"P1": _error_P1, "P2N2": _error_P2, "P2N40": _error_P2, "P3": _error_converged,
-          "P4": _error_P4, "P6": _error_P6}
-EXACT_P2 = {"P2N2": 2, "P2N40": 40}
-
-
-def horizon(case: Case, quick: bool) -> tuple[float, np.ndarray]:
-    """End time and output times. Runs land exactly on each output time, which caps the
-    step of every method: the interval is kept at least the sweep's largest step."""
-    t_end = case.quick_t_end if quick else case.t_end
-    largest = max(case.quick_steps if quick else case.steps)
-    n = max(1, min(case.n_out, int(math.floor(t_end / largest * (1 + 1e-9)))))
-    return t_end, output_times(t_end, t_end / n)
-
-
 # ---------------------------------------------------------------------------- one run
 
 def _energy(scene, out) -> np.ndarray | None:
@@ -208,18 +70,14 @@ def _energy(scene, out) -> np.ndarray | None:
     if scene.drivers or any(isinstance(f, PointForce) and (f.input or any(f.value))
                             for f in scene.forces):
         return None
-    energy = _get(out, "energy.kinetic") + _get(out, "energy.potential")
+    energy = get(out, "energy.kinetic") + get(out, "energy.potential")
     for f in scene.forces:
         if isinstance(f, Torque):
             if f.input:
                 return None
-            phi = _get(out, f"{f.body}.phi")
+            phi = get(out, f"{f.body}.phi")
             energy = energy - f.value * (phi - phi[0])
     return energy
-
-
-def _length_scale(scene) -> float:
-    return max([1.0] + [abs(v) for b in scene.bodies for v in b.position])
 
 
 def simulate_outputs(scene, t_out, method, kind, setting, budget):
@@ -233,7 +91,7 @@ def simulate_outputs(scene, t_out, method, kind, setting, budget):
         step = setting
     else:
         rtol = setting
-        atol = setting * ATOL_FACTOR * _length_scale(scene)
+        atol = setting * ATOL_FACTOR * length_scale(scene)
     sim = None
     rows = []
     reason = ""
@@ -273,7 +131,7 @@ def run_task(task: dict) -> dict:
     """One run of the sweep: a pure function of ``task`` (scene key, method, kind, setting,
     quick, reference). Returns one CSV row (a dict over CSV_FIELDS)."""
     case = case_of(task["scene"])
-    scene = _scene(case)
+    scene = case_scene(case)
     t_end, t_out = horizon(case, task["quick"])
     budget = QUICK_CPU_BUDGET_S if task["quick"] else CPU_BUDGET_S
     _warm_up(case, scene, task, t_out)
@@ -296,7 +154,7 @@ def run_task(task: dict) -> dict:
         if energy is not None:
             scale = max(float(np.max(out["energy.kinetic"])), 1e-300)
             row["energy_drift"] = float(np.max(np.abs(energy - energy[0]))) / scale
-    row["stability"] = classify(row, _length_scale(scene))
+    row["stability"] = classify(row, length_scale(scene))
     return row
 
 
@@ -334,8 +192,8 @@ def reference_for(case: Case, quick: bool, cache_dir: Path | None) -> tuple[dict
     """
     t_end, t_out = horizon(case, quick)
     if case.key in EXACT_P2:
-        return references.n_four_bar_B0(t_out, EXACT_P2[case.key]), case.reference
-    if ERRORS[case.key] is not _error_converged:
+        return closed_forms.n_four_bar_B0(t_out, EXACT_P2[case.key]), case.reference
+    if ERRORS[case.key] is not error_converged:
         return {}, case.reference
     method = REFERENCE_METHOD if REFERENCE_METHOD in METHODS else \
         next(n for n, c in METHODS.items() if c.adaptive)
@@ -345,13 +203,13 @@ def reference_for(case: Case, quick: bool, cache_dir: Path | None) -> tuple[dict
         data = np.load(path)
         if data["t"].shape == t_out.shape and np.allclose(data["t"], t_out, rtol=0, atol=0):
             return {"angles": data["angles"]}, _converged_note(case, method, float(data["check"]))
-    scene = _scene(case)
+    scene = case_scene(case)
     runs = []
     for rtol in (REFERENCE_RTOL, CHECK_RTOL):
         out, _, _, reason = simulate_outputs(scene, t_out, method, "rtol", rtol, math.inf)
         if reason:
             raise BenchError(f"{case.key}: the converged reference run failed: {reason}")
-        runs.append(_angles(scene, out))
+        runs.append(angles(scene, out))
     check = float(np.max(np.abs(runs[0] - runs[1])))
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -469,7 +327,7 @@ def run_bench(scenes=None, methods=None, scheduler=None, output=None, quick=Fals
 
     Returns ``{"rows": [...], "csv": path, "summary": path, "charts": [paths]}``.
     """
-    from . import bench_charts
+    from . import charts
 
     scenes = list(scenes or DEFAULT_SCENES)
     for key in scenes:
@@ -490,10 +348,10 @@ def run_bench(scenes=None, methods=None, scheduler=None, output=None, quick=Fals
     wall = time.perf_counter() - wall
     csv_path = write_csv(rows, out / "results.csv")
     rows = read_rows(csv_path)  # charts and summary are drawn from the CSV
-    charts = bench_charts.draw_all(rows, out)
-    summary = bench_charts.write_summary(rows, out / "summary.md", notes=notes,
-                                         footer=_run_note(scheduler, quick, wall, len(tasks)))
-    return {"rows": rows, "csv": csv_path, "summary": summary, "charts": charts}
+    drawn = charts.draw_all(rows, out)
+    summary = charts.write_summary(rows, out / "summary.md", notes=notes,
+                                   footer=_run_note(scheduler, quick, wall, len(tasks)))
+    return {"rows": rows, "csv": csv_path, "summary": summary, "charts": drawn}
 
 
 def _run_note(scheduler, quick, wall, n):
@@ -506,16 +364,16 @@ def _run_note(scheduler, quick, wall, n):
 
 def redraw(csv_path, output=None) -> dict:
     """Charts and summary again from an existing results.csv (no runs)."""
-    from . import bench_charts
+    from . import charts
 
     csv_path = Path(csv_path)
     out = Path(output) if output else csv_path.parent
     out.mkdir(parents=True, exist_ok=True)
     rows = read_rows(csv_path)
     notes = {k: c.reference for k, c in CASES.items()}
-    charts = bench_charts.draw_all(rows, out)
-    summary = bench_charts.write_summary(rows, out / "summary.md", notes=notes)
-    return {"rows": rows, "csv": csv_path, "summary": summary, "charts": charts}
+    drawn = charts.draw_all(rows, out)
+    summary = charts.write_summary(rows, out / "summary.md", notes=notes)
+    return {"rows": rows, "csv": csv_path, "summary": summary, "charts": drawn}
 
 
 __all__ = ["CASES", "Case", "BenchError", "run_bench", "run_task", "run_tasks", "make_tasks",

@@ -9,8 +9,8 @@ One macro step from t to t + h:
   each gets the newest outputs (those of t + h from instances already stepped, of t from
   the others). Still first order, usually with a smaller constant and a larger stable step.
 
-**Variable step** (``MasterSettings(variable_step=True)``): each macro step (of either
-algorithm) is checked
+**Variable step** (``CosimSettings(variable_step=True)``, ``variable_step.py``): each
+macro step (of either algorithm) is checked
 after the fact. For every connection the input that was held over the step is compared
 with the output it stood for at the end of the step (the zero-order hold's extrapolation
 against the actual value); scaled by ``atol + rtol * nominal`` (``nominal``: the largest
@@ -39,60 +39,19 @@ to rounding.
 
 from __future__ import annotations
 
-import math
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import MbdfmuError
 from ..result import Result
 from .scenario import Scenario, check_variables
+from .settings import CosimError, CosimSettings
 
-# Variable step: aim at this fraction of the allowed coupling error.
-SAFETY = 0.8
-# Largest growth of the step after an accepted step, smallest factor after a rejected one.
-MAX_FACTOR = 2.0
-MIN_FACTOR = 0.1
-# Variable step: a step this much longer than planned may end the run.
-LAST_STEP_STRETCH = 1.1
-# Variable step: a retried (shorter) step whose error shrank less than the step ratio to
-# this power has met a jump of an output (a set point, a switch), not a coupling error,
-# which shrinks at least in proportion to the step.
-JUMP_EXPONENT = 0.5
-# Rejections in a row before the variable-step master gives up.
-MAX_REJECTIONS_IN_A_ROW = 40
-# fmpy raises FMICallException with these statuses.
+# fmpy raises FMICallException with the FMI 2.0 status codes (fmpy.fmi2.fmi2OK, ...).
 OK, WARNING, DISCARD, ERROR, FATAL = 0, 1, 2, 3, 4
 STATUS = {OK: "OK", WARNING: "warning", DISCARD: "discard", ERROR: "error", FATAL: "fatal"}
-
-
-class CosimError(MbdfmuError):
-    """A co-simulation that cannot go on: an instance refused a step or the master gave up.
-
-    ``t`` is the communication point, ``instance`` the instance that failed (if any).
-    """
-
-    def __init__(self, message: str, t: float | None = None, instance: str | None = None):
-        self.t, self.instance = t, instance
-        prefix = f"t = {t:.9g} s: " if t is not None else ""
-        super().__init__(prefix + (f"{instance}: " if instance else "") + message)
-
-
-@dataclass(frozen=True)
-class MasterSettings:
-    """How the fmpy master runs a scenario (None: the scenario's own value)."""
-
-    algorithm: str | None = None
-    step: float | None = None
-    t_end: float | None = None
-    variable_step: bool = False
-    rtol: float | None = None
-    atol: float | None = None
-    h_min: float | None = None
-    h_max: float | None = None
-    start: str = "exchange"          # or "zero": connected inputs start at 0.0 (fmpy's SSP runner)
 
 
 # ----------------------------------------------------------------------------- one instance
@@ -179,7 +138,7 @@ class Member:
 
 # ----------------------------------------------------------------------------- the system
 
-class System:
+class CoupledSystem:
     """The scenario's instances and connections, driven step by step by an algorithm."""
 
     def __init__(self, scenario: Scenario, fmus: dict[str, Path], record: list[str] | None = None):
@@ -232,7 +191,7 @@ class System:
         self.counters["doStep"] += 1
         status = self.members[member].do_step(t, h)
         if status > WARNING:
-            raise _Refused(member, status, self.members[member].reason())
+            raise Refused(member, status, self.members[member].reason())
         self.read_outputs(member)
 
     def coupling_error(self, rtol: float, atol: float, nominal: dict | None = None) -> float:
@@ -304,7 +263,9 @@ class System:
             m.close()
 
 
-class _Refused(Exception):
+class Refused(Exception):
+    """An instance refused a step (fmi2Discard or worse): status and logged reason."""
+
     def __init__(self, member: str, status: int, reason: str):
         super().__init__(f"doStep returned {STATUS.get(status, status)}: {reason}")
         self.member, self.status, self.reason = member, status, reason
@@ -320,7 +281,7 @@ class Jacobi:
     def __init__(self, scenario: Scenario):
         self.scenario = scenario
 
-    def step(self, system: System, t: float, h: float, first: bool = False) -> None:
+    def step(self, system: CoupledSystem, t: float, h: float, first: bool = False) -> None:
         if not first:  # the first step of a "zero" start keeps the zeros set at initialization
             for m in system.members:
                 system.write_inputs(m)
@@ -328,7 +289,7 @@ class Jacobi:
             system.counters["doStep"] += 1
             status = system.members[m].do_step(t, h)
             if status > WARNING:
-                raise _Refused(m, status, system.members[m].reason())
+                raise Refused(m, status, system.members[m].reason())
         for m in system.members:
             system.read_outputs(m)
 
@@ -341,7 +302,7 @@ class GaussSeidel:
     def __init__(self, scenario: Scenario):
         self.order = list(scenario.order)
 
-    def step(self, system: System, t: float, h: float, first: bool = False) -> None:
+    def step(self, system: CoupledSystem, t: float, h: float, first: bool = False) -> None:
         for m in self.order:
             if not first:
                 system.write_inputs(m)
@@ -368,31 +329,32 @@ def algorithm_class(name: str):
 # ----------------------------------------------------------------------------- runs
 
 @dataclass
-class _Run:
+class RunRecord:
+    """What a run collects: communication points, recorded rows and the steps taken."""
+
     times: list = field(default_factory=list)
     rows: list = field(default_factory=list)
     steps: list = field(default_factory=list)
 
 
-def run(scenario: Scenario, fmus: dict[str, Path], settings: MasterSettings = MasterSettings(),
-        record: list[str] | None = None) -> Result:
+def run_fmpy(scenario: Scenario, fmus: dict[str, Path],
+             settings: CosimSettings = CosimSettings(),
+             record: list[str] | None = None) -> Result:
     """Run a scenario with the fmpy master; every recorded variable at every communication
     point (t0 included) as a ``Result`` (``stats``: steps, rejections, doStep calls)."""
-    algorithm = algorithm_class(settings.algorithm or scenario.algorithm)(scenario)
+    from .variable_step import run_variable_step
+
+    algorithm = algorithm_class(settings.algorithm_for(scenario))(scenario)
     h = float(settings.step or scenario.step)
     t_end = float(settings.t_end or scenario.t_end)
-    if settings.start not in ("exchange", "zero"):
-        raise CosimError(f'start "{settings.start}" is not "exchange" or "zero"')
-    if not (h > 0 and t_end > 0 and math.isfinite(h) and math.isfinite(t_end)):
-        raise CosimError(f"step {h!r} and t_end {t_end!r} must be positive")
-    system = System(scenario, fmus, record)
-    out = _Run()
+    system = CoupledSystem(scenario, fmus, record)
+    out = RunRecord()
     try:
         system.initialize(0.0, t_end, settings.start)
         out.times.append(0.0)
         out.rows.append(system.sample())
         if settings.variable_step:
-            _variable_step(system, algorithm, scenario, settings, h, t_end, out)
+            run_variable_step(system, algorithm, scenario, settings, h, t_end, out)
         else:
             _fixed_step(system, algorithm, h, t_end, out, zero_start=settings.start == "zero")
     finally:
@@ -414,65 +376,9 @@ def _fixed_step(system, algorithm, h, t_end, out, zero_start):
         t = k * h  # times are k h, never accumulated
         try:
             algorithm.step(system, t, h, first=zero_start and k == 0)
-        except _Refused as exc:
+        except Refused as exc:
             raise CosimError(str(exc), t, exc.member) from None
         system.counters["steps"] += 1
         out.times.append((k + 1) * h)
         out.rows.append(system.sample())
         out.steps.append(h)
-
-
-def _variable_step(system, algorithm, scenario, settings, h, t_end, out):
-    vs = scenario.variable_step
-    rtol = settings.rtol or vs.rtol
-    atol = settings.atol or vs.atol
-    h_min = settings.h_min or vs.h_min
-    h_max = settings.h_max or vs.h_max or 10 * h
-    h = min(vs.h_initial or h, h_max)
-    t, rejections, rejected_err, rejected_step = 0.0, 0, math.inf, math.inf
-    while t < t_end * (1 - 1e-12):
-        # A step that would leave less than a tenth of itself before t_end is stretched to
-        # t_end (no sliver of a last step).
-        last = t + LAST_STEP_STRETCH * h >= t_end * (1 - 1e-12)
-        t_next = t_end if last else t + h
-        step = t_next - t  # the step is a difference of times: a replay of the times repeats it
-        saved = system.get_states()
-        try:
-            try:
-                algorithm.step(system, t, step, first=settings.start == "zero" and t == 0.0)
-                err = system.coupling_error(rtol, atol, vs.nominal)
-                reason = f"coupling error {err:.3g} > 1"
-            except _Refused as exc:
-                err, reason = math.inf, str(exc)
-            # An error that does not shrink with the step is a jump of an output (a set
-            # point, a switch), not a coupling error: accept the step and go on.
-            jump = (math.isfinite(err) and rejections > 0
-                    and err >= (step / rejected_step) ** JUMP_EXPONENT * rejected_err)
-            forced = math.isfinite(err) and step <= h_min * (1 + 1e-9)
-            if not err <= 1.0 and not jump and not forced:
-                rejected_err, rejected_step = err, step
-                system.set_states(saved)
-                system.counters["rejected"] += 1
-                system.counters["rollbacks"] += 1
-                rejections += 1
-                factor = MIN_FACTOR if not math.isfinite(err) else max(MIN_FACTOR, SAFETY / err)
-                h = step * factor
-                if h < h_min:
-                    if step <= h_min * (1 + 1e-9) or rejections > MAX_REJECTIONS_IN_A_ROW:
-                        raise CosimError(f"an instance refuses even the smallest step "
-                                         f"{h_min:g} s (h_min); last: {reason}", t)
-                    h = h_min  # the next try is accepted whatever its error (if finite)
-                continue
-        finally:
-            system.free_states(saved)
-        if jump or (forced and err > 1.0):
-            system.counters["jumps" if jump else "forced"] += 1
-            err = 1.0
-        rejections, rejected_err, rejected_step = 0, math.inf, math.inf
-        t = t_next
-        system.counters["steps"] += 1
-        system.update_nominal()
-        out.times.append(t)
-        out.rows.append(system.sample())
-        out.steps.append(step)
-        h = min(h_max, step * (MAX_FACTOR if err == 0 else min(MAX_FACTOR, SAFETY / err)))

@@ -5,7 +5,7 @@
 - ``stability_map``: method by setting (step size for fixed-step methods, rtol for
   adaptive ones), each cell stable / drifting / unstable / failed (reasons in the CSV);
 - ``write_summary``: per scene, the CPU time each method needs to reach each error level
-  of ``bench.LEVELS``, interpolated on its work-precision line (``time_to_reach``).
+  of ``cases.LEVELS``, interpolated on its work-precision line (``time_to_reach``).
 """
 
 from __future__ import annotations
@@ -13,13 +13,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-from matplotlib.colors import ListedColormap  # noqa: E402
-
-from .bench import CASES, LEVELS  # noqa: E402
+from ..plotting import figure
+from .cases import CASES, LEVELS
 
 STABILITY_CLASSES = ("stable", "drifting", "unstable", "failed")
 STABILITY_COLORS = ("#4daf4a", "#ffd92f", "#ff7f00", "#b2182b")
@@ -71,7 +66,8 @@ def time_to_reach(points, level):
 
 
 def work_precision(rows, key, path):
-    fig, ax = plt.subplots(figsize=(7, 5))
+    fig = figure(figsize=(7, 5))
+    ax = fig.subplots()
     for m in _methods(rows):
         pts = _line(rows, m)
         failed = sum(1 for r in rows if r["method"] == m and r["status"] != "ok")
@@ -92,7 +88,6 @@ def work_precision(rows, key, path):
     ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
     fig.savefig(path, dpi=DPI)
-    plt.close(fig)
     return path
 
 
@@ -110,8 +105,11 @@ def _grid(rows, kind):
 def stability_map(rows, key, path):
     panels = [k for k in ("step", "rtol") if any(r["kind"] == k for r in rows)]
     widths = [max(3, len({r["setting"] for r in rows if r["kind"] == k})) for k in panels]
-    fig, axes = plt.subplots(1, len(panels), figsize=(2.2 + 0.75 * sum(widths), 3.6),
-                             gridspec_kw={"width_ratios": widths}, squeeze=False)
+    from matplotlib.colors import ListedColormap
+    from matplotlib.patches import Rectangle
+
+    fig = figure(figsize=(2.2 + 0.75 * sum(widths), 3.6))
+    axes = fig.subplots(1, len(panels), gridspec_kw={"width_ratios": widths}, squeeze=False)
     cmap = ListedColormap(STABILITY_COLORS)
     for ax, kind in zip(axes[0], panels):
         methods, settings, cells = _grid(rows, kind)
@@ -129,12 +127,11 @@ def stability_map(rows, key, path):
         ax.set_yticks(range(len(methods)), methods, fontsize=8)
         ax.set_xlabel("fixed step h (s)" if kind == "step" else "rtol (adaptive)", fontsize=8)
     case = CASES.get(key)
-    handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in STABILITY_COLORS]
+    handles = [Rectangle((0, 0), 1, 1, color=c) for c in STABILITY_COLORS]
     fig.legend(handles, STABILITY_CLASSES, loc="upper right", ncol=4, fontsize=7)
     fig.suptitle(f"Stability: {case.title if case else key}", fontsize=10, x=0.02, ha="left")
     fig.tight_layout(rect=(0, 0, 1, 0.9))
     fig.savefig(path, dpi=DPI)
-    plt.close(fig)
     return path
 
 

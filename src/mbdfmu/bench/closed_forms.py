@@ -1,8 +1,8 @@
 """Exact references of the benchmark problems, used by ``mbdfmu bench`` at run time.
 
-Closed forms only, from ``shared/BENCHMARK_PROBLEMS.md`` (P1, P2, P4, P6) with numpy and
-scipy: nothing here calls the solver, so the solver cannot leak into its own reference.
-(``tests/references.py`` holds the independent set the tests use; this is the package's own.)
+Closed forms only, of the benchmark problems in docs/accuracy.md (P1, P2, P4, P6), with
+numpy and scipy: nothing here calls the solver, so the solver cannot leak into its own
+reference. (``tests/exact_solutions.py`` is the tests' independent set; this is the package's.)
 Conventions: SI units, gravity ``g`` in -y, pendulum angles from the downward vertical,
 crank angles from +x.
 """

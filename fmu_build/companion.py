@@ -1,17 +1,14 @@
-"""Build a companion FMU from its Python source, and the one entry point of ``mbdfmu build``.
-
-``build(path, output)`` dispatches by file type: a scene (``.toml``) goes to
-``fmu_build.build_fmu``; a pythonfmu slave source (``.py``) to ``build_companion``.
+"""Build a companion FMU (a DC motor, a hydraulic cylinder, ...) from its Python source.
 
 A companion source imports its base class as
 
-    from mbdfmu.cosim import companion_base as base
+    from mbdfmu.fmu_build import companion_base as base
 
 so it runs and can be tested in Python as it is. The FMU ships a copy of that base under a
 name unique to its content (``_mbdfmu_companion_base_<hash>``) with the import rewritten, and
 the source itself as ``mbdfmu_<stem>_<hash>``: pythonfmu caches an FMU's module by name in
 the host, so two companions (or two versions of one) never share a module, and neither
-depends on an mbdfmu installed in the host (see ../shared/FMI_NOTES.md).
+depends on an mbdfmu installed in the host (docs/fmu.md).
 """
 
 from __future__ import annotations
@@ -20,29 +17,20 @@ import re
 import tempfile
 from pathlib import Path
 
-from ..errors import MbdfmuError
+from .common import CAPABILITIES, BuildError, build_isolated, digest
 
 BASE = Path(__file__).resolve().parent / "companion_base.py"
 # The import line a companion source uses for its base class (rewritten in the FMU).
-BASE_IMPORT = re.compile(r"^from mbdfmu\.cosim import companion_base as base[ \t]*$", re.M)
-# What every companion FMU advertises: masters may roll back and vary the step.
-CAPABILITIES = dict(needsExecutionTool=True, canHandleVariableCommunicationStepSize=True,
-                    canGetAndSetFMUstate=True, canSerializeFMUstate=True,
-                    canInterpolateInputs=False, canBeInstantiatedOnlyOncePerProcess=False)
-
-
-class CompanionBuildError(MbdfmuError):
-    """A companion source that cannot be turned into an FMU (the message says why)."""
+BASE_IMPORT = re.compile(r"^from mbdfmu\.fmu_build import companion_base as base[ \t]*$",
+                         re.M)
 
 
 def build_companion(source, output=None) -> Path:
     """Build the FMU of a companion source; returns its path (default ``<Class>.fmu`` in
     the cwd, the class name being the model identifier)."""
-    from fmu_build.build import build_isolated, digest
-
     source = Path(source)
     if not source.is_file():
-        raise CompanionBuildError(f"{source}: no such file")
+        raise BuildError(f"{source}: no such file")
     text = source.read_text(encoding="utf-8")
     base_text = BASE.read_bytes()
     base_module = f"_mbdfmu_companion_base_{digest(base_text)}"
@@ -52,7 +40,7 @@ def build_companion(source, output=None) -> Path:
     if output is not None:
         output = Path(output)
         if output.suffix != ".fmu":
-            raise CompanionBuildError(f"{output}: an FMU file name must end in .fmu")
+            raise BuildError(f"{output}: an FMU file name must end in .fmu")
         output.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="mbdfmu_companion_") as tmp:
         stage = Path(tmp)
@@ -67,15 +55,6 @@ def build_companion(source, output=None) -> Path:
                                  own_modules={module, base_module},
                                  project_files=project_files, **CAPABILITIES)
         except (ValueError, TypeError, AttributeError, ImportError, SyntaxError) as exc:
-            raise CompanionBuildError(f"{source}: {type(exc).__name__}: {exc}") from None
+            raise BuildError(f"{source}: {type(exc).__name__}: {exc}") from None
     return Path(fmu)
 
-
-def build(path, output=None) -> Path:
-    """``mbdfmu build``: a scene (``.toml``) or a companion source (``.py``) into an FMU."""
-    path = Path(path)
-    if path.suffix == ".py":
-        return build_companion(path, output)
-    from fmu_build.build import build_fmu
-
-    return build_fmu(path, output)

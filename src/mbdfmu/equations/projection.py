@@ -1,9 +1,10 @@
-"""Consistent initial conditions and the rank of the constraints.
+"""Projections onto the constraints, consistent initial conditions and the rank of Psi_q.
 
-Positions given as estimates are corrected by Newton's method with the smallest
-mass-weighted change, ``dq = -M^-1 Psi_q^T (Psi_q M^-1 Psi_q^T)^+ Psi``; velocities are
-projected onto ``Psi_q q' = nu`` with the smallest change in kinetic energy. The same two
-projections keep integrators on the constraint manifold (coordinate projection).
+Positions are corrected by Newton's method with the smallest mass-weighted change,
+``dq = -M^-1 Psi_q^T (Psi_q M^-1 Psi_q^T)^+ Psi`` (formulation.md, eq. 18); velocities are
+projected onto ``Psi_q q' = nu`` with the smallest change in kinetic energy (eq. 19). The
+same two projections assemble a scene from estimates and keep the index-1 integrators on
+the constraint manifold (coordinate projection).
 """
 
 from __future__ import annotations
@@ -13,9 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from .errors import AssemblyError, SolverError
-from .linalg import RANK_TOLERANCE, schur_solve
-from .system import System
+from ..errors import AssemblyError, SolverError
+from ..model.variables import InputValues
+from .dynamics import Equations
+from .sparsity import RANK_TOLERANCE, schur_solve
 
 # Newton iterations allowed when assembling from rough estimates, and while projecting.
 ASSEMBLY_MAX_ITER = 60
@@ -24,15 +26,16 @@ PROJECTION_MAX_ITER = 8
 ASSEMBLY_TOL = 1e-12
 
 
-def project_positions(system: System, t: float, q: np.ndarray, *, tol: float,
-                      max_iter: int = PROJECTION_MAX_ITER) -> tuple[np.ndarray, int]:
+def project_positions(system: Equations, t: float, q: np.ndarray, *, tol: float,
+                      max_iter: int = PROJECTION_MAX_ITER,
+                      u: InputValues | None = None) -> tuple[np.ndarray, int]:
     """Closest q (mass-weighted) with Psi(q, t) = 0; returns (q, iterations).
 
     Raises SolverError when Newton does not converge to ``tol`` (max-norm of Psi).
     """
     q = q.copy()
     for it in range(max_iter + 1):
-        Psi, J = system.constraints(t, q, sparse=True)
+        Psi, J = system.constraints(t, q, u=u, sparse=True)
         if not np.all(np.isfinite(Psi)):
             raise SolverError("non-finite constraint residual while projecting positions", t)
         err = np.max(np.abs(Psi)) if Psi.size else 0.0
@@ -46,11 +49,12 @@ def project_positions(system: System, t: float, q: np.ndarray, *, tol: float,
                       f"violated by {err:.3g} after {max_iter} iterations", t)
 
 
-def project_velocities(system: System, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+def project_velocities(system: Equations, t: float, q: np.ndarray, qd: np.ndarray,
+                       u: InputValues | None = None) -> np.ndarray:
     """Closest q' in kinetic energy with Psi_q q' = nu."""
     if system.m == 0:
         return qd.copy()
-    _, J, nu, _ = system.constraints(t, q, qd, sparse=True)
+    _, J, nu, _ = system.constraints(t, q, qd, u, sparse=True)
     return qd - system.minv * (J.T @ schur_solve(J, system.minv, J @ qd - nu))
 
 
@@ -63,7 +67,7 @@ class RankReport:
     redundant: tuple[str, ...]
 
 
-def rank_report(system: System, t: float, q: np.ndarray) -> RankReport:
+def rank_report(system: Equations, t: float, q: np.ndarray) -> RankReport:
     """Rank of Psi_q by QR with column pivoting on Psi_q^T: rows left out are redundant."""
     if system.m == 0:
         return RankReport(system.n, 0, ())
@@ -75,16 +79,23 @@ def rank_report(system: System, t: float, q: np.ndarray) -> RankReport:
     return RankReport(system.n - rank, rank, redundant)
 
 
-def assemble(system: System, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def initial_estimates(system: Equations) -> tuple[np.ndarray, np.ndarray]:
+    """(q, q') as the scene gives them, before assembly."""
+    bodies = system.scene.bodies
+    return (np.array([[*b.position, b.angle] for b in bodies], dtype=float).ravel(),
+            np.array([[*b.velocity, b.angular_velocity] for b in bodies], dtype=float).ravel())
+
+
+def assemble(system: Equations, t: float = 0.0,
+             u: InputValues | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Consistent (q, q') at time t from the scene's estimates; AssemblyError if impossible."""
     scene = system.scene
-    q = np.array([[*b.position, b.angle] for b in scene.bodies], dtype=float).ravel()
-    qd = np.array([[*b.velocity, b.angular_velocity] for b in scene.bodies], dtype=float).ravel()
+    q, qd = initial_estimates(system)
     tol = ASSEMBLY_TOL * system.length_scale
     try:
-        q, _ = project_positions(system, t, q, tol=tol, max_iter=ASSEMBLY_MAX_ITER)
+        q, _ = project_positions(system, t, q, tol=tol, max_iter=ASSEMBLY_MAX_ITER, u=u)
     except SolverError:
-        Psi, _ = system.constraints(t, q)
+        Psi, _ = system.constraints(t, q, u=u)
         report = rank_report(system, t, q)
         worst = int(np.argmax(np.abs(Psi)))
         what = (f"{system.row_labels[worst]} stays violated by {abs(Psi[worst]):.3g}")
@@ -92,4 +103,4 @@ def assemble(system: System, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
             what += (" (the constraints are redundant and inconsistent: "
                      + ", ".join(report.redundant) + " repeat others)")
         raise AssemblyError(f"{scene.source}: cannot be assembled at t = {t:g}: {what}") from None
-    return q, project_velocities(system, t, q, qd)
+    return q, project_velocities(system, t, q, qd, u)

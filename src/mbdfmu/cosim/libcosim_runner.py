@@ -6,7 +6,7 @@ initialization mode and passes outputs to inputs there (several rounds), so conn
 inputs start at the upstream outputs of t = 0, as the fmpy master's ``start="exchange"``.
 Times are integers in nanoseconds: the step must be a whole number of nanoseconds.
 
-The slaves run in-process (``CosimLocalSlave``): pythonfmu FMUs use the host's Python.
+The slaves run in-process (``CosimLocalSlave``): mbdfmu FMUs use the host's Python.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..result import Result
-from .master import CosimError
+from .settings import CosimError
 from .scenario import Scenario, check_variables
 
 NS = 1_000_000_000
@@ -29,15 +29,15 @@ def _ns(seconds: float, what: str) -> int:
     return ns
 
 
-def run(scenario: Scenario, fmus: dict[str, Path], step: float | None = None,
-        t_end: float | None = None, record: list[str] | None = None,
-        algorithm: str | None = None, ssp_path: str | Path | None = None) -> Result:
+def run_libcosim(scenario: Scenario, fmus: dict[str, Path], step: float | None = None,
+                 t_end: float | None = None, record: list[str] | None = None,
+                 algorithm: str | None = None, ssp_path: str | Path | None = None) -> Result:
     """Run the scenario in libcosim's fixed-step (Jacobi) algorithm; every recorded
     variable at every communication point, t = 0 included.
 
     The system is built from the description (slaves, start values, connections through
     libcosimpy's API), or, with ``ssp_path``, loaded by libcosim from that SSP file (as
-    written by ``ssp.export_ssp``: libcosim reads its parameter binding and connections).
+    written by ``ssp_runner.export_ssp``: libcosim reads its parameter binding and connections).
     """
     from fmpy import read_model_description
     from libcosimpy import CosimExecution as cx
@@ -45,7 +45,7 @@ def run(scenario: Scenario, fmus: dict[str, Path], step: float | None = None,
     from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
     from libcosimpy.CosimObserver import CosimObserver
     from libcosimpy.CosimSlave import CosimLocalSlave
-    from libcosimpy._internal import get_last_error_message
+    from libcosimpy.CosimExecution import get_last_error_message
 
     algorithm = algorithm or "jacobi"
     if algorithm != "jacobi":

@@ -1,4 +1,4 @@
-"""Linear algebra of the constraint Jacobian: its fixed sparsity pattern and eq. 14's solves.
+"""Linear algebra of the constraint Jacobian: its fixed sparsity pattern and eq. (15)'s solves.
 
 Psi_q has the same nonzeros at every configuration (they follow from which bodies each
 constraint row touches), so the pattern is worked out once per scene and every evaluation
@@ -27,7 +27,7 @@ import scipy.linalg
 import scipy.sparse
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-from .errors import SolverError
+from ..errors import SolverError
 
 # Constraint rows from which the sparse banded form is used (below it dense wins).
 BANDED_MIN_ROWS = 60
@@ -87,7 +87,7 @@ def schur_solve(J, minv: np.ndarray, b: np.ndarray) -> np.ndarray:
 class JacobianPattern:
     """The nonzeros of Psi_q, (rows, cols), fixed for a scene, and what follows from them.
 
-    ``rows``/``cols`` index the entries of a value vector ``data`` in the order the System
+    ``rows``/``cols`` index the entries of a value vector ``data`` in the order ``ConstraintSet``
     fills it; entries in columns >= n (the virtual ground body) are kept in ``data`` but
     dropped here. ``banded`` chooses the sparse form (see the module docstring).
     """
@@ -181,7 +181,7 @@ class JacobianPattern:
     def schur_solve(self, values: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Solve (J M^-1 J^T) x = b by banded Cholesky; minimum-norm when S is near singular.
 
-        M is the mass matrix the pattern was planned with (a System's is fixed)."""
+        M is the mass matrix the pattern was planned with (a scene's is fixed)."""
         band = self.schur_band(values)
         bp = b[self.perm]
         factor, info = _pbtrf(band, lower=1)

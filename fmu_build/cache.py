@@ -1,0 +1,52 @@
+"""FMUs built once and reused while their sources (and the tools that build them) are
+unchanged: a scenario's FMUs, keyed by a SHA-256 of everything that goes into them."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+from . import build
+
+HERE = Path(__file__).resolve().parent
+
+
+def _tree_digest(*roots: Path) -> bytes:
+    h = hashlib.sha256()
+    for root in roots:
+        files = [root] if root.is_file() else sorted(
+            p for p in root.rglob("*.py") if "__pycache__" not in p.parts)
+        for f in files:
+            h.update(str(f.name).encode() + b"\0" + f.read_bytes())
+    return h.digest()
+
+
+def _tools_digest(kind: str) -> bytes:
+    """What else goes into an FMU of this kind: the mbdfmu core and this package for
+    scenes, the companion base and builder for companion sources."""
+    if kind == ".py":
+        return _tree_digest(HERE / "companion_base.py", HERE / "companion.py", HERE / "common.py")
+    from .scene_fmu import core_init
+    return _tree_digest(Path(core_init).resolve().parent, HERE)
+
+
+def build_fmus(sources: dict[str, Path], folder: str | Path) -> dict[str, Path]:
+    """Build (or reuse) the FMU of each ``{instance: source}`` in ``folder``; returns
+    ``{instance: fmu}``. Instances of one source share one FMU, named after the source
+    (``slider_crank.fmu``)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    built: dict[Path, Path] = {}
+    tools: dict[str, bytes] = {}
+    for src in dict.fromkeys(sources.values()):
+        kind = src.suffix
+        if kind not in tools:
+            tools[kind] = _tools_digest(kind)
+        digest = hashlib.sha256(tools[kind] + src.read_bytes()).hexdigest()
+        fmu = folder / f"{src.stem}.fmu"
+        stamp = folder / f"{src.stem}.fmu.sha256"
+        if not (fmu.is_file() and stamp.is_file() and stamp.read_text().strip() == digest):
+            build(src, fmu)
+            stamp.write_text(digest + "\n")
+        built[src] = fmu
+    return {name: built[src] for name, src in sources.items()}

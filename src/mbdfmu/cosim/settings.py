@@ -1,0 +1,70 @@
+"""How a co-simulation runs (``CosimSettings``, checked once) and how it fails (``CosimError``)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ..errors import MbdfmuError, SettingError
+
+MASTERS = ("fmpy", "ssp", "libcosim")
+ALGORITHMS = ("jacobi", "gauss-seidel")
+STARTS = ("exchange", "zero")
+
+
+class CosimError(MbdfmuError):
+    """A co-simulation that cannot go on: an instance refused a step or the master gave up.
+
+    ``t`` is the communication point, ``instance`` the instance that failed (if any).
+    """
+
+    def __init__(self, message: str, t: float | None = None, instance: str | None = None):
+        self.t, self.instance = t, instance
+        prefix = f"t = {t:.9g} s: " if t is not None else ""
+        super().__init__(prefix + (f"{instance}: " if instance else "") + message)
+
+
+@dataclass(frozen=True)
+class CosimSettings:
+    """A run of a scenario (None: the scenario's own value).
+
+    ``master``: fmpy, ssp (fmpy's SSP runner) or libcosim; ``algorithm``: jacobi or
+    gauss-seidel (default: the scenario's for fmpy, jacobi for the others, which have only
+    that); ``step`` and ``t_end`` in s; ``variable_step`` (fmpy master only) with its
+    ``rtol``, ``atol``, ``h_min``, ``h_max``; ``start``: connected inputs start at the
+    upstream outputs ("exchange", as libcosim does) or at 0.0 ("zero", as fmpy's SSP
+    runner does).
+    """
+
+    master: str = "fmpy"
+    algorithm: str | None = None
+    step: float | None = None
+    t_end: float | None = None
+    variable_step: bool = False
+    rtol: float | None = None
+    atol: float | None = None
+    h_min: float | None = None
+    h_max: float | None = None
+    start: str = "exchange"
+
+    def __post_init__(self):
+        for name, value, choices in (("master", self.master, MASTERS),
+                                     ("algorithm", self.algorithm, ALGORITHMS),
+                                     ("start", self.start, STARTS)):
+            if value is not None and value not in choices:
+                raise SettingError(name, f'{name} "{value}" is not one of {", ".join(choices)}')
+        for name in ("step", "t_end", "rtol", "atol", "h_min", "h_max"):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                      or not (math.isfinite(value) and value > 0)):
+                raise SettingError(name, f"{name} must be positive and finite, got {value!r}")
+        if self.variable_step and self.master != "fmpy":
+            raise SettingError("variable_step", "the variable-step master is the fmpy "
+                               "master's (--master fmpy)")
+        if self.master == "libcosim" and self.start != "exchange":
+            raise SettingError("start", 'libcosim always starts by passing outputs to inputs '
+                               '("exchange")')
+
+    def algorithm_for(self, scenario) -> str:
+        """The algorithm that runs: as asked, else the scenario's (fmpy) or jacobi."""
+        return self.algorithm or (scenario.algorithm if self.master == "fmpy" else "jacobi")

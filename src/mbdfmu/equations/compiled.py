@@ -1,0 +1,205 @@
+"""The constraint kernel compiled by numba: Psi, Psi_q's values and gamma, and eq. (14).
+
+The same equations as the vectorised numpy code of ``constraints.py``, row by row (the
+primitives are documented in ``joints.py``); loops are what numba compiles best. numba is
+optional (``pip install "mbdfmu[jit]"``): without it, or with ``MBDFMU_KERNEL=numpy``, the
+numpy kernel runs. The two are checked against each other in ``tests/test_kernel.py`` and
+timed against each other in ``benchmarks/kernel.py``.
+
+The kernel takes two named structures built once per scene: ``Primitives`` (the index
+arrays of the three row primitives) and ``JacobianPlan`` (Psi_q's pattern and the plan of
+the banded Schur complement, ``sparsity.JacobianPattern``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import namedtuple
+
+import numpy as np
+
+try:  # numba is optional; FMUs run without it
+    import numba
+except ImportError:  # pragma: no cover - depends on the installation
+    numba = None
+
+
+def jit(function):
+    """numba's ahead-of-use compilation, cached on disk; the plain function without numba."""
+    return numba.njit(cache=True, nogil=True)(function) if numba is not None else function
+
+
+Primitives = namedtuple("Primitives", [
+    "c_rows", "c_bi", "c_bj", "c_si", "c_sj",          # coincidence: rows (k, 2), bodies, points
+    "l_rows", "l_bi", "l_bj", "l_si", "l_sj", "l_u",   # line: rows (k,), bodies, points, axis
+    "a_rows", "a_bi", "a_bj"])                         # angle: rows (k,), bodies
+JacobianPlan = namedtuple("JacobianPlan", [
+    "constants", "keep",          # constant entries of Psi_q's values; the entries kept (not ground)
+    "rows", "cols",               # the kept entries' positions
+    "pair_a", "pair_b", "pair_minv", "band_index", "perm", "kd"])   # banded Schur plan
+
+
+@jit
+def constraint_terms(q, qd, cval, p, psi, data, gamma):
+    """Fill psi (m,), data (Psi_q's values, ``constraints.py``'s layout) and gamma (m,,
+    without c''(t)) in place, for the ``Primitives`` p.
+
+    q, qd: (3 nb + 3,) with the ground as body nb (zeros); cval: motion values c(t) per row.
+    ``data`` holds the constants first; the q-dependent blocks follow them in the order
+    coincidence (4 blocks of kc), line (6 blocks of kl).
+    """
+    c_rows, c_bi, c_bj, c_si, c_sj = p.c_rows, p.c_bi, p.c_bj, p.c_si, p.c_sj
+    l_rows, l_bi, l_bj, l_si, l_sj, l_u = p.l_rows, p.l_bi, p.l_bj, p.l_si, p.l_sj, p.l_u
+    a_rows, a_bi, a_bj = p.a_rows, p.a_bi, p.a_bj
+    kc, kl = c_rows.shape[0], l_rows.shape[0]
+    k0 = data.shape[0] - 4 * kc - 6 * kl
+    for r in range(gamma.shape[0]):
+        gamma[r] = 0.0
+    for k in range(kc):
+        i, j = c_bi[k], c_bj[k]
+        ci, si_ = math.cos(q[3 * i + 2]), math.sin(q[3 * i + 2])
+        cj, sj_ = math.cos(q[3 * j + 2]), math.sin(q[3 * j + 2])
+        aix = ci * c_si[k, 0] - si_ * c_si[k, 1]
+        aiy = si_ * c_si[k, 0] + ci * c_si[k, 1]
+        ajx = cj * c_sj[k, 0] - sj_ * c_sj[k, 1]
+        ajy = sj_ * c_sj[k, 0] + cj * c_sj[k, 1]
+        r0, r1 = c_rows[k, 0], c_rows[k, 1]
+        psi[r0] = q[3 * i] + aix - q[3 * j] - ajx - cval[r0]
+        psi[r1] = q[3 * i + 1] + aiy - q[3 * j + 1] - ajy - cval[r1]
+        data[k0 + k] = -aiy
+        data[k0 + kc + k] = aix
+        data[k0 + 2 * kc + k] = ajy
+        data[k0 + 3 * kc + k] = -ajx
+        wi2, wj2 = qd[3 * i + 2] ** 2, qd[3 * j + 2] ** 2
+        gamma[r0] = aix * wi2 - ajx * wj2
+        gamma[r1] = aiy * wi2 - ajy * wj2
+    k1 = k0 + 4 * kc
+    for k in range(kl):
+        i, j = l_bi[k], l_bj[k]
+        ci, si_ = math.cos(q[3 * i + 2]), math.sin(q[3 * i + 2])
+        cj, sj_ = math.cos(q[3 * j + 2]), math.sin(q[3 * j + 2])
+        aix = ci * l_si[k, 0] - si_ * l_si[k, 1]
+        aiy = si_ * l_si[k, 0] + ci * l_si[k, 1]
+        ajx = cj * l_sj[k, 0] - sj_ * l_sj[k, 1]
+        ajy = sj_ * l_sj[k, 0] + cj * l_sj[k, 1]
+        ux = ci * l_u[k, 0] - si_ * l_u[k, 1]
+        uy = si_ * l_u[k, 0] + ci * l_u[k, 1]
+        dx = q[3 * j] + ajx - q[3 * i] - aix
+        dy = q[3 * j + 1] + ajy - q[3 * i + 1] - aiy
+        row = l_rows[k]
+        psi[row] = ux * dx + uy * dy - cval[row]
+        # rot90(v) = (-v_y, v_x)
+        data[k1 + k] = -ux
+        data[k1 + kl + k] = -uy
+        data[k1 + 2 * kl + k] = (-uy * dx + ux * dy) - (-ux * aiy + uy * aix)
+        data[k1 + 3 * kl + k] = ux
+        data[k1 + 4 * kl + k] = uy
+        data[k1 + 5 * kl + k] = -ux * ajy + uy * ajx
+        wi, wj = qd[3 * i + 2], qd[3 * j + 2]
+        ddx = qd[3 * j] - wj * ajy - qd[3 * i] + wi * aiy
+        ddy = qd[3 * j + 1] + wj * ajx - qd[3 * i + 1] - wi * aix
+        gamma[row] = (wi * wi * (ux * dx + uy * dy)
+                      - 2.0 * wi * (-uy * ddx + ux * ddy)
+                      + ux * (ajx * wj * wj - aix * wi * wi)
+                      + uy * (ajy * wj * wj - aiy * wi * wi))
+    for k in range(a_rows.shape[0]):
+        row = a_rows[k]
+        psi[row] = q[3 * a_bj[k] + 2] - q[3 * a_bi[k] + 2] - cval[row]
+
+
+@jit
+def terms(q, qd, cval, p, plan):
+    """Psi (m,), the kept Jacobian values (on ``plan.rows``/``plan.cols``) and gamma without
+    c''(t). q, qd with the ground's three zeros appended."""
+    m = cval.shape[0]
+    psi, gamma = np.empty(m), np.empty(m)
+    k0 = plan.constants.shape[0]
+    data = np.empty(k0 + 4 * p.c_rows.shape[0] + 6 * p.l_rows.shape[0])
+    data[:k0] = plan.constants
+    constraint_terms(q, qd, cval, p, psi, data, gamma)
+    return psi, data[plan.keep], gamma
+
+
+@jit
+def jac_mul(values, rows, cols, x, m):
+    """J x from J's values on its pattern."""
+    y = np.zeros(m)
+    for k in range(values.shape[0]):
+        y[rows[k]] += values[k] * x[cols[k]]
+    return y
+
+
+@jit
+def jac_t_mul(values, rows, cols, y, n):
+    """J^T y from J's values on its pattern."""
+    x = np.zeros(n)
+    for k in range(values.shape[0]):
+        x[cols[k]] += values[k] * y[rows[k]]
+    return x
+
+
+@jit
+def schur_solve(values, plan, b, rank_tol):
+    """x with (J M^-1 J^T) x = b by banded Cholesky; ok False when S is too near singular.
+
+    S is summed over the pattern's column pairs straight into lower band storage in
+    reverse Cuthill-McKee order (``JacobianPattern._plan_schur_band``): O(nonzeros) to
+    assemble, O(m kd^2) to factorise, no dense J, at any size.
+    """
+    pair_a, pair_b, pair_minv = plan.pair_a, plan.pair_b, plan.pair_minv
+    band_index, perm, kd = plan.band_index, plan.perm, plan.kd
+    m = b.shape[0]
+    flat = np.zeros((kd + 1) * m)
+    for p in range(pair_a.shape[0]):
+        flat[band_index[p]] += values[pair_a[p]] * values[pair_b[p]] * pair_minv[p]
+    L = flat.reshape(kd + 1, m)          # L[i - j, j] = S[i, j], then the factor
+    dmax, dmin = 0.0, np.inf
+    for j in range(m):
+        s = L[0, j]
+        for k in range(max(0, j - kd), j):
+            s -= L[j - k, k] * L[j - k, k]
+        if s <= 0.0:
+            return b, False
+        d = math.sqrt(s)
+        L[0, j] = d
+        dmax, dmin = max(dmax, d), min(dmin, d)
+        for i in range(j + 1, min(m, j + kd + 1)):
+            s = L[i - j, j]
+            for k in range(max(0, i - kd), j):
+                s -= L[i - k, k] * L[j - k, k]
+            L[i - j, j] = s / d
+    if not dmin > math.sqrt(rank_tol) * dmax:
+        return b, False
+    x = np.empty(m)
+    for i in range(m):                   # L y = P b
+        s = b[perm[i]]
+        for k in range(max(0, i - kd), i):
+            s -= L[i - k, k] * x[k]
+        x[i] = s / L[0, i]
+    for i in range(m - 1, -1, -1):       # L^T z = y
+        s = x[i]
+        for k in range(i + 1, min(m, i + kd + 1)):
+            s -= L[k - i, i] * x[k]
+        x[i] = s / L[0, i]
+    out = np.empty(m)
+    for i in range(m):                   # x = P^T z
+        out[perm[i]] = x[i]
+    return out, True
+
+
+@jit
+def accelerations(q, qd, cval, cdd, F, minv, rank_tol, p, plan):
+    """Eq. (14) by the Schur complement (formulation.md, eq. 15), all in one compiled call.
+
+    Same steps as ``dynamics.Equations.accelerations``: ``S = J M^-1 J^T``, Cholesky,
+    ``lam = S^-1 (J M^-1 F - gamma)``, ``q'' = M^-1 (F - J^T lam)``. q, qd with the ground's
+    three zeros appended. Returns (q'', lam, ok); ok is False when S is too close to
+    singular for Cholesky (the caller then takes the minimum-norm path).
+    """
+    m, n = cval.shape[0], F.shape[0]
+    _, values, gamma = terms(q, qd, cval, p, plan)
+    rhs = jac_mul(values, plan.rows, plan.cols, minv * F, m) - (gamma + cdd)
+    lam, ok = schur_solve(values, plan, rhs, rank_tol)
+    return minv * (F - jac_t_mul(values, plan.rows, plan.cols, lam, n)), lam, ok
+
+

@@ -1,0 +1,190 @@
+"""The equations of motion of a scene: eq. (14) solved for q'' and lam, reactions, outputs.
+
+``Equations`` puts the constraints (``constraints.py``) and the applied forces
+(``forces.py``) together with the diagonal mass matrix. Every method is a pure function of
+its arguments (t, q, q', the inputs u): nothing is stored between calls, so any integrator
+can call them at any stage. Coordinates are absolute: ``q = [x_1, y_1, phi_1, x_2, ...]``,
+the centre of mass and angle of each body (formulation.md, eq. 1).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..model.scene import Scene
+from ..model.variables import InputValues, input_layout
+from .constraints import ConstraintSet
+from .forces import AppliedForces
+from .planar import poses, rotate
+from .sparsity import RANK_TOLERANCE, schur_solve
+
+
+class Equations:
+    """Equations of motion of a scene (formulation.md, eqs. 12-17).
+
+    ``n`` coordinates, ``m`` constraint rows, ``mass`` (n,) the diagonal of M,
+    ``constraints`` the rows and their Jacobian pattern, ``applied`` the forces,
+    ``layout`` where each input sits in ``InputValues``, ``length_scale`` (m) the size of
+    the mechanism (for tolerances).
+    """
+
+    def __init__(self, scene: Scene, *, kernel: str | None = None):
+        self.scene = scene
+        self.nb = len(scene.bodies)
+        self.n = 3 * self.nb
+        self.mass = np.array([[b.mass, b.mass, b.inertia] for b in scene.bodies]).ravel()
+        self.minv = 1.0 / self.mass
+        self.layout = input_layout(scene)
+        self.no_inputs = self.layout.initial()
+        self.constraint_set = ConstraintSet(scene, self.minv, kernel)
+        self.applied = AppliedForces(scene, self.mass, self.layout)
+        self.m = self.constraint_set.m
+        self.kernel = self.constraint_set.kernel
+        self.row_labels = self.constraint_set.labels
+        self.pattern = self.constraint_set.pattern
+        self.length_scale = max([1.0] + [abs(v) for b in scene.bodies for v in b.position])
+        c = self.constraint_set
+        # the body_j blocks of each joint's rows in Psi_q's values (reactions, eq. 16)
+        self._reaction_entries = self.pattern.entries(
+            c.joint_rows[:, :, None], 3 * c.joint_bj[:, None, None] + np.arange(3)[None, None, :])
+        self._point_j = np.array([j.point_j for j in scene.joints], dtype=float).reshape(-1, 2)
+
+    # ------------------------------------------------------------------ constraints
+
+    def _u(self, u: InputValues | None) -> InputValues:
+        return self.no_inputs if u is None else u
+
+    def motion_values(self, t: float, u: InputValues | None = None):
+        """(c, c', c'') of every constraint row at t (read-only arrays)."""
+        return self.constraint_set.motion_values(t, self._u(u))
+
+    def constraint_values(self, t, q, qd=None, u: InputValues | None = None):
+        """Psi (m,), Psi_q's values on ``pattern``, nu and gamma (None without qd)."""
+        return self.constraint_set.values(t, q, qd, self._u(u))
+
+    def constraints(self, t: float, q: np.ndarray, qd: np.ndarray | None = None,
+                    u: InputValues | None = None, *, extended: bool = False,
+                    sparse: bool = False):
+        """Psi (m,), Psi_q (m, n) and, with qd, nu (m,) and gamma (m,) (eqs. 8-11).
+
+        Psi_q is a dense array, or with ``sparse`` for a large mechanism a
+        ``sparsity.SparseJacobian``; with ``extended`` a dense Psi_q keeps the ground's
+        three columns last (for reactions).
+        """
+        Psi, data, nu, gamma = self.constraint_values(t, q, qd, u)
+        J = self.pattern.dense_with_ground(data) if extended else self.pattern.jacobian(data, sparse)
+        return (Psi, J) if qd is None else (Psi, J, nu, gamma)
+
+    def constraint_hessian(self, q: np.ndarray, mu: np.ndarray) -> np.ndarray:
+        return self.constraint_set.hessian(q, mu)
+
+    # ------------------------------------------------------------------ forces
+
+    def forces(self, t: float, q: np.ndarray, qd: np.ndarray,
+               u: InputValues | None = None) -> np.ndarray:
+        return self.applied(t, q, qd, self._u(u))
+
+    def force_jacobians(self, t, q, qd, u: InputValues | None = None):
+        return self.applied.jacobians(t, q, qd, self._u(u))
+
+    def forces_depend_on_state(self) -> bool:
+        return self.applied.depend_on_state()
+
+    # ------------------------------------------------------------------ eq. (14)
+
+    def accelerations(self, t: float, q: np.ndarray, qd: np.ndarray,
+                      u: InputValues | None = None, *,
+                      baumgarte: tuple[float, float] | None = None):
+        """Solve eq. (14) for q'' (n,) and lam (m,).
+
+        By the Schur complement of the diagonal mass matrix (eq. 15),
+        ``(Psi_q M^-1 Psi_q^T) lam = Psi_q M^-1 F - gamma``, ``q'' = M^-1 (F - Psi_q^T lam)``;
+        at singular configurations or with redundant constraints the minimum-norm lam.
+        With ``baumgarte = (alpha, beta)`` the right-hand side is Baumgarte's stabilised
+        ``gamma - 2 alpha (Psi_q q' - nu) - beta^2 Psi``.
+        """
+        u = self._u(u)
+        F = self.applied(t, q, qd, u)
+        if self.m == 0:
+            return self.minv * F, np.zeros(0)
+        if self.kernel == "numba" and baumgarte is None:
+            qdd, lam, ok = self._accelerations_compiled(t, q, qd, F, u)
+            if ok:
+                return qdd, lam
+        Psi, J, nu, gamma = self.constraints(t, q, qd, u, sparse=True)
+        if baumgarte is not None:
+            alpha, beta = baumgarte
+            gamma = gamma - 2.0 * alpha * (J @ qd - nu) - beta * beta * Psi
+        lam = schur_solve(J, self.minv, J @ (self.minv * F) - gamma)
+        return self.minv * (F - J.T @ lam), lam
+
+    def _accelerations_compiled(self, t, q, qd, F, u):
+        """Eq. (14) in one numba call (any size); ok False near singular (see caller)."""
+        n = self.n
+        qe, qde = np.zeros(n + 3), np.zeros(n + 3)
+        qe[:n], qde[:n] = q, qd
+        cval, _, cdd = self.constraint_set.motion_values(t, u)
+        c = self.constraint_set
+        return c.compiled.accelerations(qe, qde, cval, cdd, F, self.minv, RANK_TOLERANCE,
+                                        c.primitives, c.plan)
+
+    # ------------------------------------------------------------------ energies
+
+    def kinetic_energy(self, qd: np.ndarray) -> float:
+        return 0.5 * float(qd @ (self.mass * qd))
+
+    def potential_energy(self, q: np.ndarray) -> float:
+        """Gravity plus springs (J); zero at the origin for gravity."""
+        return self.applied.potential_energy(q)
+
+    def total_energy(self, q: np.ndarray, qd: np.ndarray) -> float:
+        """Kinetic energy plus the potential of gravity, springs and constant loads (J);
+        constant in time when ``nonconservative_reason()`` is None."""
+        if self.applied.is_constant:  # constant generalized forces only: potential -F . q
+            return self.kinetic_energy(qd) - float(self.applied.constant @ q)
+        return (self.kinetic_energy(qd) + self.applied.potential_energy(q)
+                + self.applied.load_potential(q))
+
+    def nonconservative_reason(self) -> str | None:
+        return self.applied.nonconservative_reason()
+
+    # ------------------------------------------------------------------ reactions, outputs
+
+    def reactions(self, q: np.ndarray, lam: np.ndarray, t: float = 0.0,
+                  data: np.ndarray | None = None) -> np.ndarray:
+        """Force and torque each joint exerts on its body_j, in the joint frame (nj, 3).
+
+        Eq. (16): F = -C^T A^T [Psi_r rows]^T lam, T = -Psi_phi lam - (A s) x F, with the
+        body_j blocks of the joint's two Jacobian rows. Revolute joints give T = 0;
+        translational joints K1 = 0 along the axis, K2 normal, K3 torque (eq. 17).
+        """
+        c = self.constraint_set
+        if len(c.joint_rows) == 0:
+            return np.zeros((0, 3))
+        if data is None:
+            data = self.constraint_values(t, q)[1]
+        G = np.append(data, 0.0)[self._reaction_entries]       # (nj, 2, 3): body_j blocks
+        gen = -np.einsum("kab,ka->kb", G, lam[c.joint_rows])   # generalized force on body_j
+        r, cs, sn, phi = poses(q, self.nb)
+        Asj = rotate(self._point_j, cs[c.joint_bj], sn[c.joint_bj])
+        torque = gen[:, 2] - (Asj[:, 0] * gen[:, 1] - Asj[:, 1] * gen[:, 0])
+        theta = phi[c.frame_body] + c.frame_angle
+        co, si = np.cos(theta), np.sin(theta)
+        return np.stack((co * gen[:, 0] + si * gen[:, 1], -si * gen[:, 0] + co * gen[:, 1],
+                         torque), axis=1)
+
+    def driver_efforts(self, lam: np.ndarray) -> np.ndarray:
+        """Generalized force each driver applies to its body_j: -lam of its row."""
+        return -lam[self.constraint_set.driver_rows]
+
+    def output_values(self, t, q, qd, qdd, lam, u: InputValues | None = None) -> np.ndarray:
+        """Every output of ``model.variables.outputs(scene)`` at one instant, in that order."""
+        u = self._u(u)
+        Psi, data, nu, _ = self.constraint_values(t, q, qd, u)   # one evaluation for all
+        J = self.pattern.jacobian(data, sparse=True)
+        parts = [np.concatenate((q.reshape(-1, 3), qd.reshape(-1, 3)), axis=1).ravel(),
+                 self.reactions(q, lam, t, data).ravel(), self.driver_efforts(lam),
+                 self.applied.spring_states(t, q, qd, u).ravel(),
+                 [self.kinetic_energy(qd), self.potential_energy(q),
+                  float(np.linalg.norm(Psi)), float(np.linalg.norm(J @ qd - nu))]]
+        return np.concatenate([np.asarray(p, dtype=float) for p in parts])

@@ -1,0 +1,116 @@
+"""``SolverSettings``: the one place where a run's solver settings are defaulted and checked.
+
+Every entry point builds one (the scene's ``[simulation]`` table, ``simulate()``,
+``Simulation``, the CLI's flags, the FMU's ``solver.*`` parameters), before any work, the
+way scipy's ``validate_tol`` and ``validate_max_step`` run before a solver starts. A bad
+value raises ``SettingError`` (a ``ValueError``) naming the setting as the caller spelled it
+(``--step``, ``rtol``, ``solver.rtol``) and where it came from.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from ..errors import SettingError, suggest
+
+DEFAULT_METHOD = "auto"
+DEFAULT_RTOL = 1e-6
+DEFAULT_ATOL = 1e-8
+# Output points of a run when neither the call nor the scene gives an output interval.
+DEFAULT_OUTPUT_POINTS = 500
+FIELDS = ("method", "step", "rtol", "atol", "options", "output_interval")
+
+
+def _positive(value: Any, name: str, where: str, unit: str = "") -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SettingError(name, f"{name} must be a number, got {value!r}", where)
+    value = float(value)
+    if not (math.isfinite(value) and value > 0.0):
+        raise SettingError(name, f"{name} must be positive and finite{unit}, got {value!r}",
+                           where)
+    return value
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """How a run integrates: ``method`` (a name of ``METHOD_NAMES`` or an ``Integrator``
+    class), ``step`` (s; the fixed step, or the largest step of adaptive methods; None:
+    the method's default), ``rtol``, ``atol`` (adaptive methods and Newton tolerances),
+    ``options`` (the method's own settings) and ``output_interval`` (s; None: the run's
+    length over ``DEFAULT_OUTPUT_POINTS``)."""
+
+    method: Any = DEFAULT_METHOD
+    step: float | None = None
+    rtol: float = DEFAULT_RTOL
+    atol: float = DEFAULT_ATOL
+    options: dict = field(default_factory=dict)
+    output_interval: float | None = None
+
+    def updated(self, where: str = "", names: dict[str, str] | None = None,
+                **values) -> SolverSettings:
+        """A copy with the given values (None: keep this one's), each checked; ``names``
+        maps a field to the name the caller uses for it (a CLI flag, an FMU parameter)."""
+        names = names or {}
+        changes = {}
+        for key, value in values.items():
+            if key not in FIELDS:
+                raise SettingError(key, f"unknown solver setting {key!r}{suggest(key, FIELDS)}",
+                                   where)
+            if value is not None:
+                changes[key] = _check(key, value, names.get(key, key), where)
+        out = replace(self, **changes)
+        if "method" in changes or "options" in changes:
+            out.method_class.check_options(out.options, names.get("options", "options"), where)
+        return out
+
+    @property
+    def method_class(self):
+        from . import method_class   # the registry imports the methods, which import this
+        return method_class(self.method)
+
+    @property
+    def method_name(self) -> str:
+        return self.method if isinstance(self.method, str) else self.method.name
+
+    def step_for(self, cls) -> float:
+        """The step a method runs with: the given one, else the method's default (fixed
+        step), or no limit (adaptive: ``step`` is the largest step)."""
+        if self.step is not None:
+            return self.step
+        return math.inf if cls.adaptive else cls.default_step
+
+    def output_interval_for(self, t_end: float) -> float:
+        return self.output_interval or t_end / DEFAULT_OUTPUT_POINTS
+
+
+def _check(key: str, value: Any, name: str, where: str):
+    if key == "method":
+        from . import METHOD_NAMES, Integrator
+        if isinstance(value, type) and issubclass(value, Integrator):
+            return value
+        if not isinstance(value, str) or value not in METHOD_NAMES:
+            hint = suggest(value, METHOD_NAMES) if isinstance(value, str) else ""
+            raise SettingError(name, f'{name} "{value}" is not a method{hint}; methods: '
+                               f"{', '.join(METHOD_NAMES)}", where)
+        return value
+    if key == "options":
+        if not isinstance(value, dict):
+            raise SettingError(name, f"{name} must be a table of the method's settings, "
+                               f"got {value!r}", where)
+        return dict(value)
+    if key == "rtol":
+        value = _positive(value, name, where)
+        if value >= 1.0:
+            raise SettingError(name, f"{name} must be below 1, got {value!r}", where)
+        return value
+    return _positive(value, name, where, " (s)" if key != "atol" else "")
+
+
+def settings_from_scene(scene) -> SolverSettings:
+    """The scene's ``[simulation]`` values as checked ``SolverSettings``."""
+    s = scene.simulation
+    return SolverSettings().updated(
+        f"{scene.source}: simulation", method=s.method, step=s.step, rtol=s.rtol, atol=s.atol,
+        options=s.options or None, output_interval=s.output_interval)

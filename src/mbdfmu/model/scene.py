@@ -1,0 +1,222 @@
+"""What a mechanism is: bodies, joints, drivers and forces, as frozen dataclasses.
+
+Conventions (SI units, radians): body positions are those of the centre of mass in the
+ground frame; ``point_*`` are body-fixed coordinates relative to the centre of mass (for
+``ground``: relative to the origin); ``inertia`` is about the centre of mass.
+
+Each class declares its scene keys once, as its fields (``key(kind, default, ...)``); the
+reader (``reader.py``) reads any of them from that declaration, and the variable table
+(``variables.py``) names what each item type offers as parameters, inputs and outputs.
+Joint coordinates: a revolute joint's is ``phi_j - phi_i`` (rad); a translational joint's
+is ``(r_Pj - r_Pi) . u_i`` (m), ``u_i`` its unit axis in the ground frame.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+from .motion import InputMotion, Motion
+from .toml_table import key
+
+GROUND = "ground"
+RESERVED_NAMES = {GROUND, "energy", "constraint", "time", "gravity", "solver"}
+IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+COORDINATES = ("angle", "x", "y")
+
+Vec2 = tuple[float, float]
+
+
+@dataclass(frozen=True)
+class Body:
+    """A rigid body: mass (kg), inertia about its centre of mass (kg m^2), initial state."""
+
+    name: str = key("str")
+    mass: float = key("float", positive=True)
+    inertia: float = key("float", positive=True)
+    position: Vec2 = key("vec2")
+    angle: float = key("float", 0.0)
+    velocity: Vec2 = key("vec2", (0.0, 0.0))
+    angular_velocity: float = key("float", 0.0)
+
+
+@dataclass(frozen=True)
+class RevoluteJoint:
+    """point_i of body_i and point_j of body_j coincide; rotation is free.
+
+    Reactions are reported on body_j in the joint frame: body_j's frame turned by
+    ``frame_angle``."""
+
+    TYPE = "revolute"
+    name: str = key("str")
+    body_i: str = key("str", ref="body")
+    body_j: str = key("str", ref="body")
+    point_i: Vec2 = key("vec2", (0.0, 0.0))
+    point_j: Vec2 = key("vec2", (0.0, 0.0))
+    frame_angle: float = key("float", 0.0)
+
+    def problems(self) -> list[str]:
+        return [f'joins body "{self.body_i}" to itself'] if self.body_i == self.body_j else []
+
+
+@dataclass(frozen=True)
+class TranslationalJoint:
+    """point_j stays on the line through point_i along ``axis_i`` (body_i's frame); the
+    relative rotation stays at its initial value.
+
+    Reactions are reported on body_j in the joint frame: the sliding axis turned by
+    ``frame_angle`` (x along the axis: no force there)."""
+
+    TYPE = "translational"
+    name: str = key("str")
+    body_i: str = key("str", ref="body")
+    body_j: str = key("str", ref="body")
+    axis_i: Vec2 = key("vec2", nonzero=True)
+    point_i: Vec2 = key("vec2", (0.0, 0.0))
+    point_j: Vec2 = key("vec2", (0.0, 0.0))
+    frame_angle: float = key("float", 0.0)
+
+    problems = RevoluteJoint.problems
+
+
+@dataclass(frozen=True)
+class Driver:
+    """A prescribed motion of a joint's coordinate, or of a body's x, y or angle."""
+
+    name: str = key("str")
+    motion: Motion = key("table")
+    joint: str | None = key("str", None, ref="joint")
+    body: str | None = key("str", None, ref="moving body")
+    coordinate: str | None = key("str", None)
+
+    def problems(self) -> list[str]:
+        out = []
+        if (self.joint is None) == (self.body is None):
+            out.append('needs exactly one of "joint" or "body" (with "coordinate")')
+        if self.body is not None and self.coordinate not in COORDINATES:
+            out.append(f'"coordinate" must be one of {", ".join(COORDINATES)}, '
+                       f"got {self.coordinate!r}")
+        if self.joint is not None and self.coordinate is not None:
+            out.append('"coordinate" goes with "body", not with "joint"')
+        return out
+
+    @property
+    def is_input(self) -> bool:
+        return isinstance(self.motion, InputMotion)
+
+
+@dataclass(frozen=True)
+class PointForce:
+    """A force at a body point, components in the ground frame (N)."""
+
+    TYPE = "force"
+    name: str = key("str")
+    body: str = key("str", ref="moving body")
+    point: Vec2 = key("vec2", (0.0, 0.0))
+    value: Vec2 = key("vec2", (0.0, 0.0), required_unless="input")
+    input: bool = key("bool", False)
+
+
+@dataclass(frozen=True)
+class Torque:
+    """A torque on a body (N m, counter-clockwise positive)."""
+
+    TYPE = "torque"
+    name: str = key("str")
+    body: str = key("str", ref="moving body")
+    value: float = key("float", 0.0, required_unless="input")
+    input: bool = key("bool", False)
+
+
+@dataclass(frozen=True)
+class SpringDamper:
+    """A linear spring-damper between two points; tension k (L - L0) + c L'.
+
+    With ``actuator_input`` an input force along the line is added, positive pushing the
+    points apart."""
+
+    TYPE = "spring_damper"
+    name: str = key("str")
+    body_i: str = key("str", ref="body")
+    body_j: str = key("str", ref="body")
+    stiffness: float = key("float", nonnegative=True)
+    point_i: Vec2 = key("vec2", (0.0, 0.0))
+    point_j: Vec2 = key("vec2", (0.0, 0.0))
+    damping: float = key("float", 0.0, nonnegative=True)
+    rest_length: float = key("float", 0.0, nonnegative=True)
+    actuator_input: bool = key("bool", False)
+
+
+@dataclass(frozen=True)
+class RotationalSpringDamper:
+    """A torsional spring-damper on a revolute joint: torque on body_j
+    -k (theta - theta0) - c theta', theta = phi_j - phi_i."""
+
+    TYPE = "rotational_spring_damper"
+    name: str = key("str")
+    joint: str = key("str", ref="revolute joint")
+    stiffness: float = key("float", nonnegative=True)
+    damping: float = key("float", 0.0, nonnegative=True)
+    rest_angle: float = key("float", 0.0)
+
+
+Joint = RevoluteJoint | TranslationalJoint
+Force = PointForce | Torque | SpringDamper | RotationalSpringDamper
+JOINT_TYPES: dict[str, type] = {cls.TYPE: cls for cls in (RevoluteJoint, TranslationalJoint)}
+FORCE_TYPES: dict[str, type] = {cls.TYPE: cls for cls in (PointForce, Torque, SpringDamper,
+                                                          RotationalSpringDamper)}
+
+
+@dataclass(frozen=True)
+class SimulationSettings:
+    """The scene's ``[simulation]`` table: defaults of a run (and of the FMU). Solver values
+    are checked when a run builds its ``SolverSettings`` from them."""
+
+    t_end: float = key("float", 1.0, positive=True)
+    output_interval: float | None = key("float", None, positive=True)
+    method: str | None = key("str", None)
+    step: float | None = key("float", None, positive=True)
+    rtol: float | None = key("float", None, positive=True)
+    atol: float | None = key("float", None, positive=True)
+    options: dict = key("table", {})
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A planar mechanism: bodies, joints, drivers and forces, in the ground frame."""
+
+    name: str
+    bodies: tuple[Body, ...]
+    joints: tuple[Joint, ...] = ()
+    drivers: tuple[Driver, ...] = ()
+    forces: tuple[Force, ...] = ()
+    gravity: Vec2 = (0.0, -9.81)
+    description: str = ""
+    version: str = "0.1.0"
+    author: str = ""
+    outputs: tuple[str, ...] | None = None
+    simulation: SimulationSettings = field(default_factory=SimulationSettings)
+    source: str = "<scene>"
+
+    def joint(self, name: str) -> Joint:
+        return next(j for j in self.joints if j.name == name)
+
+    def body(self, name: str) -> Body:
+        return next(b for b in self.bodies if b.name == name)
+
+
+def driver_is_angular(scene: Scene, driver: Driver) -> bool:
+    """A driver of an angle (revolute joint or body angle) rather than a length."""
+    if driver.joint is not None:
+        return isinstance(scene.joint(driver.joint), RevoluteJoint)
+    return driver.coordinate == "angle"
+
+
+def driven_body(scene: Scene, driver: Driver) -> str:
+    """The body a driver's effort acts on: its body, or its joint's body_j."""
+    return driver.body if driver.body is not None else scene.joint(driver.joint).body_j
+
+
+def rod_inertia(mass: float, length: float) -> float:
+    """Moment of inertia of a uniform slender rod about its centre: m L^2 / 12."""
+    return mass * length * length / 12.0
