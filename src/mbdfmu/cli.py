@@ -202,20 +202,26 @@ def cmd_cosim(args) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="mbdfmu", description="Planar multibody mechanisms as FMI 2.0 co-simulation FMUs.",
-        epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--version", action="version", version=f"mbdfmu {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True)
+def _command(sub, name: str, func, help: str, examples: tuple[str, ...] = (), epilog: str = "",
+             **kwargs) -> argparse.ArgumentParser:
+    """A subcommand whose --help ends with its examples."""
+    text = "\n".join(filter(None, [epilog, "examples:\n" + "\n".join(f"  {e}" for e in examples)
+                                   if examples else ""]))
+    p = sub.add_parser(name, help=help, epilog=text or None,
+                       formatter_class=argparse.RawDescriptionHelpFormatter, **kwargs)
+    p.set_defaults(func=func)
+    return p
 
-    p = sub.add_parser("check", help="load, validate and assemble a scene; print its structure")
-    p.add_argument("scene")
-    p.set_defaults(func=cmd_check)
 
-    p = sub.add_parser("simulate", help="simulate a scene and write a CSV",
-                       epilog=f"methods: {_methods_help()}")
-    p.add_argument("scene")
+def _add_run_commands(sub) -> None:
+    p = _command(sub, "check", cmd_check, "load, validate and assemble a scene; print its "
+                 "structure", ("mbdfmu check slider_crank", "mbdfmu check my_scene.toml"))
+    p.add_argument("scene", help="scene file (.toml) or the name of a shipped scene")
+    p = _command(sub, "simulate", cmd_simulate, "simulate a scene and write a CSV",
+                 ("mbdfmu simulate pendulum --t-end 10 --rtol 1e-10 --out pendulum.csv",
+                  "mbdfmu simulate slider_force --input push.csv --method rk4p --step 1e-4"),
+                 epilog=f"methods: {_methods_help()}")
+    p.add_argument("scene", help="scene file (.toml) or the name of a shipped scene")
     p.add_argument("--t-end", type=float, default=None, help="end time (s); default from the scene")
     p.add_argument("--method", choices=list(METHOD_NAMES), default=None,
                    help=f"integration method (default {DEFAULT_METHOD})")
@@ -227,62 +233,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--input", default=None,
                    help="CSV of inputs: time, then input names (e.g. motor.position)")
     p.add_argument("--out", default=None, help="output CSV (default <scene name>.csv)")
-    p.set_defaults(func=cmd_simulate)
-
-    p = sub.add_parser("plot", help="plot variables of a result CSV")
+    p = _command(sub, "plot", cmd_plot, "plot variables of a result CSV",
+                 ('mbdfmu plot pendulum.csv "bob.*" -o pendulum.png',))
     p.add_argument("result")
     p.add_argument("variables", nargs="*", help="names or glob patterns (default *.x *.y *.phi)")
     p.add_argument("-o", "--output", required=True)
-    p.set_defaults(func=cmd_plot)
-
-    p = sub.add_parser("animate", help="animate a result CSV of a scene as a GIF")
+    p = _command(sub, "animate", cmd_animate, "animate a result CSV of a scene as a GIF",
+                 ("mbdfmu animate pendulum pendulum.csv -o pendulum.gif",))
     p.add_argument("scene")
     p.add_argument("result")
     p.add_argument("-o", "--output", required=True)
-    p.set_defaults(func=cmd_animate)
-
-    p = sub.add_parser("demo", help="build the slider-crank FMU, run it in fmpy, write CSV, plot, GIF")
+    p = _command(sub, "demo", cmd_demo, "build the slider-crank FMU, run it in fmpy, write "
+                 "CSV, plot, GIF", ("mbdfmu demo", "mbdfmu demo -o out"))
     p.add_argument("-o", "--output", default="mbdfmu-demo", help="output folder")
-    p.set_defaults(func=cmd_demo)
 
-    p = sub.add_parser("build", help="build the FMI 2.0 co-simulation FMU of a scene (.toml) "
-                       "or of a companion source (.py, see scenarios/)")
-    p.add_argument("scene", help="scene file (.toml) or companion FMU source (.py)")
+
+def _add_fmu_commands(sub) -> None:
+    p = _command(sub, "build", cmd_build, "build the FMI 2.0 co-simulation FMU of a scene "
+                 "(.toml) or of a companion source (.py, see scenarios/)",
+                 ("mbdfmu build slider_crank -o SliderCrank.fmu",
+                  "mbdfmu build scenarios/dc_motor_slider_crank/dc_motor.py -o DCMotor.fmu"))
+    p.add_argument("scene", help="scene file (.toml), shipped scene name, or companion "
+                   "FMU source (.py)")
     p.add_argument("-o", "--output", default=None, help="FMU file (default <scene name>.fmu)")
-    p.set_defaults(func=cmd_build)
-
-    from .bench.cases import CASES
-    from .integrators import METHODS
-    p = sub.add_parser("bench", help="work-precision and stability benchmark of every method "
-                       "(needs mbdfmu[bench])", formatter_class=argparse.RawDescriptionHelpFormatter,
-                       epilog="scenes: " + "; ".join(f"{k}: {c.title}" for k, c in CASES.items())
-                       + "\nexamples:\n  mbdfmu bench -o bench\n  mbdfmu bench P1 P3 --methods "
-                       "rk4p dop853p --scheduler tcp://10.0.0.5:8786\n  mbdfmu bench --quick "
-                       "--scheduler synchronous")
-    p.add_argument("scenes", nargs="*", metavar="SCENE",
-                   help=f"scenes to run: {' '.join(CASES)} (default all)")
-    p.add_argument("--methods", nargs="+", choices=list(METHODS), default=None,
-                   help="methods to run (default all)")
-    p.add_argument("--scheduler", default=None, help="address of a running Dask scheduler, or "
-                   "'synchronous' (default: a local cluster of 2 single-threaded workers)")
-    p.add_argument("-o", "--output", default=None,
-                   help="output folder (default bench, or the CSV's folder with --from-csv)")
-    p.add_argument("--quick", action="store_true", help="a small sweep on short horizons")
-    p.add_argument("--from-csv", default=None, metavar="CSV",
-                   help="redraw charts and summary from a results.csv, without running")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_bench)
-
-    p = sub.add_parser(
-        "cosim", help="run a co-simulation scenario (scenarios/): CSV and plot",
-        description="Run a scenario of scenarios/ (NAME, NAME:VARIANT, a folder or a "
-        "connections file) with the fmpy master, fmpy's SSP runner or OSP libcosim.",
-        epilog="examples:\n"
-        "  mbdfmu cosim dc_motor_slider_crank\n"
-        "  mbdfmu cosim hydraulic_crane --master libcosim --step 2e-3\n"
-        "  mbdfmu cosim hydraulic_crane --algorithm jacobi --variable-step\n"
-        "  mbdfmu cosim prescribed_motion:derivatives --master ssp",
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = _command(sub, "cosim", cmd_cosim, "run a co-simulation scenario (scenarios/): CSV and "
+                 "plot", ("mbdfmu cosim dc_motor_slider_crank",
+                          "mbdfmu cosim hydraulic_crane --master libcosim --step 2e-3",
+                          "mbdfmu cosim hydraulic_crane --algorithm jacobi --variable-step",
+                          "mbdfmu cosim prescribed_motion:derivatives --master ssp"),
+                 description="Run a scenario of scenarios/ (NAME, NAME:VARIANT, a folder or a "
+                 "connections file) with the fmpy master, fmpy's SSP runner or OSP libcosim.")
     p.add_argument("scenario")
     p.add_argument("--master", choices=["fmpy", "ssp", "libcosim"], default="fmpy")
     p.add_argument("--algorithm", choices=["jacobi", "gauss-seidel"], default=None,
@@ -296,7 +276,40 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--start", choices=["exchange", "zero"], default="exchange",
                    help="connected inputs start at the upstream outputs (default) or at 0")
     p.add_argument("-o", "--output", default="cosim-out", help="output folder")
-    p.set_defaults(func=cmd_cosim)
+
+
+def _add_bench_command(sub) -> None:
+    from .bench.cases import CASES
+    from .integrators import METHODS
+    p = _command(sub, "bench", cmd_bench, "work-precision and stability benchmark of every "
+                 "method (needs mbdfmu[bench])",
+                 ("mbdfmu bench -o bench",
+                  "mbdfmu bench P1 P3 --methods rk4p dop853p --scheduler tcp://10.0.0.5:8786",
+                  "mbdfmu bench --quick --scheduler synchronous"),
+                 epilog="scenes: " + "; ".join(f"{k}: {c.title}" for k, c in CASES.items()))
+    p.add_argument("scenes", nargs="*", metavar="SCENE",
+                   help=f"scenes to run: {' '.join(CASES)} (default all)")
+    p.add_argument("--methods", nargs="+", choices=list(METHODS), default=None,
+                   help="methods to run (default all)")
+    p.add_argument("--scheduler", default=None, help="address of a running Dask scheduler, or "
+                   "'synchronous' (default: a local cluster of 2 single-threaded workers)")
+    p.add_argument("-o", "--output", default=None,
+                   help="output folder (default bench, or the CSV's folder with --from-csv)")
+    p.add_argument("--quick", action="store_true", help="a small sweep on short horizons")
+    p.add_argument("--from-csv", default=None, metavar="CSV",
+                   help="redraw charts and summary from a results.csv, without running")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="mbdfmu", description="Planar multibody mechanisms as FMI 2.0 co-simulation FMUs.",
+        epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"mbdfmu {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+    _add_run_commands(sub)
+    _add_fmu_commands(sub)
+    _add_bench_command(sub)
     return parser
 
 

@@ -100,8 +100,6 @@ def animate(scene: Scene, result: Result, path: str | Path, fps: int = 25) -> Pa
                        + [outlines[GROUND]])
     lo, hi = allpts.min(axis=0), allpts.max(axis=0)
     pad = 0.1 * max(hi - lo) + 1e-3
-    from PIL import Image
-
     fig = figure(figsize=(5, 5), dpi=80)
     ax = fig.subplots()
     ax.set_xlim(lo[0] - pad, hi[0] + pad)
@@ -136,8 +134,16 @@ def animate(scene: Scene, result: Result, path: str | Path, fps: int = 25) -> Pa
             line.set_data([a[0], b[0]], [a[1], b[1]])
         label.set_text(f"t = {result.time[i]:.4f} s")
 
-    # Frames rendered here and quantized with Pillow's fast octree: matplotlib's
-    # PillowWriter spends ~50 ms a frame in the default quantizer.
+    return save_gif(fig, draw, frames, path, fps)
+
+
+def save_gif(fig, draw, frames, path: str | Path, fps: int) -> Path:
+    """Draw each frame with ``draw(i)`` and save them as a looping GIF.
+
+    Frames are rendered here and quantized with Pillow's fast octree: matplotlib's
+    PillowWriter spends ~50 ms a frame in the default quantizer."""
+    from PIL import Image
+
     images = []
     for i in frames:
         draw(i)

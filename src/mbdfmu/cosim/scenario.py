@@ -90,28 +90,21 @@ class Instance:
     source: Path
 
 
+def _part(end: str, index: int) -> property:
+    """The instance (index 0) or the variable (1) of a connection's ``end``."""
+    return property(lambda self: getattr(self, end).split(".", 1)[index])
+
+
 @dataclass(frozen=True)
 class Connection:
     """An output of one instance feeding an input of another (``instance.variable``)."""
 
     source: str
     target: str
-
-    @property
-    def source_instance(self) -> str:
-        return self.source.split(".", 1)[0]
-
-    @property
-    def source_variable(self) -> str:
-        return self.source.split(".", 1)[1]
-
-    @property
-    def target_instance(self) -> str:
-        return self.target.split(".", 1)[0]
-
-    @property
-    def target_variable(self) -> str:
-        return self.target.split(".", 1)[1]
+    source_instance = _part("source", 0)
+    source_variable = _part("source", 1)
+    target_instance = _part("target", 0)
+    target_variable = _part("target", 1)
 
 
 @dataclass(frozen=True)

@@ -68,3 +68,19 @@ class CosimSettings:
     def algorithm_for(self, scenario) -> str:
         """The algorithm that runs: as asked, else the scenario's (fmpy) or jacobi."""
         return self.algorithm or (scenario.algorithm if self.master == "fmpy" else "jacobi")
+
+
+def fixed_steps(scenario, step: float | None, t_end: float | None, algorithm: str | None,
+                master: str) -> tuple[float, float, int]:
+    """(h, t_end, steps) of a Jacobi master's fixed-step run; ``t_end`` a whole number of
+    steps."""
+    algorithm = algorithm or "jacobi"
+    if algorithm != "jacobi":
+        raise CosimError(f'{master} is a Jacobi master; "{algorithm}" is available with the '
+                         "fmpy master")
+    h = float(step or scenario.step)
+    t_end = float(t_end or scenario.t_end)
+    n = round(t_end / h)
+    if n < 1 or abs(n * h - t_end) > 1e-9 * t_end:
+        raise CosimError(f"t_end {t_end:g} s is not a whole number of steps {h:g} s")
+    return h, t_end, n

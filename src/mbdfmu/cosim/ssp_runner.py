@@ -7,7 +7,8 @@
   output the scenario records (fmpy's runner records connectors only);
 * the connections;
 * the scenario's start values as each component's parameter binding (inline
-  ``ssv:ParameterSet``; OSP libcosim reads component bindings, not system-level ones);
+  ``ssv:ParameterSet``, all named ``PARAMETER_SET``; OSP libcosim reads component bindings,
+  not system-level ones);
 * the units of the connectors, a DefaultExperiment (0 to ``t_end``) and, for OSP libcosim,
   the communication step as its ``FixedStepAlgorithm`` annotation.
 
@@ -39,7 +40,7 @@ import numpy as np
 
 from .. import __version__
 from ..result import Result
-from .settings import CosimError
+from .settings import CosimError, fixed_steps
 from .scenario import Scenario, check_variables
 
 NS = {
@@ -49,6 +50,9 @@ NS = {
     "osp": "https://opensimulationplatform.com/SSP/OSPAnnotations",
 }
 FMU_TYPE = "application/x-fmu-sharedlibrary"
+# Every component's start values form a parameter set of this one name: Ecos applies the
+# sets of the name it is given across all components, fmpy and libcosim read every set.
+PARAMETER_SET = "start values"
 BASE_UNITS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
 
 
@@ -58,6 +62,54 @@ def _q(prefix: str, tag: str) -> str:
 
 def _number(value: float) -> str:
     return repr(float(value))
+
+
+def _component(elements, scenario: Scenario, inst, md, record: list[str], units: dict) -> None:
+    """One instance as an SSD component: its connectors (with units, collected in ``units``)
+    and its start values as a parameter binding named PARAMETER_SET."""
+    variables = {v.name: v for v in md.modelVariables}
+    definitions = {u.name: u for u in md.unitDefinitions}
+    comp = SubElement(elements, _q("ssd", "Component"),
+                      {"name": inst.name, "type": FMU_TYPE,
+                       "source": f"resources/{inst.source.stem}.fmu"})
+    connectors = SubElement(comp, _q("ssd", "Connectors"))
+    start_values = scenario.instance_parameters(inst.name)
+    if start_values:
+        binding = SubElement(SubElement(comp, _q("ssd", "ParameterBindings")),
+                             _q("ssd", "ParameterBinding"))
+        pset = SubElement(SubElement(binding, _q("ssd", "ParameterValues")),
+                          _q("ssv", "ParameterSet"), {"version": "1.0", "name": PARAMETER_SET})
+        params = SubElement(pset, _q("ssv", "Parameters"))
+        for name, value in start_values.items():
+            p = SubElement(params, _q("ssv", "Parameter"), {"name": name})
+            SubElement(p, _q("ssv", "Real"), {"value": _number(value)})
+    inputs = [c.target_variable for c in scenario.connections if c.target_instance == inst.name]
+    outputs = [r.split(".", 1)[1] for r in record if r.split(".", 1)[0] == inst.name]
+    for kind, names in (("input", inputs), ("output", outputs)):
+        for name in dict.fromkeys(names):
+            con = SubElement(connectors, _q("ssd", "Connector"), {"name": name, "kind": kind})
+            real = SubElement(con, _q("ssc", "Real"))
+            unit = variables[name].unit
+            if unit:
+                real.set("unit", unit)
+                if unit in definitions:
+                    units.setdefault(unit, definitions[unit])
+
+
+def _units_and_experiment(root, units: dict, step: float, t_end: float) -> None:
+    if units:
+        ssd_units = SubElement(root, _q("ssd", "Units"))
+        for name, u in sorted(units.items()):
+            unit = SubElement(ssd_units, _q("ssc", "Unit"), {"name": name})
+            base = {k: str(getattr(u.baseUnit, k)) for k in BASE_UNITS
+                    if u.baseUnit is not None and getattr(u.baseUnit, k, 0)}
+            SubElement(unit, _q("ssc", "BaseUnit"), base)
+    experiment = SubElement(root, _q("ssd", "DefaultExperiment"),
+                            {"startTime": "0.0", "stopTime": _number(t_end)})
+    annotation = SubElement(SubElement(experiment, _q("ssd", "Annotations")),
+                            _q("ssc", "Annotation"), {"type": "com.opensimulationplatform"})
+    algorithm = SubElement(annotation, _q("osp", "Algorithm"))
+    SubElement(algorithm, _q("osp", "FixedStepAlgorithm"), {"baseStepSize": _number(step)})
 
 
 def system_structure(scenario: Scenario, descriptions: dict, step: float, t_end: float,
@@ -75,54 +127,14 @@ def system_structure(scenario: Scenario, descriptions: dict, step: float, t_end:
     elements = SubElement(system, _q("ssd", "Elements"))
     units: dict[str, object] = {}
     for inst in scenario.instances:
-        md = descriptions[inst.name]
-        variables = {v.name: v for v in md.modelVariables}
-        definitions = {u.name: u for u in md.unitDefinitions}
-        comp = SubElement(elements, _q("ssd", "Component"),
-                          {"name": inst.name, "type": FMU_TYPE,
-                           "source": f"resources/{inst.source.stem}.fmu"})
-        connectors = SubElement(comp, _q("ssd", "Connectors"))
-        start_values = scenario.instance_parameters(inst.name)
-        if start_values:
-            binding = SubElement(SubElement(comp, _q("ssd", "ParameterBindings")),
-                                 _q("ssd", "ParameterBinding"))
-            pset = SubElement(SubElement(binding, _q("ssd", "ParameterValues")),
-                              _q("ssv", "ParameterSet"),
-                              {"version": "1.0", "name": f"{inst.name} start values"})
-            params = SubElement(pset, _q("ssv", "Parameters"))
-            for name, value in start_values.items():
-                p = SubElement(params, _q("ssv", "Parameter"), {"name": name})
-                SubElement(p, _q("ssv", "Real"), {"value": _number(value)})
-        inputs = [c.target_variable for c in scenario.connections if c.target_instance == inst.name]
-        outputs = [r.split(".", 1)[1] for r in record if r.split(".", 1)[0] == inst.name]
-        for kind, names in (("input", inputs), ("output", outputs)):
-            for name in dict.fromkeys(names):
-                con = SubElement(connectors, _q("ssd", "Connector"), {"name": name, "kind": kind})
-                real = SubElement(con, _q("ssc", "Real"))
-                unit = variables[name].unit
-                if unit:
-                    real.set("unit", unit)
-                    if unit in definitions:
-                        units.setdefault(unit, definitions[unit])
+        _component(elements, scenario, inst, descriptions[inst.name], record, units)
     if scenario.connections:
         connections = SubElement(system, _q("ssd", "Connections"))
         for c in scenario.connections:
             SubElement(connections, _q("ssd", "Connection"),
                        {"startElement": c.source_instance, "startConnector": c.source_variable,
                         "endElement": c.target_instance, "endConnector": c.target_variable})
-    if units:
-        ssd_units = SubElement(root, _q("ssd", "Units"))
-        for name, u in sorted(units.items()):
-            unit = SubElement(ssd_units, _q("ssc", "Unit"), {"name": name})
-            base = {k: str(getattr(u.baseUnit, k)) for k in BASE_UNITS
-                    if u.baseUnit is not None and getattr(u.baseUnit, k, 0)}
-            SubElement(unit, _q("ssc", "BaseUnit"), base)
-    experiment = SubElement(root, _q("ssd", "DefaultExperiment"),
-                            {"startTime": "0.0", "stopTime": _number(t_end)})
-    annotation = SubElement(SubElement(experiment, _q("ssd", "Annotations")),
-                            _q("ssc", "Annotation"), {"type": "com.opensimulationplatform"})
-    algorithm = SubElement(annotation, _q("osp", "Algorithm"))
-    SubElement(algorithm, _q("osp", "FixedStepAlgorithm"), {"baseStepSize": _number(step)})
+    _units_and_experiment(root, units, step, t_end)
     indent(root)
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8")
 
@@ -212,15 +224,7 @@ def run_ssp(scenario: Scenario, fmus: dict[str, Path], ssp_path: str | Path,
     """
     from fmpy.ssp.simulation import simulate_ssp
 
-    algorithm = algorithm or "jacobi"
-    if algorithm != "jacobi":
-        raise CosimError(f'fmpy\'s SSP runner is a Jacobi master; "{algorithm}" is available '
-                         "with the fmpy master")
-    h = float(step or scenario.step)
-    t_end = float(t_end or scenario.t_end)
-    n = round(t_end / h)
-    if n < 1 or abs(n * h - t_end) > 1e-9 * t_end:
-        raise CosimError(f"t_end {t_end:g} s is not a whole number of steps {h:g} s")
+    h, t_end, n = fixed_steps(scenario, step, t_end, algorithm, "fmpy's SSP runner")
     record = list(record if record is not None else scenario.recorded())
     path = export_ssp(scenario, fmus, ssp_path, h, t_end, record)
     parameters = start_values(path)

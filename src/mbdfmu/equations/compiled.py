@@ -40,30 +40,21 @@ JacobianPlan = namedtuple("JacobianPlan", [
 
 
 @jit
-def constraint_terms(q, qd, cval, p, psi, data, gamma):
-    """Fill psi (m,), data (Psi_q's values, ``constraints.py``'s layout) and gamma (m,,
-    without c''(t)) in place, for the ``Primitives`` p.
+def _rotated(q, b, v):
+    """A_b v for body b's angle in q: (x, y)."""
+    c, s = math.cos(q[3 * b + 2]), math.sin(q[3 * b + 2])
+    return c * v[0] - s * v[1], s * v[0] + c * v[1]
 
-    q, qd: (3 nb + 3,) with the ground as body nb (zeros); cval: motion values c(t) per row.
-    ``data`` holds the constants first; the q-dependent blocks follow them in the order
-    coincidence (4 blocks of kc), line (6 blocks of kl).
-    """
-    c_rows, c_bi, c_bj, c_si, c_sj = p.c_rows, p.c_bi, p.c_bj, p.c_si, p.c_sj
-    l_rows, l_bi, l_bj, l_si, l_sj, l_u = p.l_rows, p.l_bi, p.l_bj, p.l_si, p.l_sj, p.l_u
-    a_rows, a_bi, a_bj = p.a_rows, p.a_bi, p.a_bj
-    kc, kl = c_rows.shape[0], l_rows.shape[0]
-    k0 = data.shape[0] - 4 * kc - 6 * kl
-    for r in range(gamma.shape[0]):
-        gamma[r] = 0.0
+
+@jit
+def _coincidence_terms(q, qd, cval, p, psi, data, gamma, k0):
+    """Coincidence rows (joints.py): psi, the 4 blocks of d(A s)/dphi from data[k0], gamma."""
+    kc = p.c_rows.shape[0]
     for k in range(kc):
-        i, j = c_bi[k], c_bj[k]
-        ci, si_ = math.cos(q[3 * i + 2]), math.sin(q[3 * i + 2])
-        cj, sj_ = math.cos(q[3 * j + 2]), math.sin(q[3 * j + 2])
-        aix = ci * c_si[k, 0] - si_ * c_si[k, 1]
-        aiy = si_ * c_si[k, 0] + ci * c_si[k, 1]
-        ajx = cj * c_sj[k, 0] - sj_ * c_sj[k, 1]
-        ajy = sj_ * c_sj[k, 0] + cj * c_sj[k, 1]
-        r0, r1 = c_rows[k, 0], c_rows[k, 1]
+        i, j = p.c_bi[k], p.c_bj[k]
+        aix, aiy = _rotated(q, i, p.c_si[k])
+        ajx, ajy = _rotated(q, j, p.c_sj[k])
+        r0, r1 = p.c_rows[k, 0], p.c_rows[k, 1]
         psi[r0] = q[3 * i] + aix - q[3 * j] - ajx - cval[r0]
         psi[r1] = q[3 * i + 1] + aiy - q[3 * j + 1] - ajy - cval[r1]
         data[k0 + k] = -aiy
@@ -73,20 +64,20 @@ def constraint_terms(q, qd, cval, p, psi, data, gamma):
         wi2, wj2 = qd[3 * i + 2] ** 2, qd[3 * j + 2] ** 2
         gamma[r0] = aix * wi2 - ajx * wj2
         gamma[r1] = aiy * wi2 - ajy * wj2
-    k1 = k0 + 4 * kc
+
+
+@jit
+def _line_terms(q, qd, cval, p, psi, data, gamma, k1):
+    """Line rows (joints.py): psi, the 6 blocks of Psi_q from data[k1], gamma."""
+    kl = p.l_rows.shape[0]
     for k in range(kl):
-        i, j = l_bi[k], l_bj[k]
-        ci, si_ = math.cos(q[3 * i + 2]), math.sin(q[3 * i + 2])
-        cj, sj_ = math.cos(q[3 * j + 2]), math.sin(q[3 * j + 2])
-        aix = ci * l_si[k, 0] - si_ * l_si[k, 1]
-        aiy = si_ * l_si[k, 0] + ci * l_si[k, 1]
-        ajx = cj * l_sj[k, 0] - sj_ * l_sj[k, 1]
-        ajy = sj_ * l_sj[k, 0] + cj * l_sj[k, 1]
-        ux = ci * l_u[k, 0] - si_ * l_u[k, 1]
-        uy = si_ * l_u[k, 0] + ci * l_u[k, 1]
+        i, j = p.l_bi[k], p.l_bj[k]
+        aix, aiy = _rotated(q, i, p.l_si[k])
+        ajx, ajy = _rotated(q, j, p.l_sj[k])
+        ux, uy = _rotated(q, i, p.l_u[k])
         dx = q[3 * j] + ajx - q[3 * i] - aix
         dy = q[3 * j + 1] + ajy - q[3 * i + 1] - aiy
-        row = l_rows[k]
+        row = p.l_rows[k]
         psi[row] = ux * dx + uy * dy - cval[row]
         # rot90(v) = (-v_y, v_x)
         data[k1 + k] = -ux
@@ -102,9 +93,26 @@ def constraint_terms(q, qd, cval, p, psi, data, gamma):
                       - 2.0 * wi * (-uy * ddx + ux * ddy)
                       + ux * (ajx * wj * wj - aix * wi * wi)
                       + uy * (ajy * wj * wj - aiy * wi * wi))
-    for k in range(a_rows.shape[0]):
-        row = a_rows[k]
-        psi[row] = q[3 * a_bj[k] + 2] - q[3 * a_bi[k] + 2] - cval[row]
+
+
+@jit
+def constraint_terms(q, qd, cval, p, psi, data, gamma):
+    """Fill psi (m,), data (Psi_q's values, ``constraints.py``'s layout) and gamma (m,,
+    without c''(t)) in place, for the ``Primitives`` p.
+
+    q, qd: (3 nb + 3,) with the ground as body nb (zeros); cval: motion values c(t) per row.
+    ``data`` holds the constants first; the q-dependent blocks follow them in the order
+    coincidence (4 blocks of kc), line (6 blocks of kl).
+    """
+    kc, kl = p.c_rows.shape[0], p.l_rows.shape[0]
+    k0 = data.shape[0] - 4 * kc - 6 * kl
+    for r in range(gamma.shape[0]):
+        gamma[r] = 0.0
+    _coincidence_terms(q, qd, cval, p, psi, data, gamma, k0)
+    _line_terms(q, qd, cval, p, psi, data, gamma, k0 + 4 * kc)
+    for k in range(p.a_rows.shape[0]):
+        row = p.a_rows[k]
+        psi[row] = q[3 * p.a_bj[k] + 2] - q[3 * p.a_bi[k] + 2] - cval[row]
 
 
 @jit
@@ -121,21 +129,25 @@ def terms(q, qd, cval, p, plan):
 
 
 @jit
+def pattern_product(values, out_index, in_index, x, size):
+    """sum_k values[k] x[in_index[k]] into out[out_index[k]] (size,): J x with (rows, cols),
+    J^T y with (cols, rows)."""
+    out = np.zeros(size)
+    for k in range(values.shape[0]):
+        out[out_index[k]] += values[k] * x[in_index[k]]
+    return out
+
+
+@jit
 def jac_mul(values, rows, cols, x, m):
     """J x from J's values on its pattern."""
-    y = np.zeros(m)
-    for k in range(values.shape[0]):
-        y[rows[k]] += values[k] * x[cols[k]]
-    return y
+    return pattern_product(values, rows, cols, x, m)
 
 
 @jit
 def jac_t_mul(values, rows, cols, y, n):
     """J^T y from J's values on its pattern."""
-    x = np.zeros(n)
-    for k in range(values.shape[0]):
-        x[cols[k]] += values[k] * y[rows[k]]
-    return x
+    return pattern_product(values, cols, rows, y, n)
 
 
 @jit

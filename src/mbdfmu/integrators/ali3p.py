@@ -48,8 +48,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..equations.sparsity import spd_solver
-from .base import Integrator, Option, number_in
-from .newton import IterationMatrix, advance_with_halving, newton_iterate, newton_tolerance
+from .base import Option, number_in
+from .newton import ImplicitMethod, IterationMatrix, newton_iterate, newton_tolerance
 
 # How much the penalty outweighs the largest mass (per unit of constraint gradient): large,
 # so that the iteration converges fast where the Jacobian nearly loses rank (1e8: a singular
@@ -69,7 +69,7 @@ def mass_projector(equations, J: np.ndarray):
     return lambda x, rhs: x - JMi.T @ solve(J @ x - rhs)
 
 
-class ALI3P(Integrator):
+class ALI3P(ImplicitMethod):
     """Augmented Lagrangian index-3 with projections (trapezoidal rule, fixed step)."""
 
     name = "ali3p"
@@ -77,7 +77,6 @@ class ALI3P(Integrator):
                "trapezoidal, fixed step; passes singular and redundant constraints")
     default_step = 1e-3
     options = (Option("alpha", "a positive number (N/m)", number_in(0.0, np.inf, low_open=True)),)
-    state_fields = ("qdd", "lam", "matrix")
 
     def __init__(self, equations, t0, q0, qd0, *, alpha: float | None = None, **common):
         self.alpha_option = None if alpha is None else float(alpha)
@@ -102,26 +101,14 @@ class ALI3P(Integrator):
             return self.alpha_option
         return 4.0 * self.penalty_base / (h * h)
 
-    def restart(self):
-        self.qdd, self.lam = self.accelerations(self.t, self.q, self.qd)
-        self.matrix = IterationMatrix()
-
-    def _step_impl(self, h):
-        self.stats.nrejected += advance_with_halving(self._try_step, self.t, h, self.name)
-        return True, h
-
     def _augmented_matrix(self, t, q, qd, J, lam, h, P):
         """The matrix of eq. (AL), (n + m) square."""
-        eq, n = self.equations, self.equations.n
-        S = np.zeros((n + eq.m, n + eq.m))
-        S[:n, :n] = np.diag(eq.mass) + (0.25 * h * h) * eq.constraint_hessian(q, lam)
+        eq = self.equations
+        K = np.diag(eq.mass) + (0.25 * h * h) * eq.constraint_hessian(q, lam)
         if eq.forces_depend_on_state():
             dFdq, dFdv = eq.force_jacobians(t, q, qd, self.inputs(t))
-            S[:n, :n] -= 0.5 * h * dFdv + 0.25 * h * h * dFdq
-        S[:n, n:] = J.T
-        S[n:, :n] = J
-        S[n:, n:] = -np.eye(eq.m) / P
-        return S
+            K = K - (0.5 * h * dFdv + 0.25 * h * h * dFdq)
+        return self.saddle_matrix(K, J, -np.eye(eq.m) / P)
 
     def _try_step(self, t, h):
         eq, n = self.equations, self.equations.n

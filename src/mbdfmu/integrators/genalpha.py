@@ -45,8 +45,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..equations.projection import project_velocities
-from .base import Integrator, Option, number_in
-from .newton import IterationMatrix, advance_with_halving, newton_iterate, newton_tolerance
+from .base import Option, number_in
+from .newton import ImplicitMethod, IterationMatrix, newton_iterate, newton_tolerance
 
 # Numerical damping: spectral radius at infinite frequency (1: none, 0: the most).
 RHO_INF = 0.8
@@ -60,7 +60,7 @@ def genalpha_coefficients(rho_inf: float) -> tuple[float, float, float, float]:
     return am, af, 0.25 * (gamma + 0.5) ** 2, gamma
 
 
-class GeneralizedAlpha(Integrator):
+class GeneralizedAlpha(ImplicitMethod):
     """Implicit index-3 generalized-alpha, fixed step, Newton with a scaled iteration matrix."""
 
     name = "genalpha"
@@ -79,24 +79,16 @@ class GeneralizedAlpha(Integrator):
         super().__init__(equations, t0, q0, qd0, **common)
 
     def restart(self):
-        self.qdd, self.lam = self.accelerations(self.t, self.q, self.qd)
+        super().restart()
         self.a = self.qdd.copy()
-        self.matrix = IterationMatrix()
-
-    def _step_impl(self, h):
-        self.stats.nrejected += advance_with_halving(self._try_step, self.t, h, self.name)
-        return True, h
 
     def _iteration_matrix(self, t, q, qd, J, lam, D, G):
-        eq, n = self.equations, self.equations.n
-        S = np.zeros((n + eq.m, n + eq.m))
-        S[:n, :n] = np.diag(eq.mass)
+        eq = self.equations
+        K = np.diag(eq.mass)
         if self.jacobian == "full":
             dFdq, dFdv = eq.force_jacobians(t, q, qd, self.inputs(t))
-            S[:n, :n] += D * (eq.constraint_hessian(q, lam) - dFdq) - G * dFdv
-        S[:n, n:] = J.T
-        S[n:, :n] = J
-        return S
+            K = K + D * (eq.constraint_hessian(q, lam) - dFdq) - G * dFdv
+        return self.saddle_matrix(K, J)
 
     def _try_step(self, t, h):
         """One step from (t, self.q, ...) to t + h; updates the state or raises NewtonFailure."""

@@ -1,4 +1,5 @@
-"""The Newton iteration shared by the implicit index-3 methods (``genalpha``, ``ali3p``).
+"""The Newton iteration and the base class of the implicit index-3 methods (``genalpha``,
+``ali3p``).
 
 Both solve a nonlinear system per step by Newton's method with an iteration matrix that is
 evaluated (``njev``) and factorised (``nlu``) only when needed: it is kept across iterations
@@ -16,6 +17,7 @@ import scipy.linalg
 
 from ..errors import SolverError
 from ..plain import Plain
+from .base import Integrator
 
 _getrf, _getrs = scipy.linalg.lapack.dgetrf, scipy.linalg.lapack.dgetrs
 
@@ -166,3 +168,34 @@ def advance_with_halving(try_step, t: float, h: float, name: str, depth: int = 0
                               f"{MAX_HALVINGS} times (to {h:.3g} s): {exc}", t) from None
     rejected = 1 + advance_with_halving(try_step, t, h / 2, name, depth + 1)
     return rejected + advance_with_halving(try_step, t + h / 2, h / 2, name, depth + 1)
+
+
+class ImplicitMethod(Integrator):
+    """Base of the implicit index-3 methods: q'' and lam carried from step to step, one
+    Newton iteration matrix kept across steps, a failed step halved (``_try_step(t, h)``
+    does one step or raises NewtonFailure)."""
+
+    state_fields = ("qdd", "lam", "matrix")
+
+    def restart(self):
+        self.qdd, self.lam = self.accelerations(self.t, self.q, self.qd)
+        self.matrix = IterationMatrix()
+
+    def _step_impl(self, h):
+        self.stats.nrejected += advance_with_halving(self._try_step, self.t, h, self.name)
+        return True, h
+
+    def _try_step(self, t: float, h: float) -> None:
+        raise NotImplementedError
+
+    def saddle_matrix(self, top_left: np.ndarray, J: np.ndarray,
+                      bottom_right: np.ndarray | None = None) -> np.ndarray:
+        """[[top_left, J^T], [J, bottom_right]], (n + m) square; bottom_right zero if None."""
+        n, m = self.equations.n, self.equations.m
+        S = np.zeros((n + m, n + m))
+        S[:n, :n] = top_left
+        S[:n, n:] = J.T
+        S[n:, :n] = J
+        if bottom_right is not None:
+            S[n:, n:] = bottom_right
+        return S

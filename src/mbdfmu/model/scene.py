@@ -40,14 +40,11 @@ class Body:
     angular_velocity: float = key("float", 0.0)
 
 
-@dataclass(frozen=True)
-class RevoluteJoint:
-    """point_i of body_i and point_j of body_j coincide; rotation is free.
+@dataclass(frozen=True, kw_only=True)
+class TwoBodyJoint:
+    """What every joint has: two bodies, a point on each (body-fixed, m) and the angle of the
+    frame its reactions are reported in (rad)."""
 
-    Reactions are reported on body_j in the joint frame: body_j's frame turned by
-    ``frame_angle``."""
-
-    TYPE = "revolute"
     name: str = key("str")
     body_i: str = key("str", ref="body")
     body_j: str = key("str", ref="body")
@@ -59,8 +56,18 @@ class RevoluteJoint:
         return [f'joins body "{self.body_i}" to itself'] if self.body_i == self.body_j else []
 
 
-@dataclass(frozen=True)
-class TranslationalJoint:
+@dataclass(frozen=True, kw_only=True)
+class RevoluteJoint(TwoBodyJoint):
+    """point_i of body_i and point_j of body_j coincide; rotation is free.
+
+    Reactions are reported on body_j in the joint frame: body_j's frame turned by
+    ``frame_angle``."""
+
+    TYPE = "revolute"
+
+
+@dataclass(frozen=True, kw_only=True)
+class TranslationalJoint(TwoBodyJoint):
     """point_j stays on the line through point_i along ``axis_i`` (body_i's frame); the
     relative rotation stays at its initial value.
 
@@ -68,15 +75,7 @@ class TranslationalJoint:
     ``frame_angle`` (x along the axis: no force there)."""
 
     TYPE = "translational"
-    name: str = key("str")
-    body_i: str = key("str", ref="body")
-    body_j: str = key("str", ref="body")
     axis_i: Vec2 = key("vec2", nonzero=True)
-    point_i: Vec2 = key("vec2", (0.0, 0.0))
-    point_j: Vec2 = key("vec2", (0.0, 0.0))
-    frame_angle: float = key("float", 0.0)
-
-    problems = RevoluteJoint.problems
 
 
 @dataclass(frozen=True)
