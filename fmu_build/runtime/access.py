@@ -1,0 +1,117 @@
+"""fmi2Get*/fmi2Set* for every type: value-reference, type, state and value checks.
+
+Rule for a call that names several variables (stated once, applied to every type):
+every valid entry is returned (get) or applied (set), each invalid one is skipped and
+named in the log, and the call returns the worst status of its entries:
+
+* unknown value reference, a reference of another type, a variable that may not be
+  set in this state (outputs, calculated parameters, constants, a fixed parameter after
+  fmi2ExitInitializationMode), a value of the wrong kind: fmi2Error (the instance then
+  enters the Error state, like every fmi2Error);
+* a non-finite Real value for an input or parameter: fmi2Discard, the value is not
+  applied and the previous one is kept, so the master can send a finite value and go
+  on (FMI 2.0 section 2.1.3: a value "outside of its domain" is what fmi2Discard is for).
+
+A skipped get entry comes back as NaN, 0, false or "".
+"""
+
+from __future__ import annotations
+
+import math
+
+from . import status
+from .machine import State
+from .variables import INT32_MAX, INT32_MIN, Variable
+
+# Placeholder returned for a get entry that was skipped.
+SKIPPED = {"Real": math.nan, "Integer": 0, "Boolean": False, "String": b""}
+# Causalities the host never sets, as messages name them.
+NOT_SETTABLE = {"output": "an output", "calculatedParameter": "a calculated parameter",
+                "local": "a local variable"}
+
+
+def settable_problem(v: Variable, state: State) -> str | None:
+    """Why ``v`` cannot be set in ``state`` (FMI 2.0 section 4.2.4, table notes), or None."""
+    if v.variability == "constant":
+        return f'"{v.name}" is a constant and cannot be set'
+    if v.causality in NOT_SETTABLE:
+        return f'"{v.name}" is {NOT_SETTABLE[v.causality]} and cannot be set'
+    if state is State.STEP_COMPLETE and v.causality == "parameter" and v.variability == "fixed":
+        return (f'parameter "{v.name}" is fixed: it can be set only before '
+                "fmi2ExitInitializationMode")
+    if state is State.INITIALIZATION_MODE and v.initial == "approx":
+        return f'"{v.name}" has initial="approx" and can be set only before fmi2EnterInitializationMode'
+    return None
+
+
+def to_c(v: Variable, value):
+    """``value`` converted to what the C wrapper copies into the caller's array."""
+    if v.type == "Real":
+        return float(value)
+    if v.type == "Integer":
+        value = int(value)
+        if not INT32_MIN <= value <= INT32_MAX:
+            raise OverflowError(f"{value} does not fit in a 32-bit fmi2Integer")
+        return value
+    if v.type == "Boolean":
+        return bool(value)
+    return str(value).encode("utf-8")
+
+
+def from_c(v: Variable, value):
+    """The host's value for ``v`` as held in ``Slave.values``; raises ValueError if invalid.
+
+    The wrapper passes fmi2Real as float, fmi2Integer and fmi2Boolean as int, fmi2String as
+    bytes (the C string without its terminating NUL).
+    """
+    if v.type == "Real":
+        return float(value)
+    if v.type == "Integer":
+        return int(value)
+    if v.type == "Boolean":
+        return value != 0
+    return bytes(value).decode("utf-8")
+
+
+def get_values(slave, type_name: str, vrs) -> tuple[int, tuple]:
+    """The values of ``vrs``; see the module docstring for the mixed-call rule."""
+    table, values, log = slave.variables, slave.values, slave._fmi_log
+    code, out = status.OK, []
+    for vr in vrs:
+        v = table.by_vr.get((type_name, vr))
+        if v is None:
+            reason = table.lookup(type_name, vr)[1]
+        else:
+            try:
+                out.append(to_c(v, values[v.name]))
+                continue
+            except (TypeError, ValueError, OverflowError) as exc:
+                reason = f'"{v.name}" holds {values[v.name]!r}, not a {type_name}: {exc}'
+        log.status(status.ERROR, f"fmi2Get{type_name}: {reason}")
+        code = status.ERROR
+        out.append(SKIPPED[type_name])
+    return code, tuple(out)
+
+
+def set_values(slave, type_name: str, vrs, new_values) -> int:
+    """Apply ``new_values`` to ``vrs``; see the module docstring for the mixed-call rule."""
+    table, values, log, state = slave.variables, slave.values, slave._fmi_log, slave._fmi_state
+    code = status.OK
+    for vr, raw in zip(vrs, new_values):
+        v, reason = table.lookup(type_name, vr)
+        worst = status.ERROR
+        if v is not None:
+            reason = settable_problem(v, state)
+        if reason is None:
+            try:
+                value = from_c(v, raw)
+            except (TypeError, ValueError) as exc:
+                value, reason = None, f'"{v.name}": {exc}'
+            if reason is None and type_name == "Real" and not math.isfinite(value):
+                reason, worst = f'"{v.name}" = {value} is not finite; value not applied', status.DISCARD
+        if reason is None:
+            values[v.name] = value
+            continue
+        log.status(worst, f"fmi2Set{type_name}: {reason}")
+        code = max(code, worst)
+    return code
