@@ -259,7 +259,8 @@ static int ensure_python(const char *resources, char *error, size_t size) {
     pthread_mutex_lock(&python_lock);
     if (python_ready) { pthread_mutex_unlock(&python_lock); return 1; }
     int (*is_initialized)(void) = (int (*)(void))dlsym(RTLD_DEFAULT, "Py_IsInitialized");
-    void *handle = RTLD_DEFAULT;
+    void *handle = RTLD_DEFAULT;     /* NULL in glibc: `found` says whether we have one */
+    int found = 1;
     char library[4096] = "", home[4096] = "", config_path[4200], version[64] = "3";
     snprintf(config_path, sizeof config_path, "%s/mbdfmu.json", resources);
     char *config = read_file(config_path);
@@ -270,22 +271,25 @@ static int ensure_python(const char *resources, char *error, size_t size) {
         else if (config && json_string(config, "python_library", library, sizeof library))
             json_string(config, "python_home", home, sizeof home);   /* the recorded pair */
         if (env_home && *env_home) snprintf(home, sizeof home, "%s", env_home);
+        found = 0;
         if (!*library)
             snprintf(error, size, "fmi2Instantiate: this FMU runs Python %s and no Python "
                      "library was recorded at build time: set MBDFMU_PYTHON_LIBRARY to the "
                      "path of a libpython3.X.so.1.0 (CPython 3.10+ with numpy)", version);
-        else if (!(handle = dlopen(library, RTLD_NOW | RTLD_GLOBAL)))
+        else if ((handle = dlopen(library, RTLD_NOW | RTLD_GLOBAL)))
+            found = 1;
+        else
             snprintf(error, size, "fmi2Instantiate: cannot load the Python library %s (%s): "
                      "set MBDFMU_PYTHON_LIBRARY to the libpython3.X.so.1.0 of a CPython 3.10+ "
                      "with numpy (the FMU was built with Python %s)", library, dlerror(), version);
     }
     free(config);
-    const char *missing = handle ? resolve(handle) : "";
-    if (handle && missing)
+    const char *missing = found ? resolve(handle) : "";
+    if (found && missing)
         snprintf(error, size, "fmi2Instantiate: the Python library %s lacks %s: set "
                  "MBDFMU_PYTHON_LIBRARY to a CPython 3.10+ libpython", *library ? library
                  : "of this process", missing);
-    if (handle && !missing) {
+    if (found && !missing) {
         if (!py.Py_IsInitialized()) {
             set_home(handle, home);
             py.Py_InitializeEx(0);
@@ -576,7 +580,7 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fm
         status = reject(in, "fmi2SetupExperiment", "startTime, stopTime and tolerance must be "
                         "finite numbers");
     else
-        status = call(in, M_SETUP_EXPERIMENT, py.Py_BuildValue("(ididd)", toleranceDefined,
+        status = call(in, M_SETUP_EXPERIMENT, py.Py_BuildValue("(iddid)", toleranceDefined,
                       tolerance, startTime, stopTimeDefined, stopTime), NULL);
     LEAVE();
 }
