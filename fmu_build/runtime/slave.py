@@ -13,7 +13,8 @@ and implements only what the model does:
    repeatable).
 3. ``save_state()`` / ``restore_state(tree)``: the model's own state beyond
    ``self.values`` as a tree of dict, list, str, int, float, bool, None and numpy arrays
-   (both copied by the base). Default: no own state.
+   (both copied by the base). Default: no own state. ``check_state(tree)`` returns why a
+   tree read from bytes cannot be restored (types, shapes), or None.
 4. optional: ``setup()`` (once, at instantiation), ``on_terminate()``, ``on_free()``,
    ``directional_derivative``, ``set_input_derivatives``, ``output_derivatives``.
 
@@ -78,6 +79,10 @@ class Slave(StateProtocol):
 
     def restore_state(self, tree) -> None:
         """Restore what ``save_state`` returned (a copy the model may keep)."""
+
+    def check_state(self, tree) -> str | None:
+        """Why ``tree`` (read from bytes by fmi2DeSerializeFMUstate) cannot be restored."""
+        return None
 
     def on_terminate(self) -> None:
         """At fmi2Terminate."""

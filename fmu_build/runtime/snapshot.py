@@ -114,7 +114,7 @@ class StateProtocol:
             tree = state_format.loads(blob, self.guid)
         except state_format.StateFormatError as exc:
             raise FmiError(f"refused: {exc}") from None
-        problem = tree_problem(tree, self.variables)
+        problem = tree_problem(tree, self.variables) or self.check_state(tree["model"])
         if problem:
             raise FmiError(f"refused: {problem}")
         return status.OK, FmuState(self.guid, tree)

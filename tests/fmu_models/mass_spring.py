@@ -67,8 +67,14 @@ class Model(Slave):
     def save_state(self):
         return {"state": self.state}
 
-    def restore_state(self, tree):
-        state = tree["state"]
+    def check_state(self, tree):
+        state = tree.get("state") if isinstance(tree, dict) else None
         if not (isinstance(state, np.ndarray) and state.shape == (2,) and state.dtype == float):
-            raise ValueError("the model state must be a float array of shape (2,)")
-        self.state = state
+            return "the model state must be {'state': a float array of shape (2,)}"
+        return None
+
+    def restore_state(self, tree):
+        problem = self.check_state(tree)
+        if problem:
+            raise ValueError(problem)
+        self.state = tree["state"]
