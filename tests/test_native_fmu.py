@@ -598,3 +598,42 @@ def test_the_wrapper_is_compiled_once_per_source_and_compiler(workdir):
 def test_same_inputs_give_the_same_fmu_bytes(workdir, toy):
     again = build_toy(workdir / "again.fmu", cache_dir=workdir / "cache")
     assert again.read_bytes() == toy.read_bytes()
+
+
+# ------------------------------------------------------------------ Ecos (pip install ecospy; apt-get install libtbb12)
+
+def test_ecos_command_line_host_runs_the_fmu_from_a_clean_environment(toy, tmp_path):
+    """Ecos' C++ command line has no Python inside; its CSV has 6 decimals."""
+    ecospy = pytest.importorskip("ecospy", reason="pip install ecospy (and apt-get install libtbb12)")
+    import subprocess
+    shipped = Path(ecospy.__file__).parent / "binaries" / "ecos"
+    ecos = tmp_path / "ecos"
+    shutil.copy(shipped, ecos)
+    ecos.chmod(0o755)
+    run = subprocess.run([str(ecos), "simulate", "--path", str(toy), "--stopTime", "1",
+                          "--stepSize", repr(H)], capture_output=True, text=True, timeout=120,
+                         cwd=tmp_path, env=hosts.clean_env(tmp_path))
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
+    rows = (tmp_path / f"{IDENTIFIER}.csv").read_text().splitlines()
+    header = [name.strip() for name in rows[0].split(",")]
+    columns = list(zip(*(map(str.strip, row.split(",")) for row in rows[1:])))
+    times = [float(t) for t in columns[header.index("time")]]
+    xs = [float(x) for x in columns[header.index("instance::x[REAL]")]]
+    assert len(times) >= 100
+    for t, x in zip(times, xs):
+        assert abs(x - closed_form(t)[0]) <= 5e-7, (t, x)
+
+
+def test_ecospy_runs_the_fmu_like_the_closed_form(toy):
+    pytest.importorskip("ecospy", reason="pip install ecospy (and apt-get install libtbb12)")
+    from ecospy.EcosSimulation import EcosSimulation
+    from ecospy.EcosSimulationStructure import EcosSimulationStructure
+    structure = EcosSimulationStructure()
+    structure.add_model("toy", str(toy))
+    simulation = EcosSimulation(structure=structure, step_size=H)
+    simulation.init()
+    simulation.step(100)
+    t, x = simulation.get_time(), simulation.get_real("toy::x")
+    simulation.terminate()
+    simulation.free()
+    assert t == pytest.approx(1.0, abs=1e-12) and abs(x - closed_form(t)[0]) <= 1e-9
