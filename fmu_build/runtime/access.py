@@ -30,60 +30,56 @@ NOT_SETTABLE = {"output": "an output", "calculatedParameter": "a calculated para
                 "local": "a local variable"}
 
 
-def settable_problem(v: Variable, state: State) -> str | None:
+def settable_problem(v: Variable, state: str) -> str | None:
     """Why ``v`` cannot be set in ``state`` (FMI 2.0 section 4.2.4, table notes), or None."""
     if v.variability == "constant":
         return f'"{v.name}" is a constant and cannot be set'
     if v.causality in NOT_SETTABLE:
         return f'"{v.name}" is {NOT_SETTABLE[v.causality]} and cannot be set'
-    if state is State.STEP_COMPLETE and v.causality == "parameter" and v.variability == "fixed":
+    if state == State.STEP_COMPLETE and v.causality == "parameter" and v.variability == "fixed":
         return (f'parameter "{v.name}" is fixed: it can be set only before '
                 "fmi2ExitInitializationMode")
-    if state is State.INITIALIZATION_MODE and v.initial == "approx":
+    if state == State.INITIALIZATION_MODE and v.initial == "approx":
         return f'"{v.name}" has initial="approx" and can be set only before fmi2EnterInitializationMode'
     return None
 
 
-def to_c(v: Variable, value):
-    """``value`` converted to what the C wrapper copies into the caller's array."""
-    if v.type == "Real":
-        return float(value)
-    if v.type == "Integer":
-        value = int(value)
-        if not INT32_MIN <= value <= INT32_MAX:
-            raise OverflowError(f"{value} does not fit in a 32-bit fmi2Integer")
-        return value
-    if v.type == "Boolean":
-        return bool(value)
+def _int32(value) -> int:
+    value = int(value)
+    if not INT32_MIN <= value <= INT32_MAX:
+        raise OverflowError(f"{value} does not fit in a 32-bit fmi2Integer")
+    return value
+
+
+def _utf8(value) -> bytes:
     return str(value).encode("utf-8")
 
 
-def from_c(v: Variable, value):
-    """The host's value for ``v`` as held in ``Slave.values``; raises ValueError if invalid.
+# A value as the C wrapper copies it into the caller's array, per FMI type.
+TO_C = {"Real": float, "Integer": _int32, "Boolean": bool, "String": _utf8}
 
-    The wrapper passes fmi2Real as float, fmi2Integer and fmi2Boolean as int, fmi2String as
-    bytes (the C string without its terminating NUL).
-    """
-    if v.type == "Real":
-        return float(value)
-    if v.type == "Integer":
-        return int(value)
-    if v.type == "Boolean":
-        return value != 0
+
+def _from_utf8(value) -> str:
     return bytes(value).decode("utf-8")
+
+
+# The host's value as held in ``Slave.values``, per FMI type. The wrapper passes fmi2Real
+# as float, fmi2Integer and fmi2Boolean as int, fmi2String as bytes (without the NUL).
+FROM_C = {"Real": float, "Integer": int, "Boolean": bool, "String": _from_utf8}
 
 
 def get_values(slave, type_name: str, vrs) -> tuple[int, tuple]:
     """The values of ``vrs``; see the module docstring for the mixed-call rule."""
     table, values, log = slave.variables, slave.values, slave._fmi_log
+    by_vr, convert = table.by_type[type_name], TO_C[type_name]
     code, out = status.OK, []
     for vr in vrs:
-        v = table.by_vr.get((type_name, vr))
+        v = by_vr.get(vr)
         if v is None:
             reason = table.lookup(type_name, vr)[1]
         else:
             try:
-                out.append(to_c(v, values[v.name]))
+                out.append(convert(values[v.name]))
                 continue
             except (TypeError, ValueError, OverflowError) as exc:
                 reason = f'"{v.name}" holds {values[v.name]!r}, not a {type_name}: {exc}'
@@ -91,6 +87,42 @@ def get_values(slave, type_name: str, vrs) -> tuple[int, tuple]:
         code = status.ERROR
         out.append(SKIPPED[type_name])
     return code, tuple(out)
+
+
+def fast_get(slave, type_name: str, vrs) -> tuple | None:
+    """All values when every entry is valid (the usual case, in one pass), else None."""
+    by_vr, convert, values = slave.variables.by_type[type_name], TO_C[type_name], slave.values
+    try:
+        return tuple([convert(values[by_vr[vr].name]) for vr in vrs])
+    except (KeyError, TypeError, ValueError, OverflowError):
+        return None
+
+
+def settable_names(table, state: str, type_name: str) -> dict[int, str]:
+    """Value reference -> name of the variables of ``type_name`` settable in ``state``."""
+    key = (state, type_name)
+    if key not in table.cache:
+        table.cache[key] = {vr: v.name for vr, v in table.by_type[type_name].items()
+                            if settable_problem(v, state) is None}
+    return table.cache[key]
+
+
+def fast_set(slave, type_name: str, vrs, new_values) -> bool:
+    """Apply every value and return True when all are valid (the usual case); else
+    change nothing and return False, so that ``set_values`` names each problem."""
+    table = slave.variables
+    names = table.cache.get((slave._fmi_state, type_name))
+    if names is None:
+        names = settable_names(table, slave._fmi_state, type_name)
+    try:
+        if type_name == "Real" and not all(map(math.isfinite, new_values)):
+            return False
+        convert = FROM_C[type_name]
+        pairs = [(names[vr], convert(x)) for vr, x in zip(vrs, new_values)]
+    except (KeyError, TypeError, ValueError):
+        return False
+    slave.values.update(pairs)
+    return True
 
 
 def set_values(slave, type_name: str, vrs, new_values) -> int:
@@ -104,7 +136,7 @@ def set_values(slave, type_name: str, vrs, new_values) -> int:
             reason = settable_problem(v, state)
         if reason is None:
             try:
-                value = from_c(v, raw)
+                value = FROM_C[type_name](raw)
             except (TypeError, ValueError) as exc:
                 value, reason = None, f'"{v.name}": {exc}'
             if reason is None and type_name == "Real" and not math.isfinite(value):

@@ -35,7 +35,7 @@ from pathlib import Path
 
 from . import access, status
 from .log import LogQueue
-from .machine import State, fmi_function, refusal
+from .machine import ALLOWED, State, fmi_function, refusal
 from .snapshot import StateProtocol
 from .status import Discard, FmiError
 from .variables import VariableTable
@@ -45,6 +45,8 @@ TIME_TOLERANCE = 1e-9
 # FMI 2.0 fmi2StatusKind values and which fmi2Get*Status function answers each.
 DO_STEP_STATUS, PENDING_STATUS, LAST_SUCCESSFUL_TIME, TERMINATED = range(4)
 STATUS_ANSWERS = {("Real", LAST_SUCCESSFUL_TIME), ("Boolean", TERMINATED)}
+# States where getting and setting values is allowed (the same for every type).
+GET_STATES, SET_STATES = ALLOWED["fmi2GetReal"], ALLOWED["fmi2SetReal"]
 
 
 class Slave(StateProtocol):
@@ -193,16 +195,20 @@ class Slave(StateProtocol):
 
     def fmi2_get(self, type_name: str, vrs: tuple):
         """fmi2GetReal/Integer/Boolean/String; payload: a tuple of values (String: bytes)."""
-        function = f"fmi2Get{type_name}"
-        skipped = tuple(access.SKIPPED[type_name] for _ in vrs)
-        reason = refusal(function, self._fmi_state)
-        if reason is not None:
-            return self._fmi_error(reason), skipped
+        if self._fmi_state == State.STEP_COMPLETE:
+            values = access.fast_get(self, type_name, vrs)
+            if values is not None:
+                return status.OK, values
+        function = "fmi2Get" + type_name
+        if self._fmi_state not in GET_STATES:
+            skipped = tuple(access.SKIPPED[type_name] for _ in vrs)
+            return self._fmi_error(refusal(function, self._fmi_state)), skipped
         try:
-            if self._fmi_state is State.INITIALIZATION_MODE:
+            if self._fmi_state == State.INITIALIZATION_MODE:
                 self._fmi_refresh()
             code, values = access.get_values(self, type_name, vrs)
         except BaseException as exc:  # noqa: B902 - nothing may reach the C side
+            skipped = tuple(access.SKIPPED[type_name] for _ in vrs)
             return self._fmi_error(f"{function}: {type(exc).__name__}: {exc}"), skipped
         if code == status.ERROR:
             self._fmi_state = State.ERROR
@@ -210,10 +216,11 @@ class Slave(StateProtocol):
 
     def fmi2_set(self, type_name: str, vrs: tuple, values: tuple):
         """fmi2SetReal/Integer/Boolean/String (String values: bytes)."""
-        function = f"fmi2Set{type_name}"
-        reason = refusal(function, self._fmi_state)
-        if reason is not None:
-            return self._fmi_error(reason), None
+        if self._fmi_state == State.STEP_COMPLETE and access.fast_set(self, type_name, vrs, values):
+            return status.OK, None
+        function = "fmi2Set" + type_name
+        if self._fmi_state not in SET_STATES:
+            return self._fmi_error(refusal(function, self._fmi_state)), None
         try:
             code = access.set_values(self, type_name, vrs, values)
         except BaseException as exc:  # noqa: B902

@@ -23,7 +23,7 @@ TREE_VERSION = 1
 KEYS = {"version", "state", "time", "start_time", "stop_time", "dirty",
         "terminate_requested", "values", "model"}
 # States a saved state may be in (a state is never taken in the Error state).
-RESTORABLE = {s.value: s for s in State if s is not State.ERROR}
+RESTORABLE = frozenset(State.ALL) - {State.ERROR}
 
 
 class FmuState:
@@ -81,7 +81,7 @@ class StateProtocol:
 
     @fmi_function("fmi2GetFMUstate")
     def fmi2_get_fmu_state(self):
-        tree = {"version": TREE_VERSION, "state": self._fmi_state.value, "time": self._fmi_time,
+        tree = {"version": TREE_VERSION, "state": self._fmi_state, "time": self._fmi_time,
                 "start_time": self.start_time, "stop_time": self.stop_time, "dirty": self._fmi_dirty,
                 "terminate_requested": self._fmi_terminate, "values": dict(self.values),
                 "model": copy_tree(self.save_state())}
@@ -96,7 +96,7 @@ class StateProtocol:
         self.values = dict(tree["values"])
         self._fmi_time, self.start_time, self.stop_time = tree["time"], tree["start_time"], tree["stop_time"]
         self._fmi_dirty, self._fmi_terminate = tree["dirty"], tree["terminate_requested"]
-        self._fmi_state = State(tree["state"])
+        self._fmi_state = tree["state"]
         return status.OK, None
 
     @fmi_function("fmi2SerializeFMUstate")

@@ -127,11 +127,14 @@ class VariableTable:
     variables: tuple[Variable, ...]
     by_vr: dict[tuple[str, int], Variable] = field(init=False)
     by_name: dict[str, Variable] = field(init=False)
+    by_type: dict[str, dict[int, Variable]] = field(init=False)
+    cache: dict = field(init=False, default_factory=dict)   # derived lookups (access.py)
 
     def __post_init__(self):
         self.variables = tuple(self.variables)
         self.by_vr = {}
         self.by_name = {}
+        self.by_type = {t: {} for t in TYPES}
         for v in self.variables:
             if v.name in self.by_name:
                 raise VariableError(f'variable "{v.name}" is declared twice')
@@ -140,6 +143,7 @@ class VariableTable:
                 raise VariableError(f'"{v.name}" and "{other}" share {v.type} value reference '
                                     f'{v.value_reference}')
             self.by_vr[(v.type, v.value_reference)] = v
+            self.by_type[v.type][v.value_reference] = v
             self.by_name[v.name] = v
         for v in self.variables:
             for name in (v.dependencies or ()) + (v.initial_dependencies or ()):

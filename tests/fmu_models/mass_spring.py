@@ -50,6 +50,7 @@ class Model(Slave):
             raise ValueError(f"damping ratio {zeta} must be in [0, 1) (underdamped)")
         self.state = np.array([v["x0"], v["v0"]], dtype=float)
         v["x"], v["v"] = float(self.state[0]), float(self.state[1])
+        self.log(f"initialized: x = {v['x']} m, v = {v['v']} m/s", "logModel")
 
     def step(self, time, step_size):
         v = self.values
@@ -62,7 +63,6 @@ class Model(Slave):
         rest = np.array([v["F"] / v["k"], 0.0])
         self.state = transition(v["m"], v["k"], v["c"], step_size) @ (self.state - rest) + rest
         v["x"], v["v"] = float(self.state[0]), float(self.state[1])
-        self.log(f"t = {time + step_size}: x = {v['x']}", "logModel")
 
     def save_state(self):
         return {"state": self.state}

@@ -42,7 +42,7 @@ def build_toy(output: Path, cache_dir: Path | None = None, source: str | None = 
     """Write the toy FMU (``source`` replaces the model module, for variants)."""
     return write_fmu(output, IDENTIFIER, VARIABLES, source or SOURCE.read_text(),
                      description="Damped mass-spring driven by a force (test model)",
-                     log_categories={"logModel": "Position after each step"},
+                     log_categories={"logModel": "The initial state"},
                      default_experiment=DefaultExperiment(0.0, stop_time, step_size),
                      cache_dir=cache_dir)
 
