@@ -3,7 +3,8 @@
 Both FMUs are the damped mass-spring of tests/fmu_models (the same numpy step: a 2x2
 transition matrix per step); only the FMU runtime differs. Each figure is the fastest of
 ``--repeats`` timings of ``--calls`` calls through fmpy's FMU2Slave in this one process
-(the fastest is the least disturbed by the other work on a shared machine).
+(the fastest is the least disturbed by the other work on a shared machine); the two
+runtimes alternate within each repeat.
 
     python benchmarks/fmu_native_vs_pythonfmu.py [--calls 5000] [--repeats 7] [-o DIR]
 
@@ -80,39 +81,48 @@ def build_both(folder: Path) -> dict[str, Path]:
             "pythonfmu": pythonfmu}
 
 
-def best_time(function, calls: int, repeats: int) -> float:
-    """Fastest of ``repeats`` timings of ``calls`` calls, in microseconds per call."""
-    best = float("inf")
-    for _ in range(repeats):
-        start = time.perf_counter()
-        for _ in range(calls):
-            function()
-        best = min(best, (time.perf_counter() - start) / calls)
-    return best * 1e6
-
-
-def measure(path: Path, calls: int, repeats: int) -> dict[str, float]:
-    """Microseconds per doStep, getReal (1 and 2 values) and setReal through FMU2Slave."""
+def open_slave(path: Path) -> tuple[FMU2Slave, dict[str, int]]:
+    """An initialized instance of the FMU at ``path`` and its value references."""
     md = read_model_description(path)
-    vr = {v.name: v.valueReference for v in md.modelVariables}
     fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(path),
                     modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bench")
     fmu.instantiate()
     fmu.setupExperiment(startTime=0.0)
     fmu.enterInitializationMode()
     fmu.exitInitializationMode()
+    return fmu, {v.name: v.valueReference for v in md.modelVariables}
+
+
+def calls(fmu: FMU2Slave, vr: dict[str, int]) -> dict:
+    """The calls timed: name -> function doing one call."""
     clock = {"t": 0.0}
 
     def step():
         fmu.doStep(clock["t"], 1e-4)
         clock["t"] += 1e-4
-    figures = {"doStep": best_time(step, calls, repeats),
-               "getReal x": best_time(lambda: fmu.getReal([vr["x"]]), calls, repeats),
-               "getReal x, v": best_time(lambda: fmu.getReal([vr["x"], vr["v"]]), calls, repeats),
-               "setReal F": best_time(lambda: fmu.setReal([vr["F"]], [0.5]), calls, repeats)}
-    fmu.terminate()
-    fmu.freeInstance()
-    return figures
+    return {"doStep": step, "getReal x": lambda: fmu.getReal([vr["x"]]),
+            "getReal x, v": lambda: fmu.getReal([vr["x"], vr["v"]]),
+            "setReal F": lambda: fmu.setReal([vr["F"]], [0.5])}
+
+
+def measure(fmus: dict[str, Path], n: int, repeats: int) -> list[dict]:
+    """Microseconds per call, fastest of ``repeats``; the runtimes alternate within each
+    repeat, so both see the same load of a shared machine."""
+    opened = {name: open_slave(path) for name, path in fmus.items()}
+    timed = {name: calls(*pair) for name, pair in opened.items()}
+    best = {name: {call: float("inf") for call in timed[name]} for name in timed}
+    for _ in range(repeats):
+        for call in next(iter(timed.values())):
+            for name in timed:
+                function = timed[name][call]
+                start = time.perf_counter()
+                for _ in range(n):
+                    function()
+                best[name][call] = min(best[name][call], (time.perf_counter() - start) / n * 1e6)
+    for fmu, _ in opened.values():
+        fmu.terminate()
+        fmu.freeInstance()
+    return [{"runtime": name, **figures} for name, figures in best.items()]
 
 
 def main(argv=None) -> int:
@@ -124,8 +134,7 @@ def main(argv=None) -> int:
     out = args.out or Path(tempfile.mkdtemp(prefix="fmu_cost_"))
     out.mkdir(parents=True, exist_ok=True)
     fmus = build_both(out)
-    rows = [{"runtime": name, **measure(path, args.calls, args.repeats)}
-            for name, path in fmus.items()]
+    rows = measure(fmus, args.calls, args.repeats)
     with open(out / "fmu_native_vs_pythonfmu.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
