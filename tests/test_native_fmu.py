@@ -60,7 +60,7 @@ def test_libcosim_matches_the_closed_form(toy):
     assert abs(hosts.result(run.stdout) - closed_form(1.0)[0]) <= 1e-9
 
 
-@pytest.mark.parametrize("kind", ["fmpy", "libcosim", "checker"])
+@pytest.mark.parametrize("kind", ["fmpy", "libcosim", "libcosim then fmpy", "checker"])
 def test_fresh_processes_load_step_free_and_exit_cleanly(toy, tmp_path, kind):
     """The exit crash of pythonfmu FMUs (SIGSEGV / abort after numpy) must not happen."""
     runs = 10
@@ -71,10 +71,12 @@ def test_fresh_processes_load_step_free_and_exit_cleanly(toy, tmp_path, kind):
             (tmp_path / str(i)).mkdir()
             run = hosts.run_checker(toy, tmp_path / str(i), stop=0.1, h=H)
         else:
-            if kind == "libcosim":
+            if kind != "fmpy":
                 pytest.importorskip("libcosimpy")
-            script = hosts.FMPY_RUN if kind == "fmpy" else hosts.LIBCOSIM_RUN
+            script = {"fmpy": hosts.FMPY_RUN, "libcosim": hosts.LIBCOSIM_RUN,
+                      "libcosim then fmpy": hosts.LIBCOSIM_THEN_FMPY}[kind]
             run = hosts.run_python(script, toy, 10, H)
+            assert abs(hosts.result(run.stdout) - closed_form(10 * H)[0]) <= 1e-9, run.stdout
         assert run.returncode == 0, (i, run.returncode, run.stderr[-2000:])
 
 

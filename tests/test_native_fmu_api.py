@@ -110,6 +110,16 @@ def test_unknown_string_reference_in_a_mixed_get_keeps_the_valid_string(host):
     assert "fmi2GetString: unknown String value reference 777" in h.last()[2]
 
 
+def test_unknown_string_reference_in_a_mixed_set_applies_the_valid_string(host):
+    h = host().init()
+    new = (ctypes.c_char_p * 2)(b"renamed", b"lost")
+    assert h.status("fmi2SetString", (ctypes.c_uint * 2)(VR["label"], 777), 2, new) == ERROR
+    assert "fmi2SetString: unknown String value reference 777" in h.last()[2]
+    values = (ctypes.c_char_p * 1)()
+    assert h.status("fmi2GetString", (ctypes.c_uint * 1)(VR["label"]), 1, values) == OK
+    assert values[0] == b"renamed"
+
+
 def test_a_reference_of_another_type_is_an_error_naming_the_variable(host):
     h = host().init()
     code, values = h.get_real(VR["label"])

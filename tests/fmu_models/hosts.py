@@ -56,6 +56,9 @@ assert execution.simulate_until(target_time=int(round(steps * h * 1e9)))
 print("RESULT", repr(observer.last_real_values(index, [vr["x"]])[0]))
 '''
 
+# Findings D9: libcosim, then fmpy, on the same FMU file in one process.
+LIBCOSIM_THEN_FMPY = LIBCOSIM_RUN + FMPY_RUN
+
 # A C host with no Python: dlopen the FMU's binary, run `steps` steps of two instances of
 # each FMU given, print x of each, free, dlclose, exit 0 (3 when instantiate fails).
 HOST_C = r'''
