@@ -141,7 +141,7 @@ def test_a_python_without_numpy_fails_instantiate_with_one_clear_line(c_host, un
 # ------------------------------------------------------------------ build
 
 def test_no_compiler_fails_the_build_with_one_line(monkeypatch, tmp_path, workdir):
-    from fmu_build.native import CompileError, compile_wrapper
+    from mbdfmu.fmu_build.native import CompileError, compile_wrapper
     monkeypatch.setenv("CC", "no-such-cc")
     with pytest.raises(CompileError) as info:
         compile_wrapper(tmp_path)
@@ -150,7 +150,7 @@ def test_no_compiler_fails_the_build_with_one_line(monkeypatch, tmp_path, workdi
 
 
 def test_the_wrapper_is_compiled_once_per_source_and_compiler(workdir):
-    from fmu_build.native import compile_wrapper
+    from mbdfmu.fmu_build.native import compile_wrapper
     first = compile_wrapper(workdir / "cache")
     stamp = first.stat().st_mtime_ns
     assert compile_wrapper(workdir / "cache") == first and first.stat().st_mtime_ns == stamp

@@ -18,7 +18,7 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2FMUstate)
 
-from fmu_build.runtime import state_format
+from mbdfmu.fmu_build.runtime import state_format
 from fmu_models.toy import F, IDENTIFIER, VR, build_toy, closed_form
 
 OK, WARNING, DISCARD, ERROR, FATAL = range(5)

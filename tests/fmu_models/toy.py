@@ -5,9 +5,9 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from fmu_build.model_description import DefaultExperiment
-from fmu_build.package import write_fmu
-from fmu_build.runtime.variables import Variable
+from mbdfmu.fmu_build.model_description import DefaultExperiment
+from mbdfmu.fmu_build.package import write_fmu
+from mbdfmu.fmu_build.runtime.variables import Variable
 
 SOURCE = Path(__file__).with_name("mass_spring.py")
 IDENTIFIER = "MassSpring"
