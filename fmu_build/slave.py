@@ -220,7 +220,10 @@ class MbdfmuSlave(Fmi2Slave):
         # numpy kernel unless asked otherwise: numba would compile its kernel anew in every
         # fresh extraction of the FMU (seconds at instantiation), see docs/performance.md
         kernel = os.environ.get("MBDFMU_KERNEL") or "numpy"
-        return self._core.Simulation(scene, kernel=kernel, settings=settings, t0=self._t0)
+        sim = self._core.Simulation(scene, kernel=kernel, settings=settings, t0=self._t0)
+        for line in sim.warnings:      # initial values the scene gave that assembly changed
+            self.log(f"initial conditions: {line}", Fmi2Status.warning)
+        return sim
 
     def setup_experiment(self, start_time, stop_time=None, tolerance=None):
         def start():

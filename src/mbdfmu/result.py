@@ -29,6 +29,7 @@ class Result:
     units: dict[str, str] = field(default_factory=dict)
     method: str = ""
     stats: dict[str, int] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name == "time":

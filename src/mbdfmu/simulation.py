@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from .equations import Equations
-from .equations.projection import ASSEMBLY_TOL, assemble, project_positions, project_velocities
+from .equations.projection import (ASSEMBLY_TOL, assemble, assembly_changes, initial_estimates,
+                                   project_positions, project_velocities)
 from .errors import InputError, SettingError, SolverError
 from .integrators import make_integrator
 from .integrators.settings import SolverSettings, settings_from_scene
@@ -57,6 +58,9 @@ class Simulation:
         self._forces = {name: Held(np.zeros(len(f))) for name, f in layout.fields.items()}
         self._inputs_changed = False
         q0, qd0 = assemble(self.equations, t0, self.inputs_at(t0))
+        # what assembly changed of the scene's initial values, for the user to see
+        self.warnings = assembly_changes(self.equations, initial_estimates(self.equations),
+                                         (q0, qd0))
         self.integrator = make_integrator(
             None, self.equations, t0, q0, qd0, self.settings, inputs=self.inputs_at,
             output_interval=self.settings.output_interval_for(scene.simulation.t_end))
@@ -278,4 +282,4 @@ def simulate(scene: Scene | str | Path, t_end: float | None = None, method=None,
     return Result(time=times, names=list(sim.output_names), values=np.array(rows),
                   q=np.array(qs), qd=np.array(qds), qdd=np.array(qdds), lam=np.array(lams),
                   units=dict(sim.units), method=sim.method_name,
-                  stats=vars(sim.integrator.stats).copy())
+                  stats=vars(sim.integrator.stats).copy(), warnings=list(sim.warnings))

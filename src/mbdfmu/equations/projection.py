@@ -24,6 +24,11 @@ ASSEMBLY_MAX_ITER = 60
 PROJECTION_MAX_ITER = 8
 # Residual (relative to the mechanism's length scale) at which positions count as assembled.
 ASSEMBLY_TOL = 1e-12
+# A velocity changed by more than this (relative to max(1, |v|)) is reported as changed.
+VELOCITY_CHANGE_TOL = 1e-9
+# Each coordinate's scene key, component (None: a scalar) and unit: positions, velocities.
+POSITION_KEYS = (("position", 0, "m"), ("position", 1, "m"), ("angle", None, "rad"))
+VELOCITY_KEYS = (("velocity", 0, "m/s"), ("velocity", 1, "m/s"), ("angular_velocity", None, "rad/s"))
 
 
 def project_positions(system: Equations, t: float, q: np.ndarray, *, tol: float,
@@ -104,3 +109,28 @@ def assemble(system: Equations, t: float = 0.0,
                      + ", ".join(report.redundant) + " repeat others)")
         raise AssemblyError(f"{scene.source}: cannot be assembled at t = {t:g}: {what}") from None
     return q, project_velocities(system, t, q, qd, u)
+
+
+def assembly_changes(system: Equations, given: tuple[np.ndarray, np.ndarray],
+                     assembled: tuple[np.ndarray, np.ndarray]) -> list[str]:
+    """One line for each value the scene gave that assembly changed: a position beyond the
+    assembly tolerance, or a velocity the projection onto the velocity constraints changed
+    (``given`` and ``assembled`` are (q, q') pairs). Values the scene left to their
+    defaults are not reported."""
+    q0, qd0 = given
+    q, qd = assembled
+    lines = []
+    for k, body in enumerate(system.scene.bodies):
+        for c in range(3):
+            i = 3 * k + c
+            for keys, old, new, stage in ((POSITION_KEYS, q0[i], q[i], "assembly"),
+                                          (VELOCITY_KEYS, qd0[i], qd[i], "the velocity projection")):
+                name, index, unit = keys[c]
+                limit = (ASSEMBLY_TOL * system.length_scale if keys is POSITION_KEYS
+                         else VELOCITY_CHANGE_TOL * max(1.0, abs(old), abs(new)))
+                if body.gave(name) and abs(new - old) > limit:
+                    label = name if index is None else f"{name}[{index}]"
+                    lines.append(f'body "{body.name}": {label} = {old:.6g} {unit} as given, '
+                                 f"{new:.6g} after {stage} (changed by {new - old:+.3g}): the "
+                                 "joints and drivers allow no other")
+    return lines

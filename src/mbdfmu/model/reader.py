@@ -73,6 +73,8 @@ def read_item(kind: str, raw: Any, where: str, problems: Problems):
     t.finish()
     if not t.ok:
         return None
+    if cls is Body:
+        values["given"] = frozenset(t.data)
     item = cls(**values)
     for problem in getattr(item, "problems", lambda: [])():
         problems.add(where, problem)

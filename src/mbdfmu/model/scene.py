@@ -38,6 +38,12 @@ class Body:
     angle: float = key("float", 0.0)
     velocity: Vec2 = key("vec2", (0.0, 0.0))
     angular_velocity: float = key("float", 0.0)
+    # The keys the scene file gave (None: every field, as for a body made in Python);
+    # assembly reports a change only of what was given (``projection.assembly_changes``).
+    given: frozenset[str] | None = field(default=None, compare=False, repr=False)
+
+    def gave(self, name: str) -> bool:
+        return self.given is None or name in self.given
 
 
 @dataclass(frozen=True, kw_only=True)
