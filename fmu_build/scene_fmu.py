@@ -20,7 +20,6 @@ pythonfmu cannot express units, unit definitions or a generation tool of our own
 
 from __future__ import annotations
 
-import fnmatch
 import json
 import re
 import shutil
@@ -35,7 +34,7 @@ from ..integrators import METHOD_NAMES
 from ..integrators.settings import settings_from_scene
 from ..model.reader import resolve_scene_path, scene_from_dict
 from ..model.toml_table import load_toml
-from ..model.variables import inputs, outputs, parameters
+from ..model.variables import inputs, parameters, selected_outputs
 from ..errors import SceneError
 from .common import CAPABILITIES, BuildError, build_isolated, digest
 
@@ -72,19 +71,13 @@ def base_units(unit: str) -> dict[str, int]:
     return {k: v for k, v in exponents.items() if v}
 
 
-def select_outputs(scene, variables) -> list:
-    """The scene's ``outputs`` globs, or every body state, joint reaction, driver effort."""
-    names = [v.name for v in variables]
-    if scene.outputs is not None:
-        patterns = list(scene.outputs)
-        unmatched = [p for p in patterns if not fnmatch.filter(names, p)]
-        if unmatched:
-            raise BuildError(f"{scene.source}: outputs {unmatched} match no variable; "
-                             f"this scene's outputs: {', '.join(names)}")
-    else:
-        patterns = ([f"{b.name}.*" for b in scene.bodies] + [f"{j.name}.*" for j in scene.joints]
-                    + [f"{d.name}.effort" for d in scene.drivers])
-    return [v for v in variables if any(fnmatch.fnmatchcase(v.name, p) for p in patterns)]
+def select_outputs(scene) -> list:
+    """The scene's ``outputs`` globs, or every body state, joint reaction, driver effort
+    (``model.variables.selected_outputs``, which linearize uses too)."""
+    try:
+        return selected_outputs(scene)
+    except SceneError as exc:
+        raise BuildError(str(exc)) from None
 
 
 def solver_variables(scene) -> tuple[list[tuple], dict]:
@@ -113,7 +106,7 @@ def variable_table(scene) -> tuple[list[tuple], dict]:
     rows += solver_rows
     rows += [(v.name, "input", "Real", v.unit, v.description) for v in inputs(scene)]
     rows += [(v.name, "output", "Real", v.unit, v.description)
-             for v in select_outputs(scene, outputs(scene))]
+             for v in select_outputs(scene)]
     return rows, solver_values
 
 

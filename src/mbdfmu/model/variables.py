@@ -12,12 +12,13 @@ input sits in the ``InputValues`` passed to the equations). Units: SI, with ``{p
 from __future__ import annotations
 
 import dataclasses
+import fnmatch
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import Problems, suggest
+from ..errors import Problems, SceneError, suggest
 from .motion import ConstantMotion, HarmonicMotion, LinearMotion, PolynomialMotion
 from .scene import (Body, Driver, PointForce, RevoluteJoint, RotationalSpringDamper, Scene,
                     SpringDamper, Torque, TranslationalJoint, driver_is_angular, driven_body)
@@ -208,6 +209,24 @@ def outputs(scene: Scene) -> list[Variable]:
     items = [_make(scene, item, s) for item in _items(scene)
              for s in TABLES[type(item)].outputs if s.applies(item)]
     return items + list(GLOBAL_OUTPUTS)
+
+
+def selected_outputs(scene: Scene) -> list[Variable]:
+    """The outputs a scene reports by default (its FMU's outputs): those its ``outputs``
+    globs match, else every body state, joint reaction and driver effort. SceneError when a
+    glob matches nothing."""
+    variables = outputs(scene)
+    names = [v.name for v in variables]
+    if scene.outputs is not None:
+        patterns = list(scene.outputs)
+        unmatched = [p for p in patterns if not fnmatch.filter(names, p)]
+        if unmatched:
+            raise SceneError(f"{scene.source}: outputs {unmatched} match no variable; "
+                             f"this scene's outputs: {', '.join(names)}")
+    else:
+        patterns = ([f"{b.name}.*" for b in scene.bodies] + [f"{j.name}.*" for j in scene.joints]
+                    + [f"{d.name}.effort" for d in scene.drivers])
+    return [v for v in variables if any(fnmatch.fnmatchcase(v.name, p) for p in patterns)]
 
 
 def _check_value(spec: Spec, name: str, value: float) -> str | None:
