@@ -8,14 +8,16 @@ from pathlib import Path
 from .common import BuildError
 
 
-def build(path, output=None) -> Path:
+def build(path, output=None, parameters=None) -> Path:
     """``mbdfmu build``: a scene or a companion source into an FMI 2.0 co-simulation FMU;
-    returns the FMU's path."""
+    returns the FMU's path. ``parameters``: start values of a scene FMU's parameters."""
     if Path(path).suffix == ".py":
+        if parameters:
+            raise BuildError(f"{path}: --set applies to scene FMUs, not to companion sources")
         from .companion import build_companion
         return build_companion(path, output)
     from .scene_fmu import build_fmu
-    return build_fmu(path, output)
+    return build_fmu(path, output, parameters=parameters)
 
 
 __all__ = ["BuildError", "build"]

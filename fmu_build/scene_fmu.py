@@ -33,7 +33,7 @@ from ..equations.projection import assemble
 from ..integrators import METHOD_NAMES
 from ..integrators.settings import settings_from_scene
 from ..model.reader import resolve_scene_path, scene_from_dict
-from ..model.toml_table import load_toml
+from ..model.toml_table import load_toml, tomllib
 from ..model.variables import inputs, parameters, selected_outputs
 from ..errors import SceneError
 from .common import CAPABILITIES, BuildError, build_isolated, digest
@@ -132,12 +132,36 @@ def render_slave(model: dict, variables: list[tuple], class_name: str) -> str:
     return text.replace(TEMPLATE_CLASS, class_name)
 
 
-def build_fmu(scene_path, output=None) -> Path:
+def with_start_values(scene_path: Path, parameters: dict) -> tuple[dict, str]:
+    """The scene's data and TOML text with ``parameters`` (names as the FMU's, solver.*
+    included) as the values of the scene's keys, so that the FMU's start values are them."""
+    import tomlkit
+
+    from ..model.writer import set_parameters
+    text = scene_path.read_text(encoding="utf-8")
+    scene = scene_from_dict(load_toml(scene_path, SceneError), source=scene_path.name)
+    doc = tomlkit.parse(text)
+    set_parameters(doc, scene, {k: v for k, v in parameters.items()
+                                if not k.startswith("solver.")})
+    for name, value in parameters.items():
+        if name.startswith("solver."):
+            if name not in {row[0] for row in solver_variables(scene)[0]}:
+                raise BuildError(f"{scene_path.name}: unknown parameter {name!r}")
+            doc.setdefault("simulation", tomlkit.table())[name[len("solver."):]] = value
+    text = tomlkit.dumps(doc)
+    return tomllib.loads(text), text
+
+
+def build_fmu(scene_path, output=None, parameters=None) -> Path:
     """Build the FMU of a scene file (or a shipped scene's name); returns its path (default
-    ``<Model>.fmu`` in the cwd)."""
+    ``<Model>.fmu`` in the cwd). ``parameters``: start values of the FMU's parameters
+    (names as in its model description), checked as the FMU checks them."""
     from pythonfmu import __version__ as pythonfmu_version
     scene_path = resolve_scene_path(scene_path)
-    scene_data = load_toml(scene_path, SceneError)
+    if parameters:
+        scene_data, scene_text = with_start_values(scene_path, parameters)
+    else:
+        scene_data, scene_text = load_toml(scene_path, SceneError), None
     scene = scene_from_dict(scene_data, source=scene_path.name)
     name = scene.name
     assemble(Equations(scene, kernel="numpy"))   # a scene that cannot start is no FMU
@@ -183,7 +207,10 @@ def build_fmu(scene_path, output=None) -> Path:
             target.parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(f, target)
         (stage / "scene.json").write_bytes(scene_json)
-        shutil.copyfile(scene_path, stage / "scene.toml")
+        if scene_text is None:
+            shutil.copyfile(scene_path, stage / "scene.toml")
+        else:
+            (stage / "scene.toml").write_text(scene_text, encoding="utf-8")
         fmu = build_isolated(
             script, dest=output, own_modules={module, model["core_package"]},
             project_files=[core, stage / "scene.json", stage / "scene.toml"], **CAPABILITIES)

@@ -14,17 +14,25 @@ import numpy as np
 
 from . import __version__
 from .errors import InputError, MbdfmuError
+from .cli_analysis import SCENE_HELP
+from .cli_options import (SOLVER_NAMES, Ticker, add_progress_option, add_set_option,
+                          parse_assignments, print_warnings, progress_bar, show_progress,
+                          split_solver)
 from .integrators import DEFAULT_METHOD, METHOD_NAMES, SUMMARIES
 
 EXAMPLES = """examples:
   mbdfmu demo                                   slider-crank FMU run in fmpy: CSV, plot, GIF
-  mbdfmu check scenes/slider_crank.toml         bodies, joints, degrees of freedom
-  mbdfmu simulate scenes/pendulum.toml --t-end 10 --rtol 1e-10 --out pendulum.csv
+  mbdfmu check slider_crank                     bodies, joints, degrees of freedom
+  mbdfmu simulate pendulum --t-end 10 --rtol 1e-10 --out pendulum.csv
   mbdfmu plot pendulum.csv "bob.*" -o pendulum.png
-  mbdfmu animate scenes/pendulum.toml pendulum.csv -o pendulum.gif
-  mbdfmu build scenes/slider_crank.toml -o SliderCrank.fmu
+  mbdfmu animate pendulum pendulum.csv -o pendulum.gif
+  mbdfmu equilibrium double_pendulum            where it rests, and whether that is stable
+  mbdfmu linearize double_pendulum --equilibrium   A, B, C, D, frequencies, damping ratios
+  mbdfmu sweep slider_crank --set load.fx=-100:0:10 --set rod.mass=0.1:0.5:10 --t-end 0.02
+  mbdfmu build slider_crank -o SliderCrank.fmu --set load.fx=-50
   mbdfmu build scenarios/dc_motor_slider_crank/dc_motor.py -o DCMotor.fmu
   mbdfmu cosim hydraulic_crane --master libcosim   co-simulation scenario: CSV and plot
+scenes: a .toml file, or a shipped scene's name (%s)
 """
 
 
@@ -39,7 +47,7 @@ def _methods_help() -> str:
 
 def cmd_check(args) -> int:
     from .equations import Equations
-    from .equations.projection import assemble, initial_estimates, rank_report
+    from .equations.projection import assemble, assembly_changes, initial_estimates, rank_report
     from .integrators.settings import settings_from_scene
     from .model import load_scene
     from .model.variables import inputs
@@ -50,6 +58,7 @@ def cmd_check(args) -> int:
     q_est, _ = initial_estimates(system)
     residual0 = float(np.linalg.norm(system.constraints(0.0, q_est)[0])) if system.m else 0.0
     q, qd = assemble(system)
+    changes = assembly_changes(system, initial_estimates(system), (q, qd))
     residual = float(np.linalg.norm(system.constraints(0.0, q)[0])) if system.m else 0.0
     report = rank_report(system, 0.0, q)
     print(f"scene {scene.name}: {scene.description}")
@@ -70,6 +79,7 @@ def cmd_check(args) -> int:
     print("  redundant constraints: " + (", ".join(report.redundant) or "none"))
     print(f"  assembly residual: {residual0:.3g} as given, {residual:.3g} after assembly")
     print(f"  inputs: {', '.join(v.name for v in inputs(scene)) or 'none'}")
+    print_warnings("check", changes)
     return 0
 
 
@@ -89,38 +99,58 @@ def _read_inputs(path: str):
 def cmd_simulate(args) -> int:
     from .integrators.settings import settings_from_scene
     from .model import load_scene
+    from .model.variables import with_parameters
     from .simulation import check_t_end, simulate
 
     scene = load_scene(args.scene)
-    settings = settings_from_scene(scene).updated(
+    params, solver = split_solver(parse_assignments(args.set))
+    scene = with_parameters(scene, params) if params else scene
+    settings = settings_from_scene(scene).updated(names=SOLVER_NAMES, **solver).updated(
         names=FLAGS, method=args.method, step=args.step, rtol=args.rtol, atol=args.atol,
         output_interval=args.output_interval)
     t_end = check_t_end(args.t_end, "--t-end") if args.t_end is not None else None
     inputs = _read_inputs(args.input) if args.input else None
-    result = simulate(scene, t_end, inputs=inputs, settings=settings)
+    horizon = t_end if t_end is not None else scene.simulation.t_end
+    with progress_bar(args, horizon, "simulate", "s") as bar:
+        result = simulate(scene, t_end, inputs=inputs, settings=settings,
+                          progress=lambda t: bar.update(t - bar.n))
     out = Path(args.out or f"{scene.name}.csv")
     result.to_csv(out)
+    print_warnings("simulate", result.warnings)
     print(f"{scene.name}: {len(result.time)} points to t = {result.time[-1]:g} s with "
           f"{result.method} ({result.stats['nsteps']} steps) -> {out}")
+    if result.method_reason:
+        print(f"  auto picked {result.method.split('->')[-1]}: {result.method_reason}")
     return 0
 
 
 def cmd_plot(args) -> int:
-    from .plotting import plot_result
+    from .model import load_scene
+    from .plotting import plot_result, scene_units, show
     from .result import read_csv
 
     result = read_csv(args.result)
-    out = plot_result(result, args.variables, args.output, title=Path(args.result).stem)
-    print(out)
+    if args.scene:
+        result.units = scene_units(load_scene(args.scene))
+    out = args.output or Path(args.result).with_suffix(".png").name
+    fig_path = plot_result(result, args.variables, out, title=Path(args.result).stem)
+    print(fig_path)
+    if args.show:
+        print(show(result, args.variables, title=Path(args.result).stem))
     return 0
 
 
 def cmd_animate(args) -> int:
     from .model import load_scene
-    from .plotting import animate
+    from .animation import animate
     from .result import read_csv
 
-    out = animate(load_scene(args.scene), read_csv(args.result), args.output)
+    result = read_csv(args.result)
+    with progress_bar(args, 1, "animate", "frame") as bar:
+        def advance(done: int, total: int) -> None:
+            bar.total = total
+            bar.update(done - bar.n)
+        out = animate(load_scene(args.scene), result, args.output, progress=advance)
     print(out)
     return 0
 
@@ -133,7 +163,8 @@ def cmd_demo(args) -> int:
     from .model import load_scene
     from .model.reader import bundled_scene
     from .model.variables import outputs
-    from .plotting import animate, plot_result
+    from .animation import animate
+    from .plotting import plot_result
     from .result import Result
 
     out = Path(args.output)
@@ -164,7 +195,9 @@ def cmd_demo(args) -> int:
 def cmd_build(args) -> int:
     from .fmu_build import build  # a scene (.toml) or a companion source (.py)
 
-    path = build(args.scene, output=args.output)
+    with Ticker(args, "build"):
+        path = build(args.scene, output=args.output,
+                     parameters=parse_assignments(args.set) or None)
     print(path)
     return 0
 
@@ -176,7 +209,7 @@ def cmd_bench(args) -> int:
         done = sweep.redraw(args.from_csv, args.output)
     else:
         done = sweep.run_bench(args.scenes, methods=args.methods, scheduler=args.scheduler,
-                               output=args.output, quick=args.quick, progress=not args.no_progress)
+                               output=args.output, quick=args.quick, progress=show_progress(args))
     print(f"{len(done['rows'])} runs -> {done['csv']}, {done['summary']}, "
           f"{len(done['charts'])} charts in {Path(done['summary']).parent}")
     return 0
@@ -187,10 +220,11 @@ def cmd_cosim(args) -> int:
     from .cosim.settings import CosimSettings
 
     out = Path(args.output)
-    run = cosimulate(args.scenario, CosimSettings(
-        master=args.master, algorithm=args.algorithm, step=args.step, t_end=args.t_end,
-        variable_step=args.variable_step, rtol=args.rtol, start=args.start),
-        work_dir=out / "fmus")
+    with Ticker(args, "cosim"):
+        run = cosimulate(args.scenario, CosimSettings(
+            master=args.master, algorithm=args.algorithm, step=args.step, t_end=args.t_end,
+            variable_step=args.variable_step, rtol=args.rtol, start=args.start),
+            work_dir=out / "fmus")
     r = run.result
     stats = ", ".join(f"{k} {v:g}" for k, v in r.stats.items())
     print(f"{run.scenario.name}: {r.method}, {len(r.time)} points to t = {r.time[-1]:g} s "
@@ -215,13 +249,14 @@ def _command(sub, name: str, func, help: str, examples: tuple[str, ...] = (), ep
 
 def _add_run_commands(sub) -> None:
     p = _command(sub, "check", cmd_check, "load, validate and assemble a scene; print its "
-                 "structure", ("mbdfmu check slider_crank", "mbdfmu check my_scene.toml"))
-    p.add_argument("scene", help="scene file (.toml) or the name of a shipped scene")
+                 "structure and what assembly changed",
+                 ("mbdfmu check slider_crank", "mbdfmu check my_scene.toml"))
+    p.add_argument("scene", help=SCENE_HELP)
     p = _command(sub, "simulate", cmd_simulate, "simulate a scene and write a CSV",
                  ("mbdfmu simulate pendulum --t-end 10 --rtol 1e-10 --out pendulum.csv",
                   "mbdfmu simulate slider_force --input push.csv --method rk4p --step 1e-4"),
                  epilog=f"methods: {_methods_help()}")
-    p.add_argument("scene", help="scene file (.toml) or the name of a shipped scene")
+    p.add_argument("scene", help=SCENE_HELP)
     p.add_argument("--t-end", type=float, default=None, help="end time (s); default from the scene")
     p.add_argument("--method", choices=list(METHOD_NAMES), default=None,
                    help=f"integration method (default {DEFAULT_METHOD})")
@@ -233,16 +268,24 @@ def _add_run_commands(sub) -> None:
     p.add_argument("--input", default=None,
                    help="CSV of inputs: time, then input names (e.g. motor.position)")
     p.add_argument("--out", default=None, help="output CSV (default <scene name>.csv)")
-    p = _command(sub, "plot", cmd_plot, "plot variables of a result CSV",
-                 ('mbdfmu plot pendulum.csv "bob.*" -o pendulum.png',))
-    p.add_argument("result")
+    add_set_option(p, "parameter or solver setting")
+    add_progress_option(p)
+    p = _command(sub, "plot", cmd_plot, "plot variables of a result CSV (mbdfmu's or fmpy's), "
+                 "one axis per unit",
+                 ('mbdfmu plot pendulum.csv "bob.*" -o pendulum.png',
+                  'mbdfmu plot out.csv "*.phi" "motor.effort" --scene slider_crank --show'))
+    p.add_argument("result", help="CSV with time first (mbdfmu simulate, fmpy simulate)")
     p.add_argument("variables", nargs="*", help="names or glob patterns (default *.x *.y *.phi)")
-    p.add_argument("-o", "--output", required=True)
+    p.add_argument("-o", "--output", default=None, help="PNG file (default <result>.png)")
+    p.add_argument("--scene", default=None,
+                   help="the scene the result is of: exact units (else from the names)")
+    p.add_argument("--show", action="store_true", help="also open a window (needs a display)")
     p = _command(sub, "animate", cmd_animate, "animate a result CSV of a scene as a GIF",
                  ("mbdfmu animate pendulum pendulum.csv -o pendulum.gif",))
-    p.add_argument("scene")
-    p.add_argument("result")
-    p.add_argument("-o", "--output", required=True)
+    p.add_argument("scene", help=SCENE_HELP)
+    p.add_argument("result", help="CSV of a run of that scene")
+    p.add_argument("-o", "--output", required=True, help="GIF file")
+    add_progress_option(p)
     p = _command(sub, "demo", cmd_demo, "build the slider-crank FMU, run it in fmpy, write "
                  "CSV, plot, GIF", ("mbdfmu demo", "mbdfmu demo -o out"))
     p.add_argument("-o", "--output", default="mbdfmu-demo", help="output folder")
@@ -256,6 +299,8 @@ def _add_fmu_commands(sub) -> None:
     p.add_argument("scene", help="scene file (.toml), shipped scene name, or companion "
                    "FMU source (.py)")
     p.add_argument("-o", "--output", default=None, help="FMU file (default <scene name>.fmu)")
+    add_set_option(p, "parameter's start value in the FMU")
+    add_progress_option(p)
     p = _command(sub, "cosim", cmd_cosim, "run a co-simulation scenario (scenarios/): CSV and "
                  "plot", ("mbdfmu cosim dc_motor_slider_crank",
                           "mbdfmu cosim hydraulic_crane --master libcosim --step 2e-3",
@@ -276,6 +321,7 @@ def _add_fmu_commands(sub) -> None:
     p.add_argument("--start", choices=["exchange", "zero"], default="exchange",
                    help="connected inputs start at the upstream outputs (default) or at 0")
     p.add_argument("-o", "--output", default="cosim-out", help="output folder")
+    add_progress_option(p)
 
 
 def _add_bench_command(sub) -> None:
@@ -292,22 +338,28 @@ def _add_bench_command(sub) -> None:
     p.add_argument("--methods", nargs="+", choices=list(METHODS), default=None,
                    help="methods to run (default all)")
     p.add_argument("--scheduler", default=None, help="address of a running Dask scheduler, or "
-                   "'synchronous' (default: a local cluster of 2 single-threaded workers)")
+                   "'synchronous' (default: a local cluster, one single-threaded worker per "
+                   "core)")
     p.add_argument("-o", "--output", default=None,
                    help="output folder (default bench, or the CSV's folder with --from-csv)")
     p.add_argument("--quick", action="store_true", help="a small sweep on short horizons")
     p.add_argument("--from-csv", default=None, metavar="CSV",
                    help="redraw charts and summary from a results.csv, without running")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_progress_option(p)
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .cli_analysis import add_analysis_commands
+    from .model.reader import shipped_scene_names
+
     parser = argparse.ArgumentParser(
         prog="mbdfmu", description="Planar multibody mechanisms as FMI 2.0 co-simulation FMUs.",
-        epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+        epilog=EXAMPLES % ", ".join(shipped_scene_names()),
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"mbdfmu {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     _add_run_commands(sub)
+    add_analysis_commands(sub, _command)
     _add_fmu_commands(sub)
     _add_bench_command(sub)
     return parser

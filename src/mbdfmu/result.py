@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,6 +29,7 @@ class Result:
     lam: np.ndarray | None = None
     units: dict[str, str] = field(default_factory=dict)
     method: str = ""
+    method_reason: str = ""
     stats: dict[str, int] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
 
@@ -52,11 +54,12 @@ class Result:
 
 
 def read_csv(path: str | Path) -> Result:
-    """Read a CSV written by ``Result.to_csv`` (or any table with a ``time`` column first)."""
+    """Read a CSV written by ``Result.to_csv``, by fmpy (quoted names) or any table with a
+    ``time`` column first."""
     path = Path(path)
     try:
-        with open(path, encoding="utf-8") as fh:
-            header = fh.readline().strip().split(",")
+        with open(path, encoding="utf-8", newline="") as fh:
+            header = next(csv.reader(fh), [])
         data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: cannot read as CSV: {exc}") from None

@@ -252,14 +252,16 @@ def check_t_end(t_end, name: str = "t_end", where: str = "") -> float:
 def simulate(scene: Scene | str | Path, t_end: float | None = None, method=None, step=None,
              rtol=None, atol=None, output_interval=None, inputs=None,
              method_options: dict | None = None, kernel: str | None = None, *,
-             settings: SolverSettings | None = None) -> Result:
+             settings: SolverSettings | None = None, progress=None) -> Result:
     """Simulate a scene (or a scene file) from 0 to ``t_end`` and return every variable.
 
     ``inputs``: a structured array with ``time`` first and input names as columns (forces
     interpolated linearly; driver positions by splines), or a dict ``{item: signal(t)}``.
     ``method_options``: the method's own settings (see ``METHODS[name].option_names``).
-    ``kernel``: "numpy" or "numba" (default: numba when installed). Every setting is checked
-    before any work (``SettingError``).
+    ``kernel``: "numpy" or "numba" (default: numba when installed). ``progress``: called
+    with each output time reached (a progress bar). Every setting is checked before any
+    work (``SettingError``). ``Result.warnings`` lists the initial values that assembly
+    changed.
     """
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
@@ -279,7 +281,9 @@ def simulate(scene: Scene | str | Path, t_end: float | None = None, method=None,
         qdd, lam = sim.accelerations()
         rows.append(sim.output_vector())
         qs.append(sim.q.copy()), qds.append(sim.qd.copy()), qdds.append(qdd), lams.append(lam)
+        if progress is not None:
+            progress(float(t))
     return Result(time=times, names=list(sim.output_names), values=np.array(rows),
                   q=np.array(qs), qd=np.array(qds), qdd=np.array(qdds), lam=np.array(lams),
-                  units=dict(sim.units), method=sim.method_name,
+                  units=dict(sim.units), method=sim.method_name, method_reason=sim.method_reason,
                   stats=vars(sim.integrator.stats).copy(), warnings=list(sim.warnings))

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..equations import Equations
-from ..equations.projection import ASSEMBLY_MAX_ITER, ASSEMBLY_TOL, assemble, project_positions
+from ..equations.projection import ASSEMBLY_MAX_ITER, ASSEMBLY_TOL, assemble
 from ..errors import SolverError
 from ..model.scene import Scene
 from .operating import MinimalCoordinates, coordinate_names, held_scene, null_space, prepare
@@ -134,8 +134,17 @@ class _Statics:
         return -V.T @ F, K, V, lam, scale
 
     def retract(self, q: np.ndarray) -> np.ndarray:
-        return project_positions(self.eq, 0.0, q, tol=self.tol, max_iter=ASSEMBLY_MAX_ITER,
-                                 u=self.u)[0]
+        """The nearest point of the manifold (Newton with the minimum-norm correction,
+        not mass-weighted: statics has no masses, and a tiny inertia must not decide)."""
+        eq, q = self.eq, q.copy()
+        for _ in range(ASSEMBLY_MAX_ITER):
+            if not eq.m:
+                return q
+            Psi, J = eq.constraints(0.0, q, u=self.u)
+            if np.max(np.abs(Psi)) <= self.tol:
+                return q
+            q -= np.linalg.lstsq(J, Psi, rcond=None)[0]
+        raise SolverError("the step left the constraint manifold too far to return", 0.0)
 
     def converged(self, g: np.ndarray, K: np.ndarray, scale: float) -> bool:
         """The reduced force is below GRADIENT_RTOL of the forces and the Newton step it

@@ -47,6 +47,9 @@ from .operating import MinimalCoordinates, input_values, input_vector, prepare
 FD_STEP = 6e-6
 # Eigenvalues below this (1/s) count as zero: no frequency, no damping ratio.
 ZERO_EIGENVALUE = 1e-9
+# Damping ratios below this are round-off of an undamped mode (the differences carry
+# errors near 1e-10 of the eigenvalue): reported as 0.
+ROUND_OFF_RATIO = 1e-9
 
 
 @dataclass
@@ -105,8 +108,13 @@ def modes(A: np.ndarray):
                                                    lam[k].real))
     lam = lam[order]
     wn = np.abs(lam)
-    zeta = [None if w <= ZERO_EIGENVALUE else float(-e.real / w) + 0.0 for e, w in zip(lam, wn)]
+    zeta = [None if w <= ZERO_EIGENVALUE else _clean(-e.real / w) for e, w in zip(lam, wn)]
     return lam, wn / (2 * math.pi), zeta
+
+
+def _clean(ratio: float) -> float:
+    """A damping ratio, with round-off (below ROUND_OFF_RATIO) shown as 0."""
+    return 0.0 if abs(ratio) < ROUND_OFF_RATIO else float(ratio)
 
 
 class _ReducedModel:

@@ -96,7 +96,8 @@ def partition(J: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     """(independent, dependent) coordinate indices at a configuration with Jacobian J."""
     if J.shape[0] == 0:
         return np.arange(n), np.zeros(0, dtype=int)
-    weights = np.tile([1.0, 1.0, ANGLE_WEIGHT], n // 3)
+    # angles preferred as independent; among equals, the first bodies' coordinates
+    weights = np.tile([1.0, 1.0, ANGLE_WEIGHT], n // 3) * (1.0 + 1e-3 * np.arange(n) / n)
     for w in (weights, np.ones(n)):
         perm, rank = _pivoted(J, w)
         dependent = np.sort(perm[:rank])

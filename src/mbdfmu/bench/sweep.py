@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import csv
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -53,8 +54,9 @@ STABLE_CONSTRAINT_DRIFT = 1e-6  # times the scene's length scale
 STABLE_ENERGY_DRIFT = 1e-3      # relative to the largest kinetic energy
 UNSTABLE_CONSTRAINT_DRIFT = 1e-1
 UNSTABLE_ERROR = 1e-1           # in the scene's error units (m or rad on metre-sized scenes)
-# Dask: a local cluster of this many single-threaded worker processes.
-LOCAL_WORKERS = 2
+# Dask: a local cluster of this many single-threaded worker processes: one per core.
+LOCAL_WORKERS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+                    else os.cpu_count() or 1)
 WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 CSV_FIELDS = ["scene", "method", "kind", "setting", "status", "stability", "error",

@@ -253,12 +253,18 @@ def _replaced(owner, specs_values):
     return dataclasses.replace(owner, **changes) if changes else owner
 
 
+def parameter_specs(scene: Scene) -> dict[str, tuple]:
+    """Each parameter's name -> (owner of its field, item naming it (None: the scene),
+    spec): where ``with_parameters`` sets it, and where a scene file keeps it."""
+    specs = {f"gravity.{s.suffix}": (scene, None, s) for s in GRAVITY}
+    return specs | {f"{item.name}.{s.suffix}": (owner, item, s)
+                    for owner, item, s in _parameter_specs(scene)}
+
+
 def with_parameters(scene: Scene, values: dict[str, float]) -> Scene:
     """A copy of ``scene`` with the named parameters (see ``parameters``) changed; raises
     SceneError naming every unknown or out-of-range value."""
-    specs = {f"gravity.{s.suffix}": (scene, None, s) for s in GRAVITY}
-    specs |= {f"{item.name}.{s.suffix}": (owner, item, s)
-              for owner, item, s in _parameter_specs(scene)}
+    specs = parameter_specs(scene)
     problems = Problems(scene.source)
     for name, value in values.items():
         if name not in specs:
