@@ -129,8 +129,11 @@ class _Statics:
             H = H + eq.constraint_hessian(q, lam)
         K = V.T @ H @ V
         K = 0.5 * (K + K.T)
-        scale = max(float(np.max(np.abs(F), initial=0.0)),
-                    float(np.max(np.abs(J.T @ lam), initial=0.0)))
+        # the size of the forces that balance: gravity and the others apart (their sum
+        # vanishes at an equilibrium without constraints along it)
+        gravity = eq.applied.gravity
+        scale = max(float(np.max(np.abs(part), initial=0.0))
+                    for part in (gravity, F - gravity, J.T @ lam))
         return -V.T @ F, K, V, lam, scale
 
     def retract(self, q: np.ndarray) -> np.ndarray:
