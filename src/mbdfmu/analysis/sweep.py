@@ -15,6 +15,7 @@ from __future__ import annotations
 import csv
 import fnmatch
 import itertools
+import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -139,7 +140,8 @@ def run_all(tasks: list[dict], scheduler: str | None = None,
     if scheduler is None:
         workers = _local_workers()
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=":0", env=WORKER_ENV)
+                               dashboard_address=":0", env=WORKER_ENV,
+                               silence_logs=logging.ERROR)
         where = f"a LocalCluster of {workers} single-threaded workers"
     try:
         client = Client(cluster if cluster is not None else scheduler, timeout="20s")

@@ -1,8 +1,8 @@
 """Charts of a parameter sweep: one PNG per output, one panel per parameter.
 
 Each panel shows the output's final value (solid) and peak |value| (dashed) against the
-parameter; with more than one parameter, one line per combination of the others (up to
-``MAX_LINES``, else points). Failed runs are left out of the lines and counted in the
+parameter; with more than one parameter, one line per combination of the others (at most
+``MAX_LINES``, evenly spaced, the ends included). Failed runs are left out of the lines and counted in the
 title.
 """
 
@@ -30,20 +30,21 @@ def _groups(rows: list[dict], parameter: str, others: list[str]):
 def _panel(ax, result: SweepResult, output: str, parameter: str, unit: str) -> None:
     others = [p for p in result.parameters if p != parameter]
     ok = [r for r in result.rows if r["status"] == "ok"]
-    groups = _groups(ok, parameter, others)
-    style = "-o" if len(groups) <= MAX_LINES else "o"
-    for k, (key, members) in enumerate(groups.items()):
+    groups = list(_groups(ok, parameter, others).items())
+    if len(groups) > MAX_LINES:      # evenly spaced combinations of the others, ends included
+        keep = sorted({round(k * (len(groups) - 1) / (MAX_LINES - 1)) for k in range(MAX_LINES)})
+        groups = [groups[k] for k in keep]
+    for k, (key, members) in enumerate(groups):
         x = [r[parameter] for r in members]
         label = ", ".join(f"{o} = {v:.4g}" for o, v in zip(others, key)) or None
-        colour = f"C{k % 10}"
-        lines = ax.plot(x, [r[f"{output}.final"] for r in members], style, color=colour,
-                        markersize=3, label=label if len(groups) <= MAX_LINES else None)
+        lines = ax.plot(x, [r[f"{output}.final"] for r in members], "-o", color=f"C{k % 10}",
+                        markersize=3, label=label)
         ax.plot(x, [r[f"{output}.peak"] for r in members], "--", color=lines[0].get_color(),
                 alpha=0.6)
     ax.set_xlabel(parameter)
     ax.set_ylabel(f"{output} ({unit})" if unit else output)
     ax.grid(True, alpha=0.3)
-    if others and len(groups) <= MAX_LINES:
+    if others:
         ax.legend(fontsize="x-small", loc="best")
 
 
