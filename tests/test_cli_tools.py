@@ -176,3 +176,22 @@ def test_sweep_local_cluster_equals_synchronous_and_failures_are_rows(tmp_path, 
         assert float(r["slider.x.final"]) == pytest.approx(x, rel=1e-9)
         assert float(r["slider.x.peak"]) == pytest.approx(0.4, rel=1e-12)
     assert (tmp_path / "sync/motor.effort.png").stat().st_size > 0
+
+
+def test_fmu_log_carries_changed_initial_values(tmp_path):
+    from fmpy import simulate_fmu
+
+    path = tmp_path / "Projected.toml"
+    path.write_text(PROJECTED)
+    fmu = tmp_path / "Projected.fmu"
+    assert main(["build", str(path), "-o", str(fmu)]) == 0
+    messages = []
+
+    def logger(env, instance, status, category, message):
+        messages.append((status, message.decode() if isinstance(message, bytes) else message))
+
+    simulate_fmu(str(fmu), stop_time=0.01, output_interval=0.01, logger=logger,
+                 debug_logging=True)
+    warnings = [m for s, m in messages if "initial conditions" in m]
+    assert any("angular_velocity = 20 rad/s as given, 5 after" in m for m in warnings)
+    assert all(s == 1 for s, m in messages if "initial conditions" in m)   # fmi2Warning

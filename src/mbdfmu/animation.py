@@ -221,7 +221,7 @@ def save_gif(fig, draw, frames, path: str | Path, fps: int, progress=None) -> Pa
     """Draw each frame with ``draw(i)`` and save them as a looping GIF.
 
     Frames are rendered here and quantized with Pillow's fast octree: matplotlib's
-    PillowWriter spends ~50 ms a frame in the default quantizer."""
+    PillowWriter spends most of each frame in Pillow's default quantizer."""
     from PIL import Image
 
     images = []

@@ -10,7 +10,7 @@ reports: every body state, joint reaction and driver effort). The nonlinear redu
 is evaluated by solving the dependent coordinates from the constraints, the dependent rates
 from the velocity constraints and (q'', lam) from eq. (14); A, B, C, D are its Jacobians at
 the operating point by central differences (step about eps^(1/3) of each variable's scale,
-truncation and round-off errors near 1e-10 relative). The same reduced model is what a
+which balances the O(h^2) truncation against the O(eps / h) round-off). The same reduced model is what a
 simulation integrates, so A and B agree with finite differences of ``simulate()``.
 
 Operating point: the state a simulation reaches at ``t`` (the assembled initial state at
@@ -47,8 +47,8 @@ from .operating import MinimalCoordinates, input_values, input_vector, prepare
 FD_STEP = 6e-6
 # Eigenvalues below this (1/s) count as zero: no frequency, no damping ratio.
 ZERO_EIGENVALUE = 1e-9
-# Damping ratios below this are round-off of an undamped mode (the differences carry
-# errors near 1e-10 of the eigenvalue): reported as 0.
+# Damping ratios below this are round-off of an undamped mode (far below what the central
+# differences resolve): reported as 0.
 ROUND_OFF_RATIO = 1e-9
 
 
