@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from ..equations import Equations
+from ..errors import SettingError
 from ..model.scene import Scene
 from ..model.variables import inputs, outputs, selected_outputs
 from ..simulation import Simulation
@@ -173,6 +174,9 @@ def linearize(scene: Scene | str, t: float = 0.0, equilibrium: bool = False,
     initial state, or at its static equilibrium (``equilibrium=True``; drivers held at
     their t = 0 values). ``scene``: a Scene, a file or a shipped scene's name;
     ``parameters``: values of its parameters (names as the FMU's)."""
+    if isinstance(t, bool) or not isinstance(t, (int, float)) or not (math.isfinite(t) and t >= 0):
+        raise SettingError("t", f"the operating time (--at) must be finite and not negative, "
+                           f"got {t!r}")
     scene = prepare(scene, parameters)
     scene, t, q, qd, stability = _operating_point(scene, float(t), equilibrium)
     u0 = Equations(scene).layout.initial()
