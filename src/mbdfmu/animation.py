@@ -106,6 +106,10 @@ class BodyShape:
         self.pins = ax.plot([], [], "o", color="white", markeredgecolor="k", markersize=4,
                             zorder=4)[0]
 
+    @property
+    def artists(self) -> list:
+        return [a for a in (self.patch, self.disc, self.pins) if a is not None]
+
     def update(self, pose) -> None:
         shape = world(self.local, *pose)
         if self.kind in ("block", "plate"):
@@ -214,22 +218,39 @@ def animate(scene: Scene, result: Result, path: str | Path, fps: int = 25,
             line.set_data(z[:, 0], z[:, 1])
         label.set_text(f"t = {result.time[i]:.4f} s")
 
-    return save_gif(fig, draw, frames, path, fps, progress)
+    moving = [a for shape in shapes.values() for a in shape.artists]
+    moving += [line for _, line in springs] + [label]
+    return save_gif(fig, draw, frames, path, fps, progress, moving)
 
 
-def save_gif(fig, draw, frames, path: str | Path, fps: int, progress=None) -> Path:
+def save_gif(fig, draw, frames, path: str | Path, fps: int, progress=None,
+             moving: list | None = None) -> Path:
     """Draw each frame with ``draw(i)`` and save them as a looping GIF.
 
-    Frames are rendered here and quantized with Pillow's fast octree: matplotlib's
-    PillowWriter spends most of each frame in Pillow's default quantizer."""
+    With ``moving`` (the artists ``draw`` changes) the rest (axes, ticks, legend, ground) is
+    rendered once and each frame draws only those on top of it (blitting). Frames are
+    quantized with Pillow's fast octree: matplotlib's PillowWriter spends most of each frame
+    in Pillow's default quantizer."""
     from PIL import Image
 
+    canvas = fig.canvas
+    background = None
+    if moving:
+        for artist in moving:
+            artist.set_animated(True)
+        canvas.draw()
+        background = canvas.copy_from_bbox(fig.bbox)
     images = []
     for k, i in enumerate(frames):
         draw(i)
-        fig.canvas.draw()
-        rgba = Image.frombuffer("RGBA", fig.canvas.get_width_height(),
-                                fig.canvas.buffer_rgba(), "raw", "RGBA", 0, 1)
+        if background is None:
+            canvas.draw()
+        else:
+            canvas.restore_region(background)
+            for artist in moving:
+                artist.axes.draw_artist(artist)
+        rgba = Image.frombuffer("RGBA", canvas.get_width_height(), canvas.buffer_rgba(),
+                                "raw", "RGBA", 0, 1)
         images.append(rgba.convert("RGB").quantize(colors=64, method=Image.Quantize.FASTOCTREE))
         if progress is not None:
             progress(k + 1, len(frames))
