@@ -134,12 +134,16 @@ def render_slave(model: dict, variables: list[tuple], class_name: str) -> str:
 
 def with_start_values(scene_path: Path, parameters: dict) -> tuple[dict, str]:
     """The scene's data and TOML text with ``parameters`` (names as the FMU's, solver.*
-    included) as the values of the scene's keys, so that the FMU's start values are them."""
+    included) as the values of the scene's keys, so that the FMU's start values are them
+    (none: the file as it is)."""
     import tomlkit
 
     from ..model.writer import set_parameters
+    data = load_toml(scene_path, SceneError)
     text = scene_path.read_text(encoding="utf-8")
-    scene = scene_from_dict(load_toml(scene_path, SceneError), source=scene_path.name)
+    if not parameters:
+        return data, text
+    scene = scene_from_dict(data, source=scene_path.name)
     doc = tomlkit.parse(text)
     set_parameters(doc, scene, {k: v for k, v in parameters.items()
                                 if not k.startswith("solver.")})
@@ -158,10 +162,7 @@ def build_fmu(scene_path, output=None, parameters=None) -> Path:
     (names as in its model description), checked as the FMU checks them."""
     from pythonfmu import __version__ as pythonfmu_version
     scene_path = resolve_scene_path(scene_path)
-    if parameters:
-        scene_data, scene_text = with_start_values(scene_path, parameters)
-    else:
-        scene_data, scene_text = load_toml(scene_path, SceneError), None
+    scene_data, scene_text = with_start_values(scene_path, parameters or {})
     scene = scene_from_dict(scene_data, source=scene_path.name)
     name = scene.name
     assemble(Equations(scene, kernel="numpy"))   # a scene that cannot start is no FMU
@@ -207,10 +208,7 @@ def build_fmu(scene_path, output=None, parameters=None) -> Path:
             target.parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(f, target)
         (stage / "scene.json").write_bytes(scene_json)
-        if scene_text is None:
-            shutil.copyfile(scene_path, stage / "scene.toml")
-        else:
-            (stage / "scene.toml").write_text(scene_text, encoding="utf-8")
+        (stage / "scene.toml").write_text(scene_text, encoding="utf-8")
         fmu = build_isolated(
             script, dest=output, own_modules={module, model["core_package"]},
             project_files=[core, stage / "scene.json", stage / "scene.toml"], **CAPABILITIES)

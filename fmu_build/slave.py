@@ -104,6 +104,13 @@ class Failure(Exception):
         self.retry = retry
 
 
+def _log_warnings(slave, sim):
+    """Log the initial values the scene gave that assembly changed (``sim.warnings``)."""
+    for line in sim.warnings:
+        slave.log(f"initial conditions: {line}", Fmi2Status.warning)
+    return sim
+
+
 class MbdfmuSlave(Fmi2Slave):
     """One FMU instance: a ``Simulation`` of the shipped scene behind FMI 2.0 calls."""
 
@@ -220,10 +227,8 @@ class MbdfmuSlave(Fmi2Slave):
         # numpy kernel unless asked otherwise: numba would compile its kernel anew in every
         # fresh extraction of the FMU (seconds at instantiation), see docs/performance.md
         kernel = os.environ.get("MBDFMU_KERNEL") or "numpy"
-        sim = self._core.Simulation(scene, kernel=kernel, settings=settings, t0=self._t0)
-        for line in sim.warnings:      # initial values the scene gave that assembly changed
-            self.log(f"initial conditions: {line}", Fmi2Status.warning)
-        return sim
+        return _log_warnings(self, self._core.Simulation(scene, kernel=kernel,
+                                                         settings=settings, t0=self._t0))
 
     def setup_experiment(self, start_time, stop_time=None, tolerance=None):
         def start():

@@ -1,6 +1,6 @@
 """Exact and independent reference solutions for the benchmark problems.
 
-Everything here is computed from the problem statements in ``../shared/BENCHMARK_PROBLEMS.md``
+Everything here is computed from the problem statements in ``docs/problems.md``
 (P1..P7) and textbook mechanics, with numpy and scipy only: nothing imports mbdfmu, so a bug in
 the solver cannot leak into its own reference. Conventions follow that file: SI units, angles in
 radians, gravity ``g`` acting in -y, pendulum angles ``theta`` measured from the downward vertical

@@ -1,7 +1,7 @@
 """The integrator family against outside references (tests/exact_solutions.py), method by method.
 
 Every method (taylor, baumgarte, rk4p, rk45p, dop853p, genalpha, ali3p, and auto's choices) is
-run on the benchmark problems of ../shared/BENCHMARK_PROBLEMS.md and checked against the exact
+run on the benchmark problems of docs/problems.md and checked against the exact
 answers, and every failure mode is pinned: a method that cannot do a scene must say so with a
 ``SolverError`` naming the time and the reason, never return a wrong answer. Error thresholds
 are a few times the errors measured when the tests were written (quoted in comments), so a

@@ -1,7 +1,7 @@
 """Monolithic reference of the dc_motor_slider_crank scenario: one ODE, integrated by scipy.
 
 Independent of mbdfmu's equations: the slider-crank has one degree of freedom, the crank
-angle theta, and P4's kinematics (../../../shared/BENCHMARK_PROBLEMS.md) give every body's
+angle theta, and P4's kinematics (../../docs/problems.md) give every body's
 position as a function of theta. With ``M(theta)`` the generalized inertia (the kinetic
 energy is ``M theta'^2 / 2``), Lagrange's equation and the armature circuit are
 

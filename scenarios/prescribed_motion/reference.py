@@ -1,5 +1,5 @@
 """Closed-form reference of the prescribed_motion scenario: P4 of
-../../../shared/BENCHMARK_PROBLEMS.md.
+../../docs/problems.md.
 
 For a crank angle theta(t) with rate w = theta' and acceleration theta'', P4's kinematics
 (extended by the theta'' terms) give every body's velocity and acceleration, and the

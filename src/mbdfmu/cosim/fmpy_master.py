@@ -47,7 +47,7 @@ import numpy as np
 
 from ..result import Result
 from .scenario import Scenario, check_variables
-from .settings import CosimError, CosimSettings
+from .settings import CosimError, CosimSettings, Refused
 
 # fmpy raises FMICallException with the FMI 2.0 status codes (fmpy.fmi2.fmi2OK, ...).
 OK, WARNING, DISCARD, ERROR, FATAL = 0, 1, 2, 3, 4
@@ -191,7 +191,7 @@ class CoupledSystem:
         self.counters["doStep"] += 1
         status = self.members[member].do_step(t, h)
         if status > WARNING:
-            raise Refused(member, status, self.members[member].reason())
+            raise Refused(member, status, self.members[member].reason(), STATUS.get(status, status))
         self.read_outputs(member)
 
     def coupling_error(self, rtol: float, atol: float, nominal: dict | None = None) -> float:
@@ -263,14 +263,6 @@ class CoupledSystem:
             m.close()
 
 
-class Refused(Exception):
-    """An instance refused a step (fmi2Discard or worse): status and logged reason."""
-
-    def __init__(self, member: str, status: int, reason: str):
-        super().__init__(f"doStep returned {STATUS.get(status, status)}: {reason}")
-        self.member, self.status, self.reason = member, status, reason
-
-
 # ----------------------------------------------------------------------------- algorithms
 
 class Jacobi:
@@ -289,7 +281,7 @@ class Jacobi:
             system.counters["doStep"] += 1
             status = system.members[m].do_step(t, h)
             if status > WARNING:
-                raise Refused(m, status, system.members[m].reason())
+                raise Refused(m, status, system.members[m].reason(), STATUS.get(status, status))
         for m in system.members:
             system.read_outputs(m)
 
@@ -342,7 +334,7 @@ def run_fmpy(scenario: Scenario, fmus: dict[str, Path],
              record: list[str] | None = None) -> Result:
     """Run a scenario with the fmpy master; every recorded variable at every communication
     point (t0 included) as a ``Result`` (``stats``: steps, rejections, doStep calls)."""
-    from .variable_step import run_variable_step
+    from .variable_step import run_variable_step   # the fixed-step runs do not need it
 
     algorithm = algorithm_class(settings.algorithm_for(scenario))(scenario)
     h = float(settings.step or scenario.step)

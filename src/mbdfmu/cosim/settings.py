@@ -24,6 +24,14 @@ class CosimError(MbdfmuError):
         super().__init__(prefix + (f"{instance}: " if instance else "") + message)
 
 
+class Refused(Exception):
+    """An instance refused a step (fmi2Discard or worse): status and logged reason."""
+
+    def __init__(self, member: str, status: int, reason: str, status_name: str):
+        super().__init__(f"doStep returned {status_name}: {reason}")
+        self.member, self.status, self.reason = member, status, reason
+
+
 @dataclass(frozen=True)
 class CosimSettings:
     """A run of a scenario (None: the scenario's own value).

@@ -13,8 +13,7 @@ from __future__ import annotations
 
 import math
 
-from .fmpy_master import Refused
-from .settings import CosimError
+from .settings import CosimError, Refused
 
 # Aim at this fraction of the allowed coupling error.
 SAFETY = 0.8

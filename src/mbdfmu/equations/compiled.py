@@ -29,6 +29,38 @@ def jit(function):
     return numba.njit(cache=True, nogil=True)(function) if numba is not None else function
 
 
+def direct(dispatcher):
+    """A caller of ``dispatcher``'s compiled code that skips numba's per-call dispatch.
+
+    numba types every argument on every call to pick a specialization; for the named
+    tuples this kernel takes, that costs more than the kernel itself at small sizes. Each
+    function here has exactly one specialization (the callers always pass the same types:
+    C-contiguous float64/int64 arrays, read-only motion arrays; tests/test_kernel.py checks
+    it), so after the first call, which compiles or loads it, its entry point is called
+    directly.
+    """
+    if numba is None:
+        return dispatcher
+    entry = None
+
+    def call(*args):
+        nonlocal entry
+        if entry is None:
+            result = dispatcher(*args)
+            if len(dispatcher.signatures) == 1:
+                entry = dispatcher.overloads[dispatcher.signatures[0]].entry_point
+            return result
+        return entry(*args)
+    return call
+
+
+def jit_inline(function):
+    """``jit`` for small helpers, inlined into their callers (numba's own inlining, which
+    LLVM's does not always match for calls that return tuples)."""
+    return (numba.njit(cache=True, nogil=True, inline="always")(function) if numba is not None
+            else function)
+
+
 Primitives = namedtuple("Primitives", [
     "c_rows", "c_bi", "c_bj", "c_si", "c_sj",          # coincidence: rows (k, 2), bodies, points
     "l_rows", "l_bi", "l_bj", "l_si", "l_sj", "l_u",   # line: rows (k,), bodies, points, axis
@@ -39,11 +71,11 @@ JacobianPlan = namedtuple("JacobianPlan", [
     "pair_a", "pair_b", "pair_minv", "band_index", "perm", "kd"])   # banded Schur plan
 
 
-@jit
-def _rotated(q, b, v):
-    """A_b v for body b's angle in q: (x, y)."""
+@jit_inline
+def _rotated(q, b, vx, vy):
+    """A_b (vx, vy) for body b's angle in q: (x, y)."""
     c, s = math.cos(q[3 * b + 2]), math.sin(q[3 * b + 2])
-    return c * v[0] - s * v[1], s * v[0] + c * v[1]
+    return c * vx - s * vy, s * vx + c * vy
 
 
 @jit
@@ -52,8 +84,8 @@ def _coincidence_terms(q, qd, cval, p, psi, data, gamma, k0):
     kc = p.c_rows.shape[0]
     for k in range(kc):
         i, j = p.c_bi[k], p.c_bj[k]
-        aix, aiy = _rotated(q, i, p.c_si[k])
-        ajx, ajy = _rotated(q, j, p.c_sj[k])
+        aix, aiy = _rotated(q, i, p.c_si[k, 0], p.c_si[k, 1])
+        ajx, ajy = _rotated(q, j, p.c_sj[k, 0], p.c_sj[k, 1])
         r0, r1 = p.c_rows[k, 0], p.c_rows[k, 1]
         psi[r0] = q[3 * i] + aix - q[3 * j] - ajx - cval[r0]
         psi[r1] = q[3 * i + 1] + aiy - q[3 * j + 1] - ajy - cval[r1]
@@ -72,9 +104,9 @@ def _line_terms(q, qd, cval, p, psi, data, gamma, k1):
     kl = p.l_rows.shape[0]
     for k in range(kl):
         i, j = p.l_bi[k], p.l_bj[k]
-        aix, aiy = _rotated(q, i, p.l_si[k])
-        ajx, ajy = _rotated(q, j, p.l_sj[k])
-        ux, uy = _rotated(q, i, p.l_u[k])
+        aix, aiy = _rotated(q, i, p.l_si[k, 0], p.l_si[k, 1])
+        ajx, ajy = _rotated(q, j, p.l_sj[k, 0], p.l_sj[k, 1])
+        ux, uy = _rotated(q, i, p.l_u[k, 0], p.l_u[k, 1])
         dx = q[3 * j] + ajx - q[3 * i] - aix
         dy = q[3 * j + 1] + ajy - q[3 * i + 1] - aiy
         row = p.l_rows[k]
@@ -128,7 +160,7 @@ def terms(q, qd, cval, p, plan):
     return psi, data[plan.keep], gamma
 
 
-@jit
+@jit_inline
 def pattern_product(values, out_index, in_index, x, size):
     """sum_k values[k] x[in_index[k]] into out[out_index[k]] (size,): J x with (rows, cols),
     J^T y with (cols, rows)."""

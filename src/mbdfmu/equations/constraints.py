@@ -112,6 +112,8 @@ class ConstraintSet:
         self._point_slices = [slice(s, e) for s, e in zip(np.r_[0, ends[:-1]], ends)]
         self.compiled = compiled = compiled_kernel() if self.kernel == "numba" else None
         if compiled is not None:
+            self.compiled_terms = compiled.direct(compiled.constraint_terms)
+            self.compiled_accelerations = compiled.direct(compiled.accelerations)
             self.primitives = compiled.Primitives(
                 c.rows.reshape(-1, 2), c.bi, c.bj, c.si, c.sj,
                 l.rows, l.bi, l.bj, l.si, l.sj, l.u, a.rows, a.bi, a.bj)
@@ -189,7 +191,7 @@ class ConstraintSet:
         Psi, gamma = np.empty(self.m), np.empty(self.m)
         data = np.empty(self._nnz)
         data[:self._constants.size] = self._constants
-        self.compiled.constraint_terms(qe, qde, cval, self.primitives, Psi, data, gamma)
+        self.compiled_terms(qe, qde, cval, self.primitives, Psi, data, gamma)
         return Psi, data, (gamma if qd is not None else None)
 
     def hessian(self, q: np.ndarray, mu: np.ndarray) -> np.ndarray:

@@ -125,7 +125,7 @@ class Equations:
         qe[:n], qde[:n] = q, qd
         cval, _, cdd = self.constraint_set.motion_values(t, u)
         c = self.constraint_set
-        return c.compiled.accelerations(qe, qde, cval, cdd, F, self.minv, RANK_TOLERANCE,
+        return c.compiled_accelerations(qe, qde, cval, cdd, F, self.minv, RANK_TOLERANCE,
                                         c.primitives, c.plan)
 
     # ------------------------------------------------------------------ energies

@@ -9,44 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import SettingError
-from .ali3p import ALI3P
 from .base import Integrator
-from .baumgarte import Baumgarte
 from .choose import choose_method
-from .genalpha import GeneralizedAlpha
-from .projected_rk import DOP853P, RK45P
-from .rk4p import RK4P
+from .registry import AUTO, METHOD_NAMES, METHODS, SUMMARIES, Auto, method_class
 from .settings import DEFAULT_METHOD, SolverSettings
-from .taylor import Taylor
-
-METHODS: dict[str, type[Integrator]] = {
-    cls.name: cls for cls in (DOP853P, RK45P, RK4P, Taylor, Baumgarte, GeneralizedAlpha, ALI3P)}
-AUTO = "auto"
-METHOD_NAMES = (AUTO, *METHODS)
-SUMMARIES = {AUTO: "picks per scene: rk4p without degrees of freedom, ali3p for "
-                   "redundant/singular constraints, genalpha for stiff springs, else dop853p; "
-                   "says why"} | {name: cls.summary for name, cls in METHODS.items()}
-
-
-class Auto(Integrator):
-    """Stands for ``auto`` where a class is expected: it has no options of its own."""
-
-    name = AUTO
-    summary = SUMMARIES[AUTO]
-
-
-def method_class(method) -> type[Integrator]:
-    """The class of a method given by name or as a class (``Auto`` for "auto")."""
-    if isinstance(method, type) and issubclass(method, Integrator):
-        return method
-    if method == AUTO:
-        return Auto
-    if method not in METHODS:
-        raise SettingError("method", f'unknown method "{method}"; expected one of '
-                           f"{', '.join(METHOD_NAMES)}")
-    return METHODS[method]
-
 
 def make_integrator(method, equations, t0: float, q0: np.ndarray, qd0: np.ndarray,
                     settings: SolverSettings | None = None, *, inputs=None,
@@ -71,5 +37,5 @@ def make_integrator(method, equations, t0: float, q0: np.ndarray, qd0: np.ndarra
     return integrator
 
 
-__all__ = ["METHODS", "METHOD_NAMES", "DEFAULT_METHOD", "Integrator", "SolverSettings",
-           "make_integrator", "method_class", "choose_method"]
+__all__ = ["METHODS", "METHOD_NAMES", "SUMMARIES", "DEFAULT_METHOD", "Integrator",
+           "SolverSettings", "make_integrator", "method_class", "choose_method"]

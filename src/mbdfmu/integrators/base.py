@@ -122,7 +122,7 @@ class Integrator:
                 raise SettingError(name, f'method "{cls.name}" has no option {key} '
                                    f"(its options: {allowed})", where)
             if not rules[key].valid(value):
-                raise SettingError(name, f"{cls.name}: {key} must be {rules[key].rule}, "
+                raise SettingError(key, f"{cls.name}: {key} must be {rules[key].rule}, "
                                    f"got {value!r}", where)
 
     # ------------------------------------------------------------------ for subclasses

@@ -96,8 +96,12 @@ class RK4P(ProjectedRK):
         """c, c', c'' of every row at t, t + h/2 and t + h for each step start t, read-only
         (one compiled signature)."""
         eq = self.equations
-        motions = np.array([[eq.motion_values(t + a, self.inputs(t + a))
-                             for a in (0.0, 0.5 * h, h)] for t in times])
+        if not eq.scene.drivers:     # the motions never change: one block for every step
+            block = np.array([eq.motion_values(0.0)] * 3)
+            motions = np.repeat(block[None], len(times), axis=0)
+        else:
+            motions = np.array([[eq.motion_values(t + a, self.inputs(t + a))
+                                 for a in (0.0, 0.5 * h, h)] for t in times])
         motions.flags.writeable = False
         return motions
 

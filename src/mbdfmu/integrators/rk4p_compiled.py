@@ -14,7 +14,8 @@ from enum import IntEnum
 
 import numpy as np
 
-from ..equations.compiled import accelerations, jac_mul, jac_t_mul, jit, schur_solve, terms
+from ..equations.compiled import (accelerations, jac_mul, jac_t_mul, jit, jit_inline,
+                                  schur_solve, terms)
 
 
 class StepStatus(IntEnum):
@@ -100,7 +101,7 @@ def rk4p_step(q, qd, f, h, motion, F, minv, rank_tol, tol, max_iter, p, plan):
     return qn, vn, fn, StepStatus.DONE
 
 
-@jit
+@jit_inline
 def _energy_check(q, qd, F, mass, audit, divergence_fraction, roundoff):
     """``EnergyAudit.check`` with factor 0 for energies 1/2 q'M q' - F.q; updates ``audit``
     in place and returns False when the balance is broken."""

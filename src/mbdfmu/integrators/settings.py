@@ -14,6 +14,8 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from ..errors import SettingError, suggest
+from .base import Integrator
+from .registry import METHOD_NAMES, method_class
 
 DEFAULT_METHOD = "auto"
 DEFAULT_RTOL = 1e-6
@@ -66,8 +68,7 @@ class SolverSettings:
         return out
 
     @property
-    def method_class(self):
-        from . import method_class   # the registry imports the methods, which import this
+    def method_class(self) -> type[Integrator]:
         return method_class(self.method)
 
     @property
@@ -87,7 +88,6 @@ class SolverSettings:
 
 def _check(key: str, value: Any, name: str, where: str):
     if key == "method":
-        from . import METHOD_NAMES, Integrator
         if isinstance(value, type) and issubclass(value, Integrator):
             return value
         if not isinstance(value, str) or value not in METHOD_NAMES:

@@ -343,21 +343,24 @@ def input_layout(scene: Scene) -> InputLayout:
                        forces, fields)
 
 
+def _doc_row(label: str, kind: str, spec: Spec) -> str:
+    """One row of the documentation's variable list."""
+    text = spec.description.format(name="<name>", item=_Placeholder(), pos="{pos}",
+                                   effort="{effort}", body="<body>")
+    if spec.when:
+        text += f" (when `{spec.when.lstrip('!')}` is {'false' if spec.when[0] == '!' else 'true'})"
+    return f"| {label} | {kind} | `<{label.split()[0]}>.{spec.suffix}` | {spec.unit} | {text} |"
+
+
 def markdown_table() -> str:
-    """The variable list of every item type, for docs/variables.md."""
+    """The variable list of every item type (docs/variables.md is made from it)."""
     rows = ["| item | kind | name | unit | meaning |", "|---|---|---|---|---|"]
     for cls, table in TABLES.items():
         label = getattr(cls, "TYPE", cls.__name__.lower())
         for kind in ("parameters", "inputs", "outputs"):
-            for s in getattr(table, kind):
-                when = f" (when `{s.when.lstrip('!')}` is {'false' if s.when[0] == '!' else 'true'})" \
-                    if s.when else ""
-                rows.append(f"| {label} | {kind[:-1]} | `<{label}>.{s.suffix}` | {s.unit} | "
-                            f"{s.description.format(name='<name>', item=_Placeholder(), pos='{pos}', effort='{effort}', body='<body>')}{when} |")
+            rows += [_doc_row(label, kind[:-1], s) for s in getattr(table, kind)]
     for motion, specs in MOTION_PARAMETERS.items():
-        for s in specs:
-            rows.append(f"| driver ({motion.__name__}) | parameter | `<driver>.{s.suffix}` | "
-                        f"{s.unit} | {s.description.format(name='<name>')} |")
+        rows += [_doc_row(f"driver ({motion.__name__})", "parameter", s) for s in specs]
     rows.append("| driver (PolynomialMotion) | parameter | `<driver>.c<k>` | {pos}/s<k> | "
                 "coefficient of t^k |")
     rows += [f"| scene | parameter | `gravity.{s.suffix}` | {s.unit} | {s.description} |"
