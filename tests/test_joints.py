@@ -1,0 +1,318 @@
+"""Couplers, slots and rolling discs against closed forms and Newton's laws.
+
+The shipped scenes of P8-P11 (docs/problems.md) run through ``mbdfmu.simulate`` at the
+default settings and at rtol 1e-10 and are compared with ``tests/exact_solutions.py``
+(positions to 1e-8, reactions and efforts to 1e-6 relative). The mechanisms scene of
+``joint_scenes.py`` puts every new joint on a moving, rotated beam: its runs are checked
+against the joints' definitions computed from the outputs (no slip, the belt and rack ratios,
+energy), and its reactions against Newton-Euler for the bodies they act on alone.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+
+import numpy as np
+import pytest
+
+import exact_solutions as ref
+import joint_scenes
+import mbdfmu
+from mbdfmu.equations import Equations
+from mbdfmu.equations.projection import assemble, project_velocities
+from mbdfmu.model import scene_from_dict
+from mbdfmu.model.variables import with_parameters
+
+TIGHT = dict(rtol=1e-10, atol=1e-10)
+SETTINGS = {"default": {}, "rtol 1e-10": TIGHT}
+POSITION_TOL, REACTION_RTOL = 1e-8, 1e-6
+
+
+def load(name):
+    return mbdfmu.load_scene(ref.SCENES / f"{name}.toml")
+
+
+mechanisms = joint_scenes.mechanisms
+
+
+def close(actual, expected, tol=POSITION_TOL):
+    np.testing.assert_allclose(actual, expected, rtol=0, atol=tol)
+
+
+def close_rel(actual, expected):
+    expected = np.broadcast_to(np.asarray(expected, dtype=float), np.shape(actual))
+    np.testing.assert_allclose(actual, expected, rtol=REACTION_RTOL,
+                               atol=REACTION_RTOL * np.abs(expected).max())
+
+
+# ----------------------------------------------------------------------------- P8, P9 couplers
+
+@pytest.mark.parametrize("settings", SETTINGS)
+def test_gear_pair_driven_by_a_torque(settings):
+    res = mbdfmu.simulate(load("gear_pair"), 1.0, **SETTINGS[settings])
+    t, g = res.time, ref.G
+    ex = ref.geared_pair(t, torque=0.1, J_in=0.005, inertia_out=0.04, ratio=-0.5)
+    close(res["pinion.phi"], ex["q_in"])
+    close(res["wheel.phi"], ex["q_out"])
+    close(res["wheel.omega"], -0.5 * ex["alpha"] * t)
+    for body in ("pinion", "wheel"):
+        close(res[f"{body}.x"], [0.0, 0.3][body == "wheel"])
+        close(res[f"{body}.y"], 0.0)
+    close_rel(res["mesh.effort"], ex["effort"])
+    # the bearings carry the weights only (the coupler loads no bearing), in the discs' frames
+    for joint, body, m in (("bearing_in", "pinion", 1.0), ("bearing_out", "wheel", 2.0)):
+        phi = res[f"{body}.phi"]
+        close_rel(np.hypot(res[f"{joint}.Fx"], res[f"{joint}.Fy"]), m * g)
+        close(res[f"{joint}.Fx"], m * g * np.sin(phi), 1e-6 * m * g)
+        close(res[f"{joint}.Fy"], m * g * np.cos(phi), 1e-6 * m * g)
+        assert np.abs(res[f"{joint}.Tz"]).max() < 1e-9
+
+
+@pytest.mark.parametrize("settings", SETTINGS)
+def test_rack_and_pinion_driven_by_a_torque(settings):
+    res = mbdfmu.simulate(load("rack_pinion"), 1.0, **SETTINGS[settings])
+    ex = ref.geared_pair(res.time, torque=0.05, J_in=0.00125, inertia_out=0.5, ratio=0.05)
+    close(res["pinion.phi"], ex["q_in"])
+    close(res["rack.x"], ex["q_out"])
+    close(res["rack.y"], -0.05)
+    close(res["rack.phi"], 0.0)
+    close_rel(res["mesh.effort"], ex["effort"])              # N, on the rack along the guide
+    close_rel(res["guide.Fy"], 0.5 * ref.G)                   # the rack's weight
+    assert np.abs(res["guide.Fx"]).max() < 1e-12
+    assert np.abs(res["guide.Tz"]).max() < 1e-9               # the mesh force acts at its centre
+    close_rel(res["bearing.Fx"] ** 2 + res["bearing.Fy"] ** 2, ref.G ** 2)
+
+
+def test_coupler_ratio_is_a_parameter():
+    scene = with_parameters(load("gear_pair"), {"mesh.ratio": 3.0})
+    res = mbdfmu.simulate(scene, 0.5, **TIGHT)
+    ex = ref.geared_pair(res.time, torque=0.1, J_in=0.005, inertia_out=0.04, ratio=3.0)
+    close(res["wheel.phi"], ex["q_out"])
+    close_rel(res["mesh.effort"], ex["effort"])
+    with pytest.raises(mbdfmu.SceneError, match='"mesh.ratio" must not be zero'):
+        with_parameters(load("gear_pair"), {"mesh.ratio": 0.0})
+
+
+# ----------------------------------------------------------------------------- P10 rolling
+
+@pytest.mark.parametrize("settings", SETTINGS)
+def test_disc_rolls_down_the_incline(settings):
+    res = mbdfmu.simulate(load("rolling_disc"), 1.0, **SETTINGS[settings])
+    ex = ref.rolling_incline(res.time, m=2.0, J=0.01, r=0.1, slope=math.pi / 6, s0=2.0)
+    close(res["disc.x"], ex["x"])
+    close(res["disc.y"], ex["y"])
+    close(res["disc.phi"], ex["phi"])
+    close_rel(res["contact.Fx"], ex["friction"])             # up the slope
+    close_rel(res["contact.Fy"], ex["normal"])
+
+
+def test_ring_rolls_at_half_the_free_fall_along_the_slope():
+    ring = with_parameters(load("rolling_disc"), {"disc.inertia": 2.0 * 0.1 ** 2})
+    res = mbdfmu.simulate(ring, 1.0, **TIGHT)
+    ex = ref.rolling_incline(res.time, m=2.0, J=0.02, r=0.1, slope=math.pi / 6, s0=2.0)
+    assert ex["acc"] == pytest.approx(-ref.G * 0.5 / 2)
+    close(res["disc.x"], ex["x"])
+    close_rel(res["contact.Fx"], ex["friction"])
+
+
+# ----------------------------------------------------------------------------- P11 slot
+
+@pytest.mark.parametrize("settings", SETTINGS)
+def test_rod_hanging_from_a_pin_in_a_horizontal_slot(settings):
+    res = mbdfmu.simulate(load("slot_rod"), 2.0, **SETTINGS[settings])
+    ex = ref.slot_rod(res.time)
+    assert np.abs(res["rod.x"] - ex["x"]).max() < 1e-12      # no horizontal force at all
+    close(res["rod.y"], ex["y"])
+    close(res["rod.phi"], ex["phi"])
+    pin_y = res["rod.y"] - 0.5 * np.sin(res["rod.phi"])       # point_j = (-0.5, 0) on the slot
+    assert np.abs(pin_y).max() < 1e-10
+    assert np.abs(res["slot.Fx"]).max() < 1e-12
+    close_rel(res["slot.Fy"], ex["Fy"])
+
+
+def test_slot_rod_small_oscillations_at_six_g_over_l():
+    data = tomllib.loads((ref.SCENES / "slot_rod.toml").read_text())
+    theta0 = 1e-3
+    body = data["body"][0]
+    body["position"] = [0.5 * math.sin(theta0), -0.5 * math.cos(theta0)]
+    body["angle"] = theta0 - math.pi / 2
+    period = 2 * math.pi / math.sqrt(6 * ref.G / 1.0)
+    res = mbdfmu.simulate(scene_from_dict(data), 2.2 * period, output_interval=period / 400,
+                          **TIGHT)
+    theta = res["rod.phi"] + math.pi / 2
+    # upward zero crossings of theta' (the turning points at -theta0), interpolated
+    w = res["rod.omega"]
+    k = np.flatnonzero((w[:-1] < 0) & (w[1:] >= 0))
+    crossings = res.time[k] - w[k] * (res.time[k + 1] - res.time[k]) / (w[k + 1] - w[k])
+    assert len(crossings) == 2
+    # the amplitude correction is of order theta0^2
+    assert crossings[1] - crossings[0] == pytest.approx(period, rel=1e-5)
+    assert np.abs(theta).max() == pytest.approx(theta0, rel=1e-6)
+
+
+# ----------------------------------------------------------------------------- on a moving beam
+
+def _world(res, body, s):
+    phi = res[f"{body}.phi"]
+    c, sn = np.cos(phi), np.sin(phi)
+    return c * s[0] - sn * s[1], sn * s[0] + c * s[1]
+
+
+@pytest.mark.parametrize("method", ["auto", "genalpha", "ali3p"])
+def test_joints_on_a_moving_beam_keep_their_definitions(method):
+    """No slip at the disc's contact, the belt's and the rack's ratios, constant energy:
+    each computed from the body states of the outputs, as the joints define them."""
+    options = dict(step=1e-3) if method != "auto" else dict(TIGHT)
+    res = mbdfmu.simulate(mechanisms(), 0.5, method=method, **options)
+    line, R = joint_scenes.LINE, joint_scenes.LINE["radius"]
+    ux, uy = _world(res, "beam", np.array(line["axis"]) / math.hypot(*line["axis"]))
+    nx, ny = -uy, ux
+    px, py = _world(res, "beam", line["point"])
+    dx, dy = res["disc.x"] - res["beam.x"] - px, res["disc.y"] - res["beam.y"] - py
+    tol = 1e-8 if method == "auto" else 1e-6
+    close(nx * dx + ny * dy, R, tol)                          # the centre at the radius
+    cx, cy = res["disc.x"] - R * nx, res["disc.y"] - R * ny     # the contact point
+    slip = (ux * (res["disc.vx"] - res["disc.omega"] * (cy - res["disc.y"])
+                  - res["beam.vx"] + res["beam.omega"] * (cy - res["beam.y"]))
+            + uy * (res["disc.vy"] + res["disc.omega"] * (cx - res["disc.x"])
+                    - res["beam.vy"] - res["beam.omega"] * (cx - res["beam.x"])))
+    close(slip, 0.0, tol)
+    rel = {k: res[f"{k}.omega"] - res["beam.omega"] for k in ("wheel1", "wheel2")}
+    close(rel["wheel2"], joint_scenes.BELT_RATIO * rel["wheel1"], tol)
+    assert np.abs(res["wheel1.omega"]).max() > 0.1           # it did move
+    if method == "auto":
+        energy = res["energy.kinetic"] + res["energy.potential"]
+        assert np.abs(energy - energy[0]).max() < 1e-8
+
+
+@pytest.mark.parametrize("method", ["genalpha", "ali3p"])
+def test_implicit_methods_converge_at_second_order_on_the_moving_beam(method):
+    """The index-3 methods (position rows and their Hessian in Newton) against a tight run:
+    halving the step divides the error by about four."""
+    def positions(res):
+        return np.array([res[n] for n in res.names if n.endswith((".x", ".y", ".phi"))])
+
+    exact = positions(mbdfmu.simulate(mechanisms(), 0.2, output_interval=0.05, **TIGHT))
+    errors = [np.abs(positions(mbdfmu.simulate(mechanisms(), 0.2, method=method, step=h,
+                                               output_interval=0.05)) - exact).max()
+              for h in (2e-3, 1e-3)]
+    assert 3.0 < errors[0] / errors[1] < 5.0
+
+
+def test_reactions_on_a_moving_beam_obey_newton_euler():
+    """At a moving state, each reaction (resolved back to the ground frame) is what the body
+    it acts on alone needs: the disc (contact + weight), the hanger (pin + weight), wheel2
+    (its bearing + the belt's effort as a torque) and the rack (track + the gear's effort
+    along the track + weight)."""
+    system = Equations(mechanisms())
+    q, _ = assemble(system)
+    rng = np.random.default_rng(3)
+    qd = project_velocities(system, 0.0, q, rng.normal(size=system.n))
+    qdd, lam = system.accelerations(0.0, q, qd)
+    R = system.reactions(q, lam)
+    names = [j.name for j in system.scene.joints]
+    body = {b.name: k for k, b in enumerate(system.scene.bodies)}
+    mass = {b.name: (b.mass, b.inertia) for b in system.scene.bodies}
+    effort = dict(zip([names[k] for k in system.constraint_set.coupler_joints],
+                      system.coupler_efforts(lam)))
+    assert np.isnan(R[names.index("belt")]).all()
+    beam_phi = q[3 * body["beam"] + 2]
+
+    def ground(force, angle):
+        c, s = math.cos(angle), math.sin(angle)
+        return np.array([c * force[0] - s * force[1], s * force[0] + c * force[1]])
+
+    def check(name, force, torque):
+        k = body[name]
+        m, J = mass[name]
+        np.testing.assert_allclose(m * qdd[3 * k: 3 * k + 2], force + m * np.array([0.0, -ref.G]),
+                                   atol=1e-9 * m * ref.G)
+        assert J * qdd[3 * k + 2] == pytest.approx(torque, abs=1e-9)
+
+    line = joint_scenes.LINE
+    axis_angle = beam_phi + math.atan2(line["axis"][1], line["axis"][0])
+    fx, fy, _ = R[names.index("contact")]
+    check("disc", ground((fx, fy), axis_angle), line["radius"] * fx)
+    fx, fy, _ = R[names.index("slot")]
+    slot = joint_scenes.SLOT
+    f = ground((fx, fy), beam_phi + math.atan2(slot["axis"][1], slot["axis"][0]))
+    assert abs(fx) < 1e-12 * np.abs(f).max()        # no force along the slot
+    arm = ground(slot["pin"], q[3 * body["hanger"] + 2])
+    check("hanger", f, arm[0] * f[1] - arm[1] * f[0])
+    fx, fy, tz = R[names.index("w2")]
+    check("wheel2", ground((fx, fy), q[3 * body["wheel2"] + 2]), effort["belt"])
+    track = joint_scenes.TRACK
+    track_angle = beam_phi + math.atan2(track["axis"][1], track["axis"][0])
+    fx, fy, tz = R[names.index("track")]
+    f = ground((fx, fy), track_angle) + effort["gear"] * ground((1.0, 0.0), track_angle)
+    arm = ground(track["point_j"], q[3 * body["rack"] + 2])
+    check("rack", f, tz + arm[0] * f[1] - arm[1] * f[0])
+
+
+# ----------------------------------------------------------------------------- equations
+
+NEW_SCENES = ["gear_pair", "rack_pinion", "rolling_disc", "slot_rod", "mechanisms"]
+
+
+def new_system(name, kernel=None):
+    return Equations(mechanisms() if name == "mechanisms" else load(name), kernel=kernel)
+
+
+@pytest.mark.parametrize("name", NEW_SCENES)
+def test_constraint_hessian_is_the_derivative_of_the_constraint_forces(name):
+    system = new_system(name)
+    rng = np.random.default_rng(11)
+    q, mu = rng.normal(size=system.n), rng.normal(size=system.m)
+    H = system.constraint_hessian(q, mu)
+    eps = 1e-6
+    for k in range(system.n):
+        dq = np.zeros(system.n)
+        dq[k] = eps
+        col = (system.constraints(0.3, q + dq)[1].T @ mu
+               - system.constraints(0.3, q - dq)[1].T @ mu) / (2 * eps)
+        np.testing.assert_allclose(H[:, k], col, atol=1e-8)
+    np.testing.assert_allclose(H, H.T, atol=1e-15)
+
+
+def test_joint_coordinates_and_rates_are_the_definitions():
+    """``joint_coordinate``/``joint_rate`` against the contract's formulas and a finite
+    difference in time, on the moving beam's joints."""
+    from mbdfmu.equations.joints import joint_coordinate, joint_rate
+
+    scene = mechanisms()
+    system = Equations(scene)
+    q, _ = assemble(system)
+    qd = project_velocities(system, 0.0, q, np.random.default_rng(5).normal(size=system.n))
+    index = {b.name: k for k, b in enumerate(scene.bodies)}
+
+    def pose(x, name):
+        return (0.0, 0.0, 0.0) if name == "ground" else tuple(x[3 * index[name]: 3 * index[name] + 3])
+
+    for name in ("w1", "track", "pivot"):
+        j = scene.joint(name)
+        value = lambda x: joint_coordinate(j, pose(x, j.body_i), pose(x, j.body_j))  # noqa: E731
+        h = 1e-6
+        rate = joint_rate(j, pose(q, j.body_i), pose(q, j.body_j), pose(qd, j.body_i),
+                          pose(qd, j.body_j))
+        assert rate == pytest.approx((value(q + h * qd) - value(q - h * qd)) / (2 * h), abs=1e-8)
+    track = scene.joint("track")
+    beam, rack = pose(q, "beam"), pose(q, "rack")
+    u = joint_scenes._rot(beam[2], joint_scenes._unit(track.axis_i))
+    pj = np.add(rack[:2], joint_scenes._rot(rack[2], track.point_j))
+    pi = np.add(beam[:2], joint_scenes._rot(beam[2], track.point_i))
+    assert joint_coordinate(track, beam, rack) == pytest.approx(float(np.dot(u, pj - pi)), abs=1e-15)
+
+
+def test_check_reports_the_new_joints_and_counts_their_constraints(capsys):
+    from mbdfmu.cli import main
+
+    assert main(["check", "rack_pinion"]) == 0
+    out = capsys.readouterr().out
+    assert "mesh: coupler joint guide = 0.05 x joint bearing" in out
+    assert "constraints 5, rank 5, degrees of freedom 1" in out
+    assert main(["check", "slot_rod"]) == 0
+    out = capsys.readouterr().out
+    assert "slot: slot ground - rod" in out and "degrees of freedom 2" in out
+    assert main(["check", "rolling_disc"]) == 0
+    assert "degrees of freedom 1" in capsys.readouterr().out
