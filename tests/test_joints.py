@@ -138,6 +138,26 @@ def test_implicit_methods_converge_at_second_order_on_the_moving_beam(method):
     assert 3.0 < errors[0] / errors[1] < 5.0
 
 
+def test_rolling_rate_is_the_contact_slip_anywhere():
+    """formulation.md, eq. 27: the no-slip row's rate Psi_q q' is the tangential slip velocity
+    at C = r_disc - R n, at any state (off the constraints too), the line's body moving."""
+    system = Equations(mechanisms())
+    rng = np.random.default_rng(17)
+    q, qd = rng.normal(size=system.n), rng.normal(size=system.n)
+    _, J = system.constraints(0.0, q)
+    row = system.row_labels.index('joint "contact" (rolling)')
+    index = {b.name: k for k, b in enumerate(system.scene.bodies)}
+    (xb, yb, pb), (vxb, vyb, wb) = (x[3 * index["beam"]: 3 * index["beam"] + 3] for x in (q, qd))
+    (xd, yd, _), (vxd, vyd, wd) = (x[3 * index["disc"]: 3 * index["disc"] + 3] for x in (q, qd))
+    line = joint_scenes.LINE
+    u = np.array(joint_scenes._rot(pb, joint_scenes._unit(line["axis"])))
+    n = np.array([-u[1], u[0]])
+    contact = np.array([xd, yd]) - line["radius"] * n
+    v_disc = np.array([vxd, vyd]) + wd * np.array([-(contact[1] - yd), contact[0] - xd])
+    v_beam = np.array([vxb, vyb]) + wb * np.array([-(contact[1] - yb), contact[0] - xb])
+    assert J[row] @ qd == pytest.approx(float(u @ (v_disc - v_beam)), abs=1e-12)
+
+
 def test_reactions_on_a_moving_beam_obey_newton_euler():
     """At a moving state, each reaction (resolved back to the ground frame) is what the body
     it acts on alone needs: the disc (contact + weight), the hanger (pin + weight), wheel2
