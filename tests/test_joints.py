@@ -274,3 +274,12 @@ def test_check_reports_the_new_joints_and_counts_their_constraints(capsys):
     assert "slot: slot ground - rod" in out and "degrees of freedom 2" in out
     assert main(["check", "rolling_disc"]) == 0
     assert "degrees of freedom 1" in capsys.readouterr().out
+
+
+def test_animation_outlines_skip_couplers_and_show_the_disc_turning():
+    from mbdfmu.plotting import body_outlines
+
+    outlines = body_outlines(load("gear_pair"))
+    np.testing.assert_array_equal(outlines["wheel"], [[0.0, 0.0], [0.0, 0.0]])
+    outlines = body_outlines(load("rolling_disc"))
+    np.testing.assert_array_equal(outlines["disc"], [[0.0, 0.0], [0.1, 0.0]])   # a spoke

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .model.scene import GROUND, PointForce, Scene, SpringDamper
+from .model.scene import GROUND, CouplerJoint, PointForce, RollingJoint, Scene, SpringDamper
 from .result import Result
 
 # Frames in an animation at most; longer results are subsampled.
@@ -69,8 +69,11 @@ def body_outlines(scene: Scene) -> dict[str, np.ndarray]:
     points: dict[str, list] = {b.name: [(0.0, 0.0)] for b in scene.bodies}
     points[GROUND] = []
     for j in scene.joints:
+        if isinstance(j, CouplerJoint):          # joins coordinates, not points
+            continue
         points[j.body_i].append(j.point_i)
-        points[j.body_j].append(j.point_j)
+        # a rolling disc: a spoke to its rim, so that its rotation shows
+        points[j.body_j].append((j.radius, 0.0) if isinstance(j, RollingJoint) else j.point_j)
     for f in scene.forces:
         if isinstance(f, PointForce):
             points[f.body].append(f.point)
