@@ -1,6 +1,7 @@
-"""The constraints of a scene: Psi(q, t), Psi_q, nu and gamma (formulation.md, eqs. 5-11).
+"""The constraints of a scene: Psi(q, t), Psi_q, nu and gamma (formulation.md, eqs. 5-11, 24).
 
-Rows come from ``joints.py`` in scene order: each joint, then each driver. Psi_q's nonzeros
+Rows come from ``joints.py`` in scene order: each joint, then each driver; a row sums its
+weighted line and angle terms. Psi_q's nonzeros
 are fixed per scene (``sparsity.JacobianPattern``); an evaluation fills in their values
 with the vectorised numpy kernel here or the numba kernel (``compiled.py``), which give the
 same numbers. Sign conventions: velocity equation ``Psi_q q' = nu`` (``nu = -Psi_t``),
