@@ -156,20 +156,17 @@ def error_converged(case, scene, t, out, ref):
     return float(np.max(np.abs(angles(scene, out) - ref["angles"])))
 
 
-def _error_P8(case, scene, t, out, ref):
-    (pinion, wheel), (coupler,) = scene.bodies, scene.joints[2:]
-    exact = closed_forms.geared(t, torque=scene.forces[0].value, inertia_in=pinion.inertia,
-                                inertia_out=wheel.inertia, ratio=coupler.ratio)
-    return float(max(np.abs(get(out, "pinion.phi") - exact["q_in"]).max(),
-                     np.abs(get(out, "wheel.phi") - exact["q_out"]).max()))
-
-
-def _error_P9(case, scene, t, out, ref):
-    (pinion, rack), (coupler,) = scene.bodies, scene.joints[2:]
-    exact = closed_forms.geared(t, torque=scene.forces[0].value, inertia_in=pinion.inertia,
-                                inertia_out=rack.mass, ratio=coupler.ratio)
-    return float(max(np.abs(get(out, "pinion.phi") - exact["q_in"]).max(),
-                     np.abs(get(out, "rack.x") - exact["q_out"]).max()))
+def _error_geared(coordinate: str, by_mass: bool):
+    """P8, P9: the error of a torque-driven input body coupled to an output body: its angle,
+    or (``coordinate`` "x", ``by_mass``) a rack's x, whose coordinate's inertia is its mass."""
+    def error(case, scene, t, out, ref):
+        (body_in, body_out), coupler = scene.bodies, scene.joints[-1]
+        exact = closed_forms.geared(
+            t, torque=scene.forces[0].value, inertia_in=body_in.inertia,
+            inertia_out=body_out.mass if by_mass else body_out.inertia, ratio=coupler.ratio)
+        return float(max(np.abs(get(out, f"{body_in.name}.phi") - exact["q_in"]).max(),
+                         np.abs(get(out, f"{body_out.name}.{coordinate}") - exact["q_out"]).max()))
+    return error
 
 
 def _error_P10(case, scene, t, out, ref):
@@ -191,7 +188,8 @@ def _error_P11(case, scene, t, out, ref):
 
 
 ERRORS = {"P1": _error_P1, "P2N2": _error_P2, "P2N40": _error_P2, "P3": error_converged,
-          "P4": _error_P4, "P6": _error_P6, "P8": _error_P8, "P9": _error_P9,
+          "P4": _error_P4, "P6": _error_P6, "P8": _error_geared("phi", False),
+          "P9": _error_geared("x", True),
           "P10": _error_P10, "P11": _error_P11}
 EXACT_P2 = {"P2N2": 2, "P2N40": 40}
 
