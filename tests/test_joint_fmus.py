@@ -33,3 +33,12 @@ def test_fmu_matches_the_closed_form(fmus, name, start):
     time = np.asarray(table["time"], dtype=float)
     assert time[-1] == pytest.approx(t_end)
     CHECKS[name](time, {n: np.asarray(table[n], dtype=float) for n in table.dtype.names})
+
+
+def test_fmu_coupler_ratio_is_a_parameter(fmus):
+    table = fmpy.simulate_fmu(str(fmus["gear_pair"]), stop_time=0.5, output_interval=0.05,
+                              start_values={"mesh.ratio": 3.0})
+    time = np.asarray(table["time"], dtype=float)
+    ex = ref.geared_pair(time, torque=0.1, J_in=0.005, inertia_out=0.04, ratio=3.0)
+    np.testing.assert_allclose(table["wheel.phi"], ex["q_out"], rtol=0, atol=1e-8)
+    np.testing.assert_allclose(table["mesh.effort"], ex["effort"], rtol=1e-6)
