@@ -1,11 +1,14 @@
-"""A test scene with every new joint on a moving, rotated body, made with its own kinematics.
+"""Test scenes of the new joints, made with their own kinematics.
+
+A scene with every new joint on a moving, rotated body, made with its own kinematics.
 
 ``mechanisms_text()`` is the TOML of a beam pinned to the ground carrying: a disc rolling on
 a line of the beam that is offset and tilted (rolling on a moving body), a hanger whose pin
 runs in a tilted slot of the beam, two wheels on the beam coupled by a crossed belt (a coupler
 whose two joints share the beam: repeated Jacobian entries) and a rack sliding along a tilted
 track of the beam, geared to the first wheel (revolute to translational coupler). Positions
-are computed here with math only, so that every joint starts closed.
+are computed here with math only, so that every joint starts closed. ``two_sliders()``
+couples two translational joints (two line terms in one row).
 """
 
 from __future__ import annotations
@@ -102,3 +105,58 @@ def mechanisms_text() -> str:
     for j in joints:
         parts.append("\n".join(["[[joint]]"] + [f"{k} = {_v(v)}" for k, v in j.items()]))
     return "\n\n".join(parts) + "\n"
+
+
+TWO_SLIDERS = """
+name = "TwoSliders"
+gravity = [0.0, -9.81]
+[[body]]
+name = "a"
+mass = 1.0
+inertia = 0.1
+position = [0.0, 0.0]
+[[body]]
+name = "b"
+mass = 3.0
+inertia = 0.1
+position = [-0.17551651237807456, 0.9041148922791594]   # point_j at (0, 1)
+angle = 0.5
+[[joint]]
+name = "ga"
+type = "translational"
+body_i = "ground"
+axis_i = [1.0, 0.0]
+body_j = "a"
+[[joint]]
+name = "gb"
+type = "translational"
+body_i = "ground"
+point_i = [0.0, 1.0]
+axis_i = [1.0, 1.0]
+body_j = "b"
+point_j = [0.2, 0.0]
+[[joint]]
+name = "lever"
+type = "coupler"
+joint_i = "ga"
+joint_j = "gb"
+ratio = -2.0
+[[force]]
+name = "push"
+type = "force"
+body = "a"
+value = [4.0, 0.0]
+"""
+
+
+def two_sliders():
+    """Slider a on ground x, slider b on a 45 degree ground guide moving -2 times a's slide
+    (a lever), a pushed by 4 N."""
+    import tomllib
+
+    from mbdfmu.model import scene_from_dict
+
+    return scene_from_dict(tomllib.loads(TWO_SLIDERS), source="<two sliders>")
+
+
+BUILT = {"mechanisms": mechanisms, "two_sliders": two_sliders}

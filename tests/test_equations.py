@@ -14,11 +14,11 @@ from conftest import SCENES
 
 SCENE_FILES = ["slider_crank", "four_bar", "andrews", "light_cart_pole", "double_pendulum",
                "slider_force", "n_four_bar_2", "gear_pair", "rack_pinion", "rolling_disc",
-               "slot_rod", "mechanisms"]
+               "slot_rod", "mechanisms", "two_sliders"]
 
 
 def _systems():
-    return {name: Equations(joint_scenes.mechanisms() if name == "mechanisms"
+    return {name: Equations(joint_scenes.BUILT[name]() if name in joint_scenes.BUILT
                             else mbdfmu.load_scene(SCENES / f"{name}.toml"))
             for name in SCENE_FILES}
 

@@ -65,6 +65,23 @@ def test_every_method_and_kernel_runs_the_new_joints(method, kernel):
     assert np.abs(res["slot.Fx"]).max() < 1e-12
 
 
+@pytest.mark.parametrize("kernel", ["numpy", "numba"])
+def test_coupler_between_two_sliders(kernel):
+    """Two line terms in one row. b slides -2 times a's slide along its 45 degree guide, down
+    which its weight pulls with m_b g sin 45: virtual power gives (m_a + 4 m_b) s_a'' =
+    F + 2 m_b g sin 45, and the lever's force on b's coordinate is m_b s_b'' + m_b g sin 45."""
+    if kernel == "numba" and not numba_installed():
+        pytest.skip("numba not installed")
+    res = mbdfmu.simulate(joint_scenes.two_sliders(), 1.0, kernel=kernel, output_interval=0.1, **TIGHT)
+    weight_along = 3.0 * ref.G * math.sqrt(0.5)
+    acc = (4.0 + 2.0 * weight_along) / (1.0 + 4.0 * 3.0)
+    close(res["a.x"], 0.5 * acc * res.time ** 2)
+    slide_b = -2.0 * 0.5 * acc * res.time ** 2
+    close(res["b.x"], -0.17551651237807456 + slide_b * math.sqrt(0.5))
+    close(res["b.y"], 0.9041148922791594 + slide_b * math.sqrt(0.5))
+    close_rel(res["lever.effort"], 3.0 * (-2.0 * acc) + weight_along)
+
+
 def test_coupler_ratio_is_a_parameter():
     scene = with_parameters(load("gear_pair"), {"mesh.ratio": 3.0})
     res = mbdfmu.simulate(scene, 0.5, **TIGHT)

@@ -30,14 +30,14 @@ from conftest import SCENES as SCENE_DIR
 
 
 def scene(name):
-    if name == "mechanisms":     # every new joint on a moving beam (joint_scenes.py)
-        return joint_scenes.mechanisms()
+    if name in joint_scenes.BUILT:     # the new joints' test scenes (joint_scenes.py)
+        return joint_scenes.BUILT[name]()
     return mbdfmu.load_scene(SCENE_DIR / f"{name}.toml")
 
 needs_numba = pytest.mark.skipif(not numba_installed(), reason="numba not installed")
 SCENES = ["slider_crank", "andrews", "four_bar", "parallelogram", "slider_force",
           "double_pendulum", "n_four_bar_2", "gear_pair", "rack_pinion", "rolling_disc",
-          "slot_rod", "mechanisms"]
+          "slot_rod", "mechanisms", "two_sliders"]
 
 
 def n_four_bar(n: int):

@@ -115,6 +115,7 @@ class ConstraintSet:
                 3 * l.bi, 3 * l.bi + 1, 3 * l.bi + 2, 3 * l.bj, 3 * l.bj + 1, 3 * l.bj + 2]
         self._constants = np.concatenate(
             [np.ones(2 * c.n), -np.ones(2 * c.n), a.w, -a.w])
+        self._line_weights = None if np.all(l.w == 1.0) else np.tile(l.w, 6)
         self._nnz = 4 * c.n + 6 * l.n + self._constants.size
         self.pattern = p = JacobianPattern(np.concatenate(rows), np.concatenate(cols),
                                            self.m, self.n, minv)
@@ -184,18 +185,20 @@ class ConstraintSet:
                                  - Asj_c * (w[c.bj] ** 2)[:, None])
         if l.n:
             d = r[l.bj] + Asj_l - r[l.bi] - Asi_l
-            Psi += np.bincount(l.rows, l.w * dot(u, d), minlength=m)
+            _add_rows(Psi, l, l.w * dot(u, d))
             ru = rot90(u)
             data[k:] = np.concatenate([-u[:, 0], -u[:, 1], dot(ru, d) - dot(u, rot90(Asi_l)),
-                                       u[:, 0], u[:, 1], dot(u, rot90(Asj_l))]) * np.tile(l.w, 6)
+                                       u[:, 0], u[:, 1], dot(u, rot90(Asj_l))])
+            if self._line_weights is not None:
+                data[k:] *= self._line_weights
             if gamma is not None:
                 wi, wj = w[l.bi], w[l.bj]
                 dd = v[l.bj] + wj[:, None] * rot90(Asj_l) - v[l.bi] - wi[:, None] * rot90(Asi_l)
                 g = (wi ** 2 * dot(u, d) - 2.0 * wi * dot(ru, dd)
                      + dot(u, Asj_l * (wj ** 2)[:, None] - Asi_l * (wi ** 2)[:, None]))
-                gamma += np.bincount(l.rows, l.w * g, minlength=m)
+                _add_rows(gamma, l, l.w * g)
         if a.n:
-            Psi += np.bincount(a.rows, a.w * (phi[a.bj] - phi[a.bi]), minlength=m)
+            _add_rows(Psi, a, a.w * (phi[a.bj] - phi[a.bi]))
         return Psi - cval, data, gamma
 
     def _values_compiled(self, q, qd, cval):
@@ -250,3 +253,12 @@ class ConstraintSet:
         np.add.at(H, (pi, pj), m1 * dot(u, Asj))
         np.add.at(H, (pj, pi), m1 * dot(u, Asj))
         np.add.at(H, (pj, pj), -m1 * dot(u, Asj))
+
+
+def _add_rows(target: np.ndarray, primitive, values: np.ndarray) -> None:
+    """Add each term's value to its row: by index when the primitive's rows are distinct,
+    else summed (a row made of several terms of one primitive, eq. 24)."""
+    if primitive.repeats:
+        target += np.bincount(primitive.rows, values, minlength=target.size)
+    else:
+        target[primitive.rows] += values
