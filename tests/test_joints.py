@@ -246,11 +246,12 @@ def test_reactions_on_a_moving_beam_obey_newton_euler():
 
 # ----------------------------------------------------------------------------- equations
 
-NEW_SCENES = ["gear_pair", "rack_pinion", "rolling_disc", "slot_rod", "mechanisms"]
+NEW_SCENES = ["gear_pair", "rack_pinion", "rolling_disc", "slot_rod", *joint_scenes.BUILT]
 
 
 def new_system(name, kernel=None):
-    return Equations(mechanisms() if name == "mechanisms" else load(name), kernel=kernel)
+    scene = joint_scenes.BUILT[name]() if name in joint_scenes.BUILT else load(name)
+    return Equations(scene, kernel=kernel)
 
 
 @pytest.mark.parametrize("name", NEW_SCENES)
