@@ -639,8 +639,9 @@ def slot_rod(t, *, m=1.0, L=1.0, J=None, g=G, theta0=0.3):
                        "slot rod reduction")
     acc = np.array([accel(x, v) for x, v in zip(th, w)])
     ydd = a * (np.cos(th) * w * w + np.sin(th) * acc)
-    return {"theta": th, "theta_dot": w, "theta_ddot": acc, "x": np.full_like(th, a * math.sin(theta0)),
-            "y": -a * np.cos(th), "phi": th - math.pi / 2, "Fy": m * (g + ydd)}
+    return {"theta": th, "theta_dot": w, "theta_ddot": acc,
+            "x": np.full_like(th, a * math.sin(theta0)), "y": -a * np.cos(th),
+            "phi": th - math.pi / 2, "Fy": m * (g + ydd)}
 
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"

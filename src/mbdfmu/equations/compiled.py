@@ -30,9 +30,9 @@ def jit(function):
 
 
 Primitives = namedtuple("Primitives", [
-    "c_rows", "c_bi", "c_bj", "c_si", "c_sj",                  # coincidence: rows (k, 2), bodies, points
-    "l_rows", "l_bi", "l_bj", "l_si", "l_sj", "l_u", "l_w",    # line: rows (k,), bodies, points, axis, weight
-    "a_rows", "a_bi", "a_bj", "a_w"])                          # angle: rows (k,), bodies, weight
+    "c_rows", "c_bi", "c_bj", "c_si", "c_sj",                # coincidence: rows (k, 2), bodies, points
+    "l_rows", "l_bi", "l_bj", "l_si", "l_sj", "l_u", "l_w",  # line: rows, bodies, points, axis, weight
+    "a_rows", "a_bi", "a_bj", "a_w"])                        # angle: rows (k,), bodies, weight
 JacobianPlan = namedtuple("JacobianPlan", [
     "constants",                  # constant entries of Psi_q's term values
     "merge", "size",              # term entry -> distinct entry (repeats summed); their number
