@@ -587,6 +587,63 @@ def andrews_trajectory(t):
 # Scene files: independent parsing and joint residuals
 # --------------------------------------------------------------------------------------------
 
+# --------------------------------------------------------------------------------------------
+# P8-P11: couplers, rolling, a pin in a slot
+# --------------------------------------------------------------------------------------------
+
+def geared_pair(t, *, torque, J_in, inertia_out, ratio):
+    """P8 and P9: an input of inertia ``J_in`` driven by ``torque`` and geared to an output of
+    inertia (or mass) ``inertia_out`` moving ``ratio`` times the input's coordinate, from
+    rest. Virtual power with q_out' = ratio q_in': ``(J_in + ratio^2 inertia_out) q_in'' =
+    torque``; the output needs the generalized force ``inertia_out q_out''``. Returns
+    ``alpha`` (input acceleration), ``q_in``, ``q_out`` (from 0) and ``effort`` (on the
+    output's coordinate)."""
+    t = np.asarray(t, dtype=float)
+    alpha = torque / (J_in + ratio * ratio * inertia_out)
+    return {"alpha": alpha, "q_in": 0.5 * alpha * t * t, "q_out": 0.5 * ratio * alpha * t * t,
+            "effort": inertia_out * ratio * alpha}
+
+
+def rolling_incline(t, *, m, J, r, slope, s0, g=G):
+    """P10: a disc (mass m, inertia J, radius r) rolling without slipping from rest at s0 on a
+    line through the origin at angle ``slope``, its centre r above it. Newton along the line
+    and about the centre with the contact friction f (up the slope) and normal N:
+    ``m s'' = f - m g sin a``, ``J phi'' = r f``, ``s' = -r phi'`` give
+    ``s'' = -g sin a / (1 + J / (m r^2))``, ``f = m g sin a J / (J + m r^2)``, ``N = m g cos a``.
+    Returns s, the centre (x, y), the angle turned ``phi = -(s - s0) / r``, f and N."""
+    t = np.asarray(t, dtype=float)
+    sa, ca = math.sin(slope), math.cos(slope)
+    acc = -g * sa / (1.0 + J / (m * r * r))
+    s = s0 + 0.5 * acc * t * t
+    return {"s": s, "x": s * ca - r * sa, "y": s * sa + r * ca, "phi": -(s - s0) / r,
+            "friction": m * g * sa * J / (J + m * r * r), "normal": m * g * ca, "acc": acc}
+
+
+def slot_rod(t, *, m=1.0, L=1.0, J=None, g=G, theta0=0.3):
+    """P11: a uniform rod (inertia ``J`` about its centre, ``m L^2 / 12`` by default) whose top
+    end is a pin in a frictionless horizontal slot (a massless slider), released at rest
+    ``theta0`` from the downward vertical. No horizontal force acts: the centre keeps its x.
+    With a = L / 2 and the centre at y = -a cos theta, Lagrange's equation is
+    ``(m a^2 sin^2 theta + J) theta'' + m a^2 sin theta cos theta theta'^2 + m g a sin theta = 0``
+    (small oscillations: omega^2 = m g a / J = 6 g / L for the uniform rod); the pin's vertical
+    force on the rod is ``m (g + y'')``. Integrated by DOP853 at ODE_TOL.
+    Returns theta, theta_dot, theta_ddot, x, y (centre), phi (body angle, theta - pi/2), Fy."""
+    J = m * L * L / 12.0 if J is None else J
+    a = 0.5 * L
+
+    def accel(th, w):
+        return -(m * a * a * math.sin(th) * math.cos(th) * w * w + m * g * a * math.sin(th)) / (
+            m * a * a * math.sin(th) ** 2 + J)
+
+    th, w = _integrate(lambda _t, y: [y[1], accel(y[0], y[1])], t, [theta0, 0.0], ODE_TOL,
+                       "slot rod reduction")
+    acc = np.array([accel(x, v) for x, v in zip(th, w)])
+    ydd = a * (np.cos(th) * w * w + np.sin(th) * acc)
+    return {"theta": th, "theta_dot": w, "theta_ddot": acc,
+            "x": np.full_like(th, a * math.sin(theta0)), "y": -a * np.cos(th),
+            "phi": th - math.pi / 2, "Fy": m * (g + ydd)}
+
+
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
 
@@ -613,30 +670,81 @@ def _point_state(body, point):
     return r, v
 
 
+def _coordinate(jt, bodies):
+    """A revolute or translational joint's coordinate and its rate at the initial state:
+    ``phi_j - phi_i``, or ``(r_Pj - r_Pi) . u_i`` with ``u_i`` the unit axis in the ground frame."""
+    bi, bj = bodies[jt["body_i"]], bodies[jt["body_j"]]
+    wi, wj = float(bi.get("angular_velocity", 0.0)), float(bj.get("angular_velocity", 0.0))
+    if jt["type"] == "revolute":
+        return float(bj["angle"]) - float(bi["angle"]), wj - wi
+    ri, vi = _point_state(bi, jt.get("point_i", [0.0, 0.0]))
+    rj, vj = _point_state(bj, jt.get("point_j", [0.0, 0.0]))
+    axis = np.asarray(jt["axis_i"], dtype=float)
+    u = _rot(float(bi["angle"])) @ (axis / np.linalg.norm(axis))
+    return float(u @ (rj - ri)), float(u @ (vj - vi) + (wi * _perp(u)) @ (rj - ri))
+
+
+def _line_residuals(jt, bi, bj, offset):
+    """Signed distance of point_j from the line through point_i along axis_i (positive on its
+    left) minus ``offset``, its rate, and the line's unit axis and normal."""
+    ri, vi = _point_state(bi, jt.get("point_i", [0.0, 0.0]))
+    rj, vj = _point_state(bj, jt.get("point_j", [0.0, 0.0]))
+    axis = np.asarray(jt["axis_i"], dtype=float)
+    u = _rot(float(bi["angle"])) @ (axis / np.linalg.norm(axis))
+    normal = _perp(u)
+    wi = float(bi.get("angular_velocity", 0.0))
+    return (normal @ (rj - ri) - offset, normal @ (vj - vi) + (wi * _perp(normal)) @ (rj - ri),
+            u, normal)
+
+
+def rolling_slip(bi, bj, u, normal, radius):
+    """Tangential velocity of the disc's material point at the contact, relative to the line
+    body's material point there (zero when it rolls): C = r_disc - radius n."""
+    contact = np.asarray(bj["position"], dtype=float) - radius * normal
+    v_disc = (np.asarray(bj.get("velocity", [0.0, 0.0]), dtype=float)
+              + float(bj.get("angular_velocity", 0.0)) * _perp(contact - bj["position"]))
+    v_line = (np.asarray(bi.get("velocity", [0.0, 0.0]), dtype=float)
+              + float(bi.get("angular_velocity", 0.0)) * _perp(contact - bi["position"]))
+    return float(u @ (v_disc - v_line))
+
+
 def joint_residuals(scene):
     """Position and velocity residuals of every joint of a parsed scene, at its initial state.
 
     Revolute: ``r_i + A_i s_i - r_j - A_j s_j`` (2 rows, m) and its time derivative.
     Translational: the offset of point_j from the line through point_i along ``axis_i`` (m), and
     the relative rotation ``phi_j - phi_i`` (rad, the scenes keep it at 0), with derivatives.
+    Slot: the offset alone. Rolling: the disc centre's distance from the line minus the radius,
+    and the contact point's slip velocity. Coupler: 0 by definition at the start (its
+    coordinates are measured from there), and ``q_j' - ratio q_i'``.
     Returns ``{joint name: (position residual array, velocity residual array)}``.
     """
     bodies = _body_table(scene)
+    joints = {jt["name"]: jt for jt in scene.get("joint", [])}
     out = {}
-    for jt in scene.get("joint", []):
+    for jt in joints.values():
+        if jt["type"] == "coupler":
+            (_, wi), (_, wj) = (_coordinate(joints[jt[k]], bodies) for k in ("joint_i", "joint_j"))
+            out[jt["name"]] = (np.zeros(1), np.array([wj - jt["ratio"] * wi]))
+            continue
         bi, bj = bodies[jt["body_i"]], bodies[jt["body_j"]]
-        ri, vi = _point_state(bi, jt["point_i"])
-        rj, vj = _point_state(bj, jt["point_j"])
         if jt["type"] == "revolute":
+            ri, vi = _point_state(bi, jt["point_i"])
+            rj, vj = _point_state(bj, jt.get("point_j", [0.0, 0.0]))
             out[jt["name"]] = (ri - rj, vi - vj)
-        elif jt["type"] == "translational":
-            axis = np.asarray(jt["axis_i"], dtype=float)
-            normal = _rot(float(bi["angle"])) @ _perp(axis / np.linalg.norm(axis))
+        elif jt["type"] in ("translational", "slot"):
+            pos, vel, _, _ = _line_residuals(jt, bi, bj, 0.0)
             wi = float(bi.get("angular_velocity", 0.0))
             wj = float(bj.get("angular_velocity", 0.0))
-            pos_res = np.array([normal @ (rj - ri), float(bj["angle"]) - float(bi["angle"])])
-            vel_res = np.array([normal @ (vj - vi) + (wi * _perp(normal)) @ (rj - ri), wj - wi])
-            out[jt["name"]] = (pos_res, vel_res)
+            if jt["type"] == "slot":
+                out[jt["name"]] = (np.array([pos]), np.array([vel]))
+            else:
+                out[jt["name"]] = (np.array([pos, float(bj["angle"]) - float(bi["angle"])]),
+                                   np.array([vel, wj - wi]))
+        elif jt["type"] == "rolling":
+            pos, vel, u, normal = _line_residuals(jt, bi, bj, jt["radius"])
+            out[jt["name"]] = (np.array([pos]),
+                               np.array([vel, rolling_slip(bi, bj, u, normal, jt["radius"])]))
         else:
             raise ValueError(f"unknown joint type {jt['type']!r}")
     return out

@@ -160,7 +160,7 @@ def test_nothing_points_outside_the_repository():
 
 
 def test_docs_variable_list_is_generated_from_the_table():
-    from mbdfmu.model.variables import markdown_table
+    from mbdfmu.model.variable_docs import markdown_table
 
     path = ROOT / "docs" / "variables.md"
     text = path.read_text(encoding="utf-8")

@@ -111,5 +111,5 @@ def test_bench_command_quick_synchronous(tmp_path, capsys):
     (out / "summary.md").unlink()
     assert cli.main(["bench", "--from-csv", str(out / "results.csv")]) == 0  # charts from CSV only
     assert (out / "summary.md").exists()
-    assert cli.main(["bench", "P9", "--scheduler", "synchronous", "-o", str(out)]) == 2
-    assert 'unknown bench scene "P9"' in capsys.readouterr().err
+    assert cli.main(["bench", "P99", "--scheduler", "synchronous", "-o", str(out)]) == 2
+    assert 'unknown bench scene "P99"' in capsys.readouterr().err

@@ -9,14 +9,18 @@ import mbdfmu
 from mbdfmu.equations.projection import assemble, project_velocities
 from mbdfmu.equations import Equations
 
+import joint_scenes
 from conftest import SCENES
 
 SCENE_FILES = ["slider_crank", "four_bar", "andrews", "light_cart_pole", "double_pendulum",
-               "slider_force", "n_four_bar_2"]
+               "slider_force", "n_four_bar_2", "gear_pair", "rack_pinion", "rolling_disc",
+               "slot_rod", "mechanisms", "two_sliders"]
 
 
 def _systems():
-    return {name: Equations(mbdfmu.load_scene(SCENES / f"{name}.toml")) for name in SCENE_FILES}
+    return {name: Equations(joint_scenes.BUILT[name]() if name in joint_scenes.BUILT
+                            else mbdfmu.load_scene(SCENES / f"{name}.toml"))
+            for name in SCENE_FILES}
 
 
 SYSTEMS = _systems()

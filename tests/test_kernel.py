@@ -25,15 +25,19 @@ from mbdfmu.scenes.generate_n_four_bar import scene_text
 from mbdfmu.equations import Equations
 
 import exact_solutions as ref
+import joint_scenes
 from conftest import SCENES as SCENE_DIR
 
 
 def scene(name):
+    if name in joint_scenes.BUILT:     # the new joints' test scenes (joint_scenes.py)
+        return joint_scenes.BUILT[name]()
     return mbdfmu.load_scene(SCENE_DIR / f"{name}.toml")
 
 needs_numba = pytest.mark.skipif(not numba_installed(), reason="numba not installed")
 SCENES = ["slider_crank", "andrews", "four_bar", "parallelogram", "slider_force",
-          "double_pendulum", "n_four_bar_2"]
+          "double_pendulum", "n_four_bar_2", "gear_pair", "rack_pinion", "rolling_disc",
+          "slot_rod", "mechanisms", "two_sliders"]
 
 
 def n_four_bar(n: int):
@@ -174,7 +178,8 @@ def test_failed_advance_rolls_back_to_the_exact_state():
 
 
 @needs_numba
-@pytest.mark.parametrize("name", ["n_four_bar_2", "four_bar", "pendulum", "double_pendulum"])
+@pytest.mark.parametrize("name", ["n_four_bar_2", "four_bar", "pendulum", "double_pendulum",
+                                  "rack_pinion", "rolling_disc", "slot_rod", "mechanisms"])
 def test_compiled_rk4p_steps_equal_the_general_steps(name):
     runs = {}
     for kernel in ("numba", "numpy"):
@@ -286,6 +291,7 @@ def test_reaction_blocks_gathered_from_the_pattern_equal_the_dense_jacobian(name
     rng = np.random.default_rng(7)
     q, lam = rng.normal(size=system.n), rng.normal(size=system.m)
     _, J = system.constraints(0.3, q, extended=True)        # dense, ground columns last
+    J = np.vstack((J, np.zeros(J.shape[1])))               # row m: a one-row joint's second
     cols = 3 * system.constraint_set.joint_bj[:, None, None] + np.arange(3)[None, None, :]
     blocks = J[system.constraint_set.joint_rows[:, :, None], cols]
     data = system.constraint_values(0.3, q)[1]

@@ -14,7 +14,9 @@ import exact_solutions as ref
 
 SCENE_FILES = sorted(ref.SCENES.glob("*.toml"))
 BODY_KEYS = ("name", "mass", "inertia", "position", "angle", "velocity", "angular_velocity")
-JOINT_KEYS = ("name", "type", "body_i", "point_i", "axis_i", "body_j", "point_j", "frame_angle")
+JOINT_KEYS = ("name", "type", "body_i", "point_i", "axis_i", "body_j", "point_j", "radius",
+              "frame_angle")
+COUPLER_KEYS = ("name", "type", "joint_i", "joint_j", "ratio")
 
 
 def _fd(f, x, h):
@@ -330,7 +332,8 @@ def test_expected_scenes_exist():
     names = {p.stem for p in SCENE_FILES}
     assert names >= {"pendulum", "rod_pendulum", "double_pendulum", "slider_crank", "four_bar",
                      "n_four_bar_2", "n_four_bar_40", "andrews", "light_cart_pole",
-                     "parallelogram", "pendulum_torque", "slider_force"}
+                     "parallelogram", "pendulum_torque", "slider_force", "gear_pair",
+                     "rack_pinion", "rolling_disc", "slot_rod"}
 
 
 @pytest.mark.parametrize("path", SCENE_FILES, ids=lambda p: p.stem)
@@ -353,8 +356,9 @@ def test_scene_layout_is_uniform(path):
         if path.stem != "slider_crank":   # the issue's example omits the optional velocities
             assert order == list(BODY_KEYS)
     for jt in scene.get("joint", []):
-        assert list(jt) == [k for k in JOINT_KEYS if k in jt], jt["name"]
-        assert jt["type"] in ("revolute", "translational")
+        keys = COUPLER_KEYS if jt["type"] == "coupler" else JOINT_KEYS
+        assert list(jt) == [k for k in keys if k in jt], jt["name"]
+        assert jt["type"] in ("revolute", "translational", "slot", "rolling", "coupler")
 
 
 @pytest.mark.parametrize("path", SCENE_FILES, ids=lambda p: p.stem)
@@ -392,3 +396,58 @@ def test_slider_crank_scene_matches_p4_data():
     assert scene["driver"][0]["motion"] == {"type": "linear", "start": 0.0,
                                             "rate": 314.1592653589793}
     assert scene["force"][0]["value"] == [-10.0, 0.0]
+
+
+# ------------------------------------------------------------------------------- P8-P11 ---
+
+def test_p8_p9_geared_pair_balances_power_and_newton():
+    # input: J_in q_in'' = T - ratio * effort (the reaction on its coordinate); output:
+    # inertia_out q_out'' = effort; q_out = ratio q_in
+    for ratio in (-0.5, 0.05, 3.0):
+        ex = ref.geared_pair(np.array([0.7]), torque=0.1, J_in=0.005, inertia_out=0.04, ratio=ratio)
+        assert 0.005 * ex["alpha"] == pytest.approx(0.1 - ratio * ex["effort"], rel=1e-14)
+        assert 0.04 * ratio * ex["alpha"] == pytest.approx(ex["effort"], rel=1e-14)
+        assert ex["q_out"][0] == pytest.approx(ratio * ex["q_in"][0], rel=1e-14)
+
+
+def test_p10_rolling_incline_obeys_newton_about_the_centre():
+    m, J, r, a = 2.0, 0.01, 0.1, math.pi / 6
+    t = np.linspace(0.0, 1.0, 11)
+    ex = ref.rolling_incline(t, m=m, J=J, r=r, slope=a, s0=2.0)
+    phi_dd = -ex["acc"] / r
+    assert m * ex["acc"] == pytest.approx(ex["friction"] - m * ref.G * math.sin(a), rel=1e-14)
+    assert J * phi_dd == pytest.approx(r * ex["friction"], rel=1e-14)
+    assert ex["normal"] == pytest.approx(m * ref.G * math.cos(a), rel=1e-15)
+    # the centre stays r above the line and moves along it
+    n = np.array([-math.sin(a), math.cos(a)])
+    np.testing.assert_allclose(n[0] * ex["x"] + n[1] * ex["y"], r, atol=1e-15)
+
+
+def test_p11_slot_rod_conserves_energy_and_keeps_the_pin_on_the_slot():
+    t = np.linspace(0.0, 2.0, 41)
+    ex = ref.slot_rod(t)
+    a, m, J = 0.5, 1.0, 1.0 / 12
+    ydot = a * np.sin(ex["theta"]) * ex["theta_dot"]
+    energy = 0.5 * m * ydot ** 2 + 0.5 * J * ex["theta_dot"] ** 2 + m * ref.G * ex["y"]
+    np.testing.assert_allclose(energy, energy[0], atol=1e-12)
+    pin_y = ex["y"] + a * np.cos(ex["theta"])
+    np.testing.assert_allclose(pin_y, 0.0, atol=1e-15)
+
+
+def test_p11_small_oscillations_of_the_slot_rod_have_omega_squared_six_g_over_l():
+    # the reduction's period at a tiny amplitude, by quadrature of the energy integral
+    from scipy.integrate import quad
+
+    a, m, J, L, th0 = 0.5, 1.0, 1.0 / 12, 1.0, 1e-4
+
+    def integrand(u):
+        # dt = dth / th' with th = th0 sin(u); with v = pi/4 - u/2, th0 - th = 2 th0 sin^2 v and
+        # cos th - cos th0 = 2 sin((th0 + th) / 2) sin(th0 sin^2 v): the sin v factors cancel
+        th, v = th0 * math.sin(u), math.pi / 4 - u / 2
+        x = th0 * math.sin(v) ** 2
+        sinc = math.sin(x) / x if x else 1.0
+        return (th0 * 2 * math.cos(v) * math.sqrt(m * a * a * math.sin(th) ** 2 + J)
+                / math.sqrt(4 * m * ref.G * a * math.sin((th0 + th) / 2) * th0 * sinc))
+
+    quarter = quad(integrand, 0.0, math.pi / 2, epsabs=0, epsrel=1e-13)[0]
+    assert 4 * quarter == pytest.approx(2 * math.pi / math.sqrt(6 * ref.G / L), rel=1e-8)

@@ -61,6 +61,58 @@ CASES = {
     "wrong_type": (BASE.replace("mass = 1.0", 'mass = "heavy"'), ['body "crank"', '"mass" must be a number']),
 }
 
+# The new joints (couplers, slots, rolling discs): a disc of radius 0.5 whose centre sits at
+# (0, 0.5), above a ground line along x, and couplers on the crank's joint.
+DISC = '[[body]]\nname = "disc"\nmass = 1.0\ninertia = 0.1\nposition = [0.0, 0.5]\n'
+ROLLING = ('[[joint]]\nname = "r"\ntype = "rolling"\nbody_i = "ground"\naxis_i = [1.0, 0.0]\n'
+           'body_j = "disc"\nradius = 0.5\n')
+SLOT = ('[[joint]]\nname = "s"\ntype = "slot"\nbody_i = "ground"\naxis_i = [1.0, 0.0]\n'
+        'body_j = "disc"\npoint_j = [0.0, -0.5]\n')
+TRACK = ('[[joint]]\nname = "g"\ntype = "translational"\nbody_i = "ground"\n'
+         'axis_i = [1.0, 0.0]\nbody_j = "disc"\n')
+
+
+def _coupler(joint_i='"O"', joint_j='"g"', ratio="0.1", extra=""):
+    return (BASE + DISC + TRACK + SLOT + f'[[joint]]\nname = "c"\ntype = "coupler"\n'
+            f"joint_i = {joint_i}\njoint_j = {joint_j}\nratio = {ratio}\n{extra}")
+
+
+CASES |= {
+    "coupler_unknown_joint": (_coupler(joint_i='"P"'),
+                              ['joint "c"', 'joint_i: unknown joint "P"']),
+    "coupler_itself": (_coupler(joint_j='"O"'), ['joint "c"', 'couples joint "O" to itself']),
+    "coupler_no_coordinate": (_coupler(joint_j='"s"'),
+                              ['joint "c"', 'joint_j: joint "s" is slot, which has no coordinate']),
+    "coupler_zero_ratio": (_coupler(ratio="0.0"), ['joint "c"', '"ratio" must not be zero']),
+    "coupler_ratio_not_a_number": (_coupler(ratio='"2:1"'),
+                                   ['joint "c"', '"ratio" must be a number']),
+    "coupler_missing_ratio": (_coupler().replace("ratio = 0.1\n", ""),
+                              ['joint "c"', 'missing required key "ratio"']),
+    "coupler_body_key": (_coupler(extra='body_i = "crank"\n'),
+                         ['joint "c"', 'unknown key "body_i"']),
+    "rolling_negative_radius": (BASE + DISC + ROLLING.replace("radius = 0.5", "radius = -0.5"),
+                                ['joint "r"', '"radius" must be positive, got -0.5']),
+    "rolling_off_its_radius": (BASE + DISC + ROLLING.replace("radius = 0.5", "radius = 0.4"),
+                               ['joint "r"', 'the centre of body "disc" starts 0.5 m from the line',
+                                "not at the radius 0.4 m"]),
+    "rolling_on_the_right": (BASE + DISC.replace("[0.0, 0.5]", "[0.0, -0.5]") + ROLLING,
+                             ['joint "r"', "starts -0.5 m from the line"]),
+    "rolling_point_j": (BASE + DISC + ROLLING + "point_j = [0.1, 0.0]\n",
+                        ['joint "r"', 'unknown key "point_j"']),
+    "rolling_disc_is_ground": (BASE + ROLLING.replace('body_i = "ground"', 'body_i = "crank"')
+                               .replace('body_j = "disc"', 'body_j = "ground"'),
+                               ['joint "r"', "body_j: acts on the ground"]),
+    "rolling_zero_axis": (BASE + DISC + ROLLING.replace("[1.0, 0.0]", "[0.0, 0.0]"),
+                          ['joint "r"', '"axis_i" has zero length']),
+    "slot_zero_axis": (BASE + DISC + SLOT.replace("[1.0, 0.0]", "[0.0, 0.0]"),
+                       ['joint "s"', '"axis_i" has zero length']),
+    "slot_missing_axis": (BASE + DISC + SLOT.replace("axis_i = [1.0, 0.0]\n", ""),
+                          ['joint "s"', 'missing required key "axis_i"']),
+    "driver_on_rolling": (BASE + DISC + ROLLING + '[[driver]]\nname = "m"\njoint = "r"\n'
+                          'motion = {type = "constant", value = 0.0}\n',
+                          ['driver "m"', 'joint "r" is rolling, which has no coordinate']),
+}
+
 
 def _write(tmp_path, text):
     path = tmp_path / "bad.toml"
@@ -117,7 +169,8 @@ def test_consistent_redundant_constraints_are_reported_not_rejected(scenes_dir):
     assert (report.dof, len(report.redundant)) == (1, 1)
 
 
-@pytest.mark.parametrize("case", ["unknown_key", "invalid_toml", "zero_axis"])
+@pytest.mark.parametrize("case", ["unknown_key", "invalid_toml", "zero_axis", "coupler_itself",
+                                  "rolling_off_its_radius"])
 def test_cli_exits_2_with_one_line_and_no_traceback(tmp_path, case):
     path = _write(tmp_path, CASES[case][0])
     for command in (["check", str(path)], ["simulate", str(path), "--t-end", "0.1"]):

@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .model.scene import GROUND, PointForce, Scene, SpringDamper, TranslationalJoint
+from .model.scene import (GROUND, CouplerJoint, PointForce, RollingJoint, Scene, SpringDamper,
+                          TranslationalJoint)
 from .plotting import figure
 from .result import Result
 
@@ -39,8 +40,11 @@ def attachments(scene: Scene) -> dict[str, np.ndarray]:
     points: dict[str, list] = {b.name: [] for b in scene.bodies}
     points[GROUND] = []
     for j in scene.joints:
+        if isinstance(j, CouplerJoint):          # joins coordinates, not points
+            continue
         points[j.body_i].append(j.point_i)
-        points[j.body_j].append(j.point_j)
+        # a rolling disc: a spoke to its rim, so that its rotation shows
+        points[j.body_j].append((j.radius, 0.0) if isinstance(j, RollingJoint) else j.point_j)
     for f in scene.forces:
         if isinstance(f, PointForce):
             points[f.body].append(f.point)
@@ -76,12 +80,21 @@ def _block_axis(scene: Scene, body: str, poses: dict) -> float | None:
     return None
 
 
+def _disc_radius(scene: Scene, body: str) -> float | None:
+    """The radius of a body that rolls (body_j of a rolling joint), else None."""
+    return next((j.radius for j in scene.joints
+                 if isinstance(j, RollingJoint) and j.body_j == body), None)
+
+
 class BodyShape:
     """The artists of one body and how they move with its pose."""
 
-    def __init__(self, ax, name: str, local: np.ndarray, colour, size: float, axis=None):
+    def __init__(self, ax, name: str, local: np.ndarray, colour, size: float, axis=None,
+                 radius: float | None = None):
         self.local, self.kind = local, "bar"
-        if axis is not None:
+        if radius is not None:       # a rolling disc: its rim, and a spoke (``local``)
+            self.local, self.kind = np.vstack(([[0.0, 0.0]], local)), "disc"
+        elif axis is not None:
             L, H = BLOCK[0] * size, BLOCK[1] * size
             c, s = np.cos(axis), np.sin(axis)
             corners = np.array([[-L, -H], [L, -H], [L, H], [-L, H]]) / 2
@@ -94,7 +107,11 @@ class BodyShape:
             self.local = np.zeros((1, 2))
         self.disc = None
         from matplotlib.patches import Circle, Polygon
-        if self.kind in ("block", "plate"):
+        if self.kind == "disc":
+            self.disc = ax.add_patch(Circle((0, 0), radius, facecolor=colour, edgecolor="k",
+                                            alpha=0.75, label=name, zorder=2))
+            self.patch = ax.plot([], [], "-", lw=1.5, color="k", zorder=3)[0]
+        elif self.kind in ("block", "plate"):
             self.patch = ax.add_patch(Polygon(self.local, closed=True, facecolor=colour,
                                               edgecolor="k", alpha=0.75, label=name))
         else:
@@ -135,8 +152,15 @@ def zigzag(a: np.ndarray, b: np.ndarray, width: float) -> np.ndarray:
 
 def _ground(ax, scene: Scene, size: float) -> None:
     """Pivots where joints fix bodies to the ground, and the line of each guide."""
-    pivots = [j.point_i for j in scene.joints if j.body_i == GROUND] + \
-             [j.point_j for j in scene.joints if j.body_j == GROUND]
+    pointed = [j for j in scene.joints if not isinstance(j, (CouplerJoint, RollingJoint))]
+    for j in scene.joints:           # the line a disc rolls on, when it is the ground's
+        if isinstance(j, RollingJoint) and j.body_i == GROUND:
+            p, u = np.asarray(j.point_i), np.asarray(j.axis_i) / np.hypot(*j.axis_i)
+            ends = np.array([p - 10 * size * u, p + 10 * size * u])
+            ax.plot(ends[:, 0], ends[:, 1], "-", color="0.5", lw=1.5, zorder=0,
+                    label="rolling line")
+    pivots = [j.point_i for j in pointed if j.body_i == GROUND] + \
+             [j.point_j for j in pointed if j.body_j == GROUND]
     for j in scene.joints:
         if isinstance(j, TranslationalJoint) and GROUND in (j.body_i, j.body_j):
             p = np.asarray(j.point_i if j.body_i == GROUND else j.point_j)
@@ -197,7 +221,7 @@ def animate(scene: Scene, result: Result, path: str | Path, fps: int = 25,
     ax.set_title(scene.name)
     _ground(ax, scene, size)
     shapes = {b.name: BodyShape(ax, b.name, _rod(b, outlines[b.name]), f"C{k % 10}", size,
-                                _block_axis(scene, b.name, poses))
+                                _block_axis(scene, b.name, poses), _disc_radius(scene, b.name))
               for k, b in enumerate(scene.bodies)}
     springs = [(f, ax.plot([], [], "-", color="0.3", lw=1, label="spring" if k == 0 else None)[0])
                for k, f in enumerate(f for f in scene.forces if isinstance(f, SpringDamper))]

@@ -67,7 +67,7 @@ def cmd_check(args) -> int:
         print(f"    {b.name}: mass {b.mass:g} kg, inertia {b.inertia:g} kg.m2")
     print(f"  joints ({len(scene.joints)}):")
     for j in scene.joints:
-        print(f"    {j.name}: {j.TYPE} {j.body_i} - {j.body_j}")
+        print(f"    {j.name}: {j.TYPE} {j.summary()}")
     print(f"  drivers ({len(scene.drivers)}):")
     for d in scene.drivers:
         target = f"joint {d.joint}" if d.joint else f"{d.body}.{d.coordinate}"

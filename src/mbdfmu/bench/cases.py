@@ -73,6 +73,18 @@ CASES: dict[str, Case] = {c.key: c for c in (
     Case("P6", "light_cart_pole", "P6 light cart-pole, t = 2 s (two spikes)", 2.0,
          (1e-2, 1e-3, 1e-4), (1e-2, 1e-4, 1e-6, 1e-8, 1e-10),
          "exact invariants: momentum (cart x / l) and energy (theta'^2 / its peak)"),
+    Case("P8", "gear_pair", "P8 gear pair (coupler), t = 1 s", 1.0,
+         (1e-1, 5e-2, 2e-2, 1e-2, 5e-3), TOLS[::3],
+         "exact: constant acceleration (both angles, rad)", n_out=10),
+    Case("P9", "rack_pinion", "P9 rack and pinion (coupler), t = 1 s", 1.0,
+         (1e-1, 5e-2, 2e-2, 1e-2, 5e-3), TOLS[::3],
+         "exact: constant acceleration (pinion angle, rad; rack x, m)", n_out=10),
+    Case("P10", "rolling_disc", "P10 disc rolling down an incline, t = 1 s", 1.0,
+         (1e-1, 5e-2, 2e-2, 1e-2, 5e-3), TOLS[::3],
+         "exact: constant acceleration (centre position, m)", n_out=10),
+    Case("P11", "slot_rod", "P11 rod on a pin in a horizontal slot, t = 10 s", 10.0,
+         (5e-2, 2e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4), TOLS,
+         "exact: one-DOF reduction at 1e-13 (rod angle, rad; centre x and y, m)"),
 )}
 DEFAULT_SCENES = tuple(CASES)
 
@@ -144,8 +156,41 @@ def error_converged(case, scene, t, out, ref):
     return float(np.max(np.abs(angles(scene, out) - ref["angles"])))
 
 
+def _error_geared(coordinate: str, by_mass: bool):
+    """P8, P9: the error of a torque-driven input body coupled to an output body: its angle,
+    or (``coordinate`` "x", ``by_mass``) a rack's x, whose coordinate's inertia is its mass."""
+    def error(case, scene, t, out, ref):
+        (body_in, body_out), coupler = scene.bodies, scene.joints[-1]
+        exact = closed_forms.geared(
+            t, torque=scene.forces[0].value, inertia_in=body_in.inertia,
+            inertia_out=body_out.mass if by_mass else body_out.inertia, ratio=coupler.ratio)
+        return float(max(np.abs(get(out, f"{body_in.name}.phi") - exact["q_in"]).max(),
+                         np.abs(get(out, f"{body_out.name}.{coordinate}") - exact["q_out"]).max()))
+    return error
+
+
+def _error_P10(case, scene, t, out, ref):
+    disc, contact = scene.bodies[0], scene.joints[0]
+    ux, uy = np.asarray(contact.axis_i) / math.hypot(*contact.axis_i)
+    exact = closed_forms.disc_on_incline(
+        t, mass=disc.mass, inertia=disc.inertia, radius=contact.radius,
+        slope=math.atan2(uy, ux), start=disc.position[0] * ux + disc.position[1] * uy)
+    return float(np.max(np.hypot(get(out, "disc.x") - exact["x"], get(out, "disc.y") - exact["y"])))
+
+
+def _error_P11(case, scene, t, out, ref):
+    rod, pin = scene.bodies[0], scene.joints[0].point_j      # the pin at the rod's end
+    exact = closed_forms.rod_in_slot(t, mass=rod.mass, length=2 * abs(pin[0]),
+                                     inertia=rod.inertia, theta0=rod.angle + math.pi / 2)
+    return float(max(np.abs(get(out, "rod.phi") - exact["phi"]).max(),
+                     np.abs(get(out, "rod.y") - exact["y"]).max(),
+                     np.abs(get(out, "rod.x") - rod.position[0]).max()))
+
+
 ERRORS = {"P1": _error_P1, "P2N2": _error_P2, "P2N40": _error_P2, "P3": error_converged,
-          "P4": _error_P4, "P6": _error_P6}
+          "P4": _error_P4, "P6": _error_P6, "P8": _error_geared("phi", False),
+          "P9": _error_geared("x", True),
+          "P10": _error_P10, "P11": _error_P11}
 EXACT_P2 = {"P2N2": 2, "P2N40": 40}
 
 

@@ -1,6 +1,7 @@
 """Exact references of the benchmark problems, used by ``mbdfmu bench`` at run time.
 
-Closed forms only, of the benchmark problems in docs/accuracy.md (P1, P2, P4, P6), with
+Closed forms only, of the benchmark problems in docs/accuracy.md (P1, P2, P4, P6) and
+docs/problems.md (P8-P11: couplers, rolling, a pin in a slot), with
 numpy and scipy: nothing here calls the solver, so the solver cannot leak into its own
 reference. (``tests/exact_solutions.py`` is the tests' independent set; this is the package's.)
 Conventions: SI units, gravity ``g`` in -y, pendulum angles from the downward vertical,
@@ -85,3 +86,49 @@ def cart_pole_invariants(theta, *, M: float, m: float, l: float, J=0.0, g=G,
     denom = m * l * l * (M + m * np.sin(theta) ** 2) / (M + m) + J
     return {"x": m * l * (math.sin(theta0) - np.sin(theta)) / (M + m),
             "theta_dot_sq": 2.0 * m * g * l * (np.cos(theta) - math.cos(theta0)) / denom}
+
+
+def geared(t, *, torque: float, inertia_in: float, inertia_out: float, ratio: float) -> dict:
+    """P8, P9: a torque on an input of inertia ``inertia_in`` coupled to an output (inertia or
+    mass ``inertia_out``) whose coordinate moves ``ratio`` times the input's, from rest and
+    zero: the reduced inertia is ``inertia_in + ratio^2 inertia_out``. Returns ``q_in``,
+    ``q_out`` (rad or m)."""
+    t = np.asarray(t, dtype=float)
+    q_in = 0.5 * torque / (inertia_in + ratio ** 2 * inertia_out) * t ** 2
+    return {"q_in": q_in, "q_out": ratio * q_in}
+
+
+def disc_on_incline(t, *, mass: float, inertia: float, radius: float, slope: float,
+                    start: float, g=G) -> dict:
+    """P10: a disc rolling from rest at ``start`` (m along the line through the origin at
+    ``slope``), its centre ``radius`` on the line's left: it accelerates down the line at
+    g sin(slope) m r^2 / (m r^2 + J). Returns the centre ``x``, ``y`` and the angle ``phi``."""
+    t = np.asarray(t, dtype=float)
+    along = start - 0.5 * g * math.sin(slope) * mass * radius ** 2 / (
+        mass * radius ** 2 + inertia) * t ** 2
+    c, s = math.cos(slope), math.sin(slope)
+    return {"x": along * c - radius * s, "y": along * s + radius * c,
+            "phi": (start - along) / radius}
+
+
+def rod_in_slot(t, *, mass=1.0, length=1.0, inertia=None, g=G, theta0=0.3) -> dict:
+    """P11: a uniform rod whose top end slides in a frictionless horizontal slot, from rest
+    ``theta0`` off the vertical. Its centre keeps x and sits at y = -(L/2) cos theta; with
+    k = m L^2 / 4 the energy gives (k sin^2 theta + J) theta'' = -k sin theta cos theta
+    theta'^2 - m g (L/2) sin theta, integrated by DOP853 at REDUCTION_TOL. ``t`` sorted,
+    >= 0. Returns ``theta``, ``y`` (centre) and ``phi`` (body angle theta - pi/2)."""
+    t = np.atleast_1d(np.asarray(t, dtype=float))
+    J = mass * length ** 2 / 12.0 if inertia is None else inertia
+    k, weight = mass * length ** 2 / 4.0, mass * g * length / 2.0
+
+    def rhs(_t, y):
+        sn, cs = math.sin(y[0]), math.cos(y[0])
+        return [y[1], -(k * sn * cs * y[1] ** 2 + weight * sn) / (k * sn * sn + J)]
+
+    theta = np.full_like(t, theta0)
+    later = t > 0
+    if later.any():
+        sol = solve_ivp(rhs, (0.0, float(t[-1])), [theta0, 0.0], method="DOP853",
+                        t_eval=t[later], rtol=REDUCTION_TOL, atol=REDUCTION_TOL)
+        theta[later] = sol.y[0]
+    return {"theta": theta, "y": -0.5 * length * np.cos(theta), "phi": theta - math.pi / 2}

@@ -62,11 +62,13 @@ def jit_inline(function):
 
 
 Primitives = namedtuple("Primitives", [
-    "c_rows", "c_bi", "c_bj", "c_si", "c_sj",          # coincidence: rows (k, 2), bodies, points
-    "l_rows", "l_bi", "l_bj", "l_si", "l_sj", "l_u",   # line: rows (k,), bodies, points, axis
-    "a_rows", "a_bi", "a_bj"])                         # angle: rows (k,), bodies
+    "c_rows", "c_bi", "c_bj", "c_si", "c_sj",                # coincidence: rows (k, 2), bodies, points
+    "l_rows", "l_bi", "l_bj", "l_si", "l_sj", "l_u", "l_w",  # line: rows, bodies, points, axis, weight
+    "a_rows", "a_bi", "a_bj", "a_w"])                        # angle: rows (k,), bodies, weight
 JacobianPlan = namedtuple("JacobianPlan", [
-    "constants", "keep",          # constant entries of Psi_q's values; the entries kept (not ground)
+    "constants",                  # constant entries of Psi_q's term values
+    "merge", "size",              # term entry -> distinct entry (repeats summed); their number
+    "keep",                       # the distinct entries kept (not ground)
     "rows", "cols",               # the kept entries' positions
     "pair_a", "pair_b", "pair_minv", "band_index", "perm", "kd"])   # banded Schur plan
 
@@ -87,20 +89,21 @@ def _coincidence_terms(q, qd, cval, p, psi, data, gamma, k0):
         aix, aiy = _rotated(q, i, p.c_si[k, 0], p.c_si[k, 1])
         ajx, ajy = _rotated(q, j, p.c_sj[k, 0], p.c_sj[k, 1])
         r0, r1 = p.c_rows[k, 0], p.c_rows[k, 1]
-        psi[r0] = q[3 * i] + aix - q[3 * j] - ajx - cval[r0]
-        psi[r1] = q[3 * i + 1] + aiy - q[3 * j + 1] - ajy - cval[r1]
+        psi[r0] += q[3 * i] + aix - q[3 * j] - ajx
+        psi[r1] += q[3 * i + 1] + aiy - q[3 * j + 1] - ajy
         data[k0 + k] = -aiy
         data[k0 + kc + k] = aix
         data[k0 + 2 * kc + k] = ajy
         data[k0 + 3 * kc + k] = -ajx
         wi2, wj2 = qd[3 * i + 2] ** 2, qd[3 * j + 2] ** 2
-        gamma[r0] = aix * wi2 - ajx * wj2
-        gamma[r1] = aiy * wi2 - ajy * wj2
+        gamma[r0] += aix * wi2 - ajx * wj2
+        gamma[r1] += aiy * wi2 - ajy * wj2
 
 
 @jit
 def _line_terms(q, qd, cval, p, psi, data, gamma, k1):
-    """Line rows (joints.py): psi, the 6 blocks of Psi_q from data[k1], gamma."""
+    """Line terms (joints.py), each times its weight: psi, the 6 blocks of Psi_q from
+    data[k1], gamma."""
     kl = p.l_rows.shape[0]
     for k in range(kl):
         i, j = p.l_bi[k], p.l_bj[k]
@@ -109,28 +112,28 @@ def _line_terms(q, qd, cval, p, psi, data, gamma, k1):
         ux, uy = _rotated(q, i, p.l_u[k, 0], p.l_u[k, 1])
         dx = q[3 * j] + ajx - q[3 * i] - aix
         dy = q[3 * j + 1] + ajy - q[3 * i + 1] - aiy
-        row = p.l_rows[k]
-        psi[row] = ux * dx + uy * dy - cval[row]
+        row, w = p.l_rows[k], p.l_w[k]
+        psi[row] += w * (ux * dx + uy * dy)
         # rot90(v) = (-v_y, v_x)
-        data[k1 + k] = -ux
-        data[k1 + kl + k] = -uy
-        data[k1 + 2 * kl + k] = (-uy * dx + ux * dy) - (-ux * aiy + uy * aix)
-        data[k1 + 3 * kl + k] = ux
-        data[k1 + 4 * kl + k] = uy
-        data[k1 + 5 * kl + k] = -ux * ajy + uy * ajx
+        data[k1 + k] = -w * ux
+        data[k1 + kl + k] = -w * uy
+        data[k1 + 2 * kl + k] = w * ((-uy * dx + ux * dy) - (-ux * aiy + uy * aix))
+        data[k1 + 3 * kl + k] = w * ux
+        data[k1 + 4 * kl + k] = w * uy
+        data[k1 + 5 * kl + k] = w * (-ux * ajy + uy * ajx)
         wi, wj = qd[3 * i + 2], qd[3 * j + 2]
         ddx = qd[3 * j] - wj * ajy - qd[3 * i] + wi * aiy
         ddy = qd[3 * j + 1] + wj * ajx - qd[3 * i + 1] - wi * aix
-        gamma[row] = (wi * wi * (ux * dx + uy * dy)
-                      - 2.0 * wi * (-uy * ddx + ux * ddy)
-                      + ux * (ajx * wj * wj - aix * wi * wi)
-                      + uy * (ajy * wj * wj - aiy * wi * wi))
+        gamma[row] += w * (wi * wi * (ux * dx + uy * dy)
+                           - 2.0 * wi * (-uy * ddx + ux * ddy)
+                           + ux * (ajx * wj * wj - aix * wi * wi)
+                           + uy * (ajy * wj * wj - aiy * wi * wi))
 
 
 @jit
 def constraint_terms(q, qd, cval, p, psi, data, gamma):
-    """Fill psi (m,), data (Psi_q's values, ``constraints.py``'s layout) and gamma (m,,
-    without c''(t)) in place, for the ``Primitives`` p.
+    """Fill psi (m,), data (Psi_q's term values, ``constraints.py``'s layout) and gamma (m,,
+    without c''(t)) in place, for the ``Primitives`` p; each row sums its terms (eq. 24).
 
     q, qd: (3 nb + 3,) with the ground as body nb (zeros); cval: motion values c(t) per row.
     ``data`` holds the constants first; the q-dependent blocks follow them in the order
@@ -140,23 +143,26 @@ def constraint_terms(q, qd, cval, p, psi, data, gamma):
     k0 = data.shape[0] - 4 * kc - 6 * kl
     for r in range(gamma.shape[0]):
         gamma[r] = 0.0
+        psi[r] = -cval[r]
     _coincidence_terms(q, qd, cval, p, psi, data, gamma, k0)
     _line_terms(q, qd, cval, p, psi, data, gamma, k0 + 4 * kc)
     for k in range(p.a_rows.shape[0]):
-        row = p.a_rows[k]
-        psi[row] = q[3 * p.a_bj[k] + 2] - q[3 * p.a_bi[k] + 2] - cval[row]
+        psi[p.a_rows[k]] += p.a_w[k] * (q[3 * p.a_bj[k] + 2] - q[3 * p.a_bi[k] + 2])
 
 
 @jit
 def terms(q, qd, cval, p, plan):
-    """Psi (m,), the kept Jacobian values (on ``plan.rows``/``plan.cols``) and gamma without
-    c''(t). q, qd with the ground's three zeros appended."""
+    """Psi (m,), the kept Jacobian values (on ``plan.rows``/``plan.cols``, repeated term
+    entries summed) and gamma without c''(t). q, qd with the ground's three zeros appended."""
     m = cval.shape[0]
     psi, gamma = np.empty(m), np.empty(m)
     k0 = plan.constants.shape[0]
-    data = np.empty(k0 + 4 * p.c_rows.shape[0] + 6 * p.l_rows.shape[0])
-    data[:k0] = plan.constants
-    constraint_terms(q, qd, cval, p, psi, data, gamma)
+    raw = np.empty(k0 + 4 * p.c_rows.shape[0] + 6 * p.l_rows.shape[0])
+    raw[:k0] = plan.constants
+    constraint_terms(q, qd, cval, p, psi, raw, gamma)
+    data = np.zeros(plan.size)
+    for k in range(raw.shape[0]):
+        data[plan.merge[k]] += raw[k]
     return psi, data[plan.keep], gamma
 
 

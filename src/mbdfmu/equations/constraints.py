@@ -1,6 +1,7 @@
-"""The constraints of a scene: Psi(q, t), Psi_q, nu and gamma (formulation.md, eqs. 5-11).
+"""The constraints of a scene: Psi(q, t), Psi_q, nu and gamma (formulation.md, eqs. 5-11, 24).
 
-Rows come from ``joints.py`` in scene order: each joint, then each driver. Psi_q's nonzeros
+Rows come from ``joints.py`` in scene order: each joint, then each driver; a row sums its
+weighted line and angle terms. Psi_q's nonzeros
 are fixed per scene (``sparsity.JacobianPattern``); an evaluation fills in their values
 with the vectorised numpy kernel here or the numba kernel (``compiled.py``), which give the
 same numbers. Sign conventions: velocity equation ``Psi_q q' = nu`` (``nu = -Psi_t``),
@@ -54,30 +55,41 @@ def compiled_kernel():
 class ConstraintSet:
     """The constraint rows of a scene and their evaluation.
 
-    ``m`` rows over ``n = 3 nb`` coordinates; ``labels`` name the rows; ``joint_rows``
-    (nj, 2) and ``frames`` give each joint's rows and reaction frame; ``driver_rows`` the
-    driver rows in scene order; ``pattern`` Psi_q's nonzeros.
+    ``m`` rows over ``n = 3 nb`` coordinates; ``labels`` name the rows. Joints with
+    reactions (every type but the coupler) have their rows in ``joint_rows`` (nr, 2; a
+    one-row joint's second entry is ``m``, a row of zeros), ``reaction_joints`` their index
+    in the scene, ``joint_bj``, ``frame_*`` their body_j and reaction frame; couplers their
+    row in ``coupler_rows`` and index in ``coupler_joints``; ``driver_rows`` the driver rows
+    in scene order; ``pattern`` Psi_q's nonzeros.
     """
 
     def __init__(self, scene: Scene, minv: np.ndarray, kernel: str | None = None):
         self.kernel = choose_kernel(kernel)
         self.scene, self.nb, self.n = scene, len(scene.bodies), 3 * len(scene.bodies)
         b = RowBuilder(scene)
-        joint_rows, frames = [], []
-        for j in scene.joints:
+        reactions, couplers = [], []
+        for k, j in enumerate(scene.joints):
             first = b.m
-            frames.append(JOINT_ROWS[type(j)](b, j))
-            joint_rows.append((first, first + 1))
+            frame = JOINT_ROWS[type(j)](b, j)
+            if frame is None:
+                couplers.append((k, first))
+            else:
+                reactions.append((k, first, b.m - first, b.index[j.body_j], frame))
         self.driver_rows = np.array([driver_row(b, scene, d) for d in scene.drivers], dtype=int)
         for primitive in (b.coincidence, b.line, b.angle):
             primitive.freeze()
         self.coincidence, self.line, self.angle = b.coincidence, b.line, b.angle
         self.m, self.labels = b.m, b.labels
         self.offsets = np.array(b.offsets, dtype=float)
-        self.joint_rows = np.array(joint_rows, dtype=int).reshape(-1, 2)
-        self.joint_bj = np.array([b.index[j.body_j] for j in scene.joints], dtype=int)
-        self.frame_body = np.array([f.body for f in frames], dtype=int)
-        self.frame_angle = np.array([f.angle for f in frames], dtype=float)
+        self.reaction_joints = np.array([r[0] for r in reactions], dtype=int)
+        self.joint_rows = np.array([(r[1], r[1] + 1 if r[2] == 2 else self.m)
+                                    for r in reactions], dtype=int).reshape(-1, 2)
+        self.joint_bj = np.array([r[3] for r in reactions], dtype=int)
+        self.frame_body = np.array([r[4].body for r in reactions], dtype=int)
+        self.frame_angle = np.array([r[4].angle for r in reactions], dtype=float)
+        self.frame_point = np.array([r[4].point for r in reactions], dtype=float).reshape(-1, 2)
+        self.coupler_joints = np.array([c[0] for c in couplers], dtype=int)
+        self.coupler_rows = np.array([c[1] for c in couplers], dtype=int)
         # which drivers take their motion from the inputs, and which evaluate it themselves
         self._input_rows = np.array([r for r, d in zip(self.driver_rows, scene.drivers)
                                      if d.is_input], dtype=int)
@@ -89,7 +101,9 @@ class ConstraintSet:
         """Psi_q's nonzeros once; per evaluation only values.
 
         The value vector is [constant entries | coincidence angle columns (4 blocks of one
-        entry per row pair) | line rows (6 blocks)], columns counting the ground's three.
+        entry per row pair) | line terms (6 blocks)], columns counting the ground's three;
+        terms of one row in one column (a coupler's, a rolling joint's) are summed by the
+        pattern (``JacobianPattern.merged``).
         """
         c, l, a = self.coincidence, self.line, self.angle
         r0, r1 = (c.rows[:, 0], c.rows[:, 1]) if c.n else (np.zeros(0, int),) * 2
@@ -100,7 +114,8 @@ class ConstraintSet:
                 3 * c.bi + 2, 3 * c.bi + 2, 3 * c.bj + 2, 3 * c.bj + 2,
                 3 * l.bi, 3 * l.bi + 1, 3 * l.bi + 2, 3 * l.bj, 3 * l.bj + 1, 3 * l.bj + 2]
         self._constants = np.concatenate(
-            [np.ones(2 * c.n), -np.ones(2 * c.n), np.ones(a.n), -np.ones(a.n)])
+            [np.ones(2 * c.n), -np.ones(2 * c.n), a.w, -a.w])
+        self._line_weights = None if np.all(l.w == 1.0) else np.tile(l.w, 6)
         self._nnz = 4 * c.n + 6 * l.n + self._constants.size
         self.pattern = p = JacobianPattern(np.concatenate(rows), np.concatenate(cols),
                                            self.m, self.n, minv)
@@ -116,9 +131,10 @@ class ConstraintSet:
             self.compiled_accelerations = compiled.direct(compiled.accelerations)
             self.primitives = compiled.Primitives(
                 c.rows.reshape(-1, 2), c.bi, c.bj, c.si, c.sj,
-                l.rows, l.bi, l.bj, l.si, l.sj, l.u, a.rows, a.bi, a.bj)
-            self.plan = compiled.JacobianPlan(self._constants, p.keep, p.rows, p.cols, p.pair_a,
-                                              p.pair_b, p.pair_minv, p.band_index, p.perm, p.kd)
+                l.rows, l.bi, l.bj, l.si, l.sj, l.u, l.w, a.rows, a.bi, a.bj, a.w)
+            self.plan = compiled.JacobianPlan(self._constants, p.merge, p.size, p.keep, p.rows,
+                                              p.cols, p.pair_a, p.pair_b, p.pair_minv,
+                                              p.band_index, p.perm, p.kd)
 
     # ------------------------------------------------------------------ evaluation
 
@@ -143,16 +159,19 @@ class ConstraintSet:
             Psi, data, gamma = self._values_compiled(q, qd, motion[0])
         else:
             Psi, data, gamma = self._values_numpy(q, qd, motion[0])
+        data = self.pattern.merged(data)
         if qd is None:
             return Psi, data, None, None
         return Psi, data, motion[1], gamma + motion[2]
 
     def _values_numpy(self, q, qd, cval):
+        """Psi, the terms' Jacobian values and gamma; rows sum their terms (eq. 24)."""
         r, cs, sn, phi = poses(q, self.nb)
-        Psi, data = np.empty(self.m), np.empty(self._nnz)
+        m = self.m
+        Psi, data = np.zeros(m), np.empty(self._nnz)
         k = self._constants.size
         data[:k] = self._constants
-        gamma = np.zeros(self.m) if qd is not None else None
+        gamma = np.zeros(m) if qd is not None else None
         v, w = velocities(qd, self.nb) if qd is not None else (None, None)
         c, l, a = self.coincidence, self.line, self.angle
         rotated = rotate(self._points, cs[self._point_body], sn[self._point_body])
@@ -168,17 +187,20 @@ class ConstraintSet:
                                  - Asj_c * (w[c.bj] ** 2)[:, None])
         if l.n:
             d = r[l.bj] + Asj_l - r[l.bi] - Asi_l
-            Psi[l.rows] = dot(u, d)
+            _add_rows(Psi, l, l.w * dot(u, d))
             ru = rot90(u)
             data[k:] = np.concatenate([-u[:, 0], -u[:, 1], dot(ru, d) - dot(u, rot90(Asi_l)),
                                        u[:, 0], u[:, 1], dot(u, rot90(Asj_l))])
+            if self._line_weights is not None:
+                data[k:] *= self._line_weights
             if gamma is not None:
                 wi, wj = w[l.bi], w[l.bj]
                 dd = v[l.bj] + wj[:, None] * rot90(Asj_l) - v[l.bi] - wi[:, None] * rot90(Asi_l)
-                gamma[l.rows] = (wi ** 2 * dot(u, d) - 2.0 * wi * dot(ru, dd)
-                                 + dot(u, Asj_l * (wj ** 2)[:, None] - Asi_l * (wi ** 2)[:, None]))
+                g = (wi ** 2 * dot(u, d) - 2.0 * wi * dot(ru, dd)
+                     + dot(u, Asj_l * (wj ** 2)[:, None] - Asi_l * (wi ** 2)[:, None]))
+                _add_rows(gamma, l, l.w * g)
         if a.n:
-            Psi[a.rows] = phi[a.bj] - phi[a.bi]
+            _add_rows(Psi, a, a.w * (phi[a.bj] - phi[a.bi]))
         return Psi - cval, data, gamma
 
     def _values_compiled(self, q, qd, cval):
@@ -197,7 +219,8 @@ class ConstraintSet:
     def hessian(self, q: np.ndarray, mu: np.ndarray) -> np.ndarray:
         """Geometric stiffness ``d(Psi_q^T mu)/dq = sum_k mu_k d2 Psi_k / dq2`` (n, n), mu
         fixed (formulation.md, eq. 20): the tangent term of the constraint forces in the
-        implicit methods' iteration matrices. Symmetric; angle rows are linear."""
+        implicit methods' iteration matrices. Symmetric; angle terms are linear, line terms
+        count with their weight."""
         ne = self.n + 3
         H = np.zeros((ne, ne))
         r, cs, sn, _ = poses(q, self.nb)
@@ -222,7 +245,7 @@ class ConstraintSet:
         u = rotate(l.u, cs[l.bi], sn[l.bi])
         ru = rot90(u)
         d = r[l.bj] + Asj - r[l.bi] - Asi
-        m1 = mu[l.rows]
+        m1 = mu[l.rows] * l.w
         pi, pj = 3 * l.bi + 2, 3 * l.bj + 2
         for axis in (0, 1):
             xi, xj = 3 * l.bi + axis, 3 * l.bj + axis
@@ -232,3 +255,12 @@ class ConstraintSet:
         np.add.at(H, (pi, pj), m1 * dot(u, Asj))
         np.add.at(H, (pj, pi), m1 * dot(u, Asj))
         np.add.at(H, (pj, pj), -m1 * dot(u, Asj))
+
+
+def _add_rows(target: np.ndarray, primitive, values: np.ndarray) -> None:
+    """Add each term's value to its row: by index when the primitive's rows are distinct,
+    else summed (a row made of several terms of one primitive, eq. 24)."""
+    if primitive.repeats:
+        target += np.bincount(primitive.rows, values, minlength=target.size)
+    else:
+        target[primitive.rows] += values

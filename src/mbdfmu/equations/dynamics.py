@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..model.scene import Scene
-from ..model.variables import InputValues, input_layout
+from ..model.variables import TABLES, InputValues, input_layout
 from .constraints import ConstraintSet
 from .forces import AppliedForces
 from .planar import poses, rotate
@@ -47,7 +47,7 @@ class Equations:
         # the body_j blocks of each joint's rows in Psi_q's values (reactions, eq. 16)
         self._reaction_entries = self.pattern.entries(
             c.joint_rows[:, :, None], 3 * c.joint_bj[:, None, None] + np.arange(3)[None, None, :])
-        self._point_j = np.array([j.point_j for j in scene.joints], dtype=float).reshape(-1, 2)
+        self._joint_outputs = _joint_output_plan(scene, c)
 
     # ------------------------------------------------------------------ constraints
 
@@ -152,30 +152,46 @@ class Equations:
 
     def reactions(self, q: np.ndarray, lam: np.ndarray, t: float = 0.0,
                   data: np.ndarray | None = None) -> np.ndarray:
-        """Force and torque each joint exerts on its body_j, in the joint frame (nj, 3).
+        """Force and torque each joint exerts on its body_j, in the joint frame (nj, 3),
+        scene order; NaN for couplers, which apply efforts (``coupler_efforts``).
 
         Eq. (16): F = -C^T A^T [Psi_r rows]^T lam, T = -Psi_phi lam - (A s) x F, with the
-        body_j blocks of the joint's two Jacobian rows. Revolute joints give T = 0;
-        translational joints K1 = 0 along the axis, K2 normal, K3 torque (eq. 17).
+        body_j blocks of the joint's rows. Revolute joints give T = 0; translational joints
+        K1 = 0 along the axis, K2 normal, K3 torque (eq. 17); slots Fx = 0 and T = 0 about
+        the pin; rolling joints the contact force (Fx tangential, Fy normal) and T = radius Fx
+        about the disc's centre (eq. 28).
         """
         c = self.constraint_set
+        out = np.full((len(self.scene.joints), 3), np.nan)
         if len(c.joint_rows) == 0:
-            return np.zeros((0, 3))
+            return out
         if data is None:
             data = self.constraint_values(t, q)[1]
-        G = np.append(data, 0.0)[self._reaction_entries]       # (nj, 2, 3): body_j blocks
-        gen = -np.einsum("kab,ka->kb", G, lam[c.joint_rows])   # generalized force on body_j
+        G = np.append(data, 0.0)[self._reaction_entries]       # (nr, 2, 3): body_j blocks
+        gen = -np.einsum("kab,ka->kb", G, np.append(lam, 0.0)[c.joint_rows])  # on body_j
         r, cs, sn, phi = poses(q, self.nb)
-        Asj = rotate(self._point_j, cs[c.joint_bj], sn[c.joint_bj])
+        Asj = rotate(c.frame_point, cs[c.joint_bj], sn[c.joint_bj])
         torque = gen[:, 2] - (Asj[:, 0] * gen[:, 1] - Asj[:, 1] * gen[:, 0])
         theta = phi[c.frame_body] + c.frame_angle
         co, si = np.cos(theta), np.sin(theta)
-        return np.stack((co * gen[:, 0] + si * gen[:, 1], -si * gen[:, 0] + co * gen[:, 1],
-                         torque), axis=1)
+        out[c.reaction_joints] = np.stack((co * gen[:, 0] + si * gen[:, 1],
+                                           -si * gen[:, 0] + co * gen[:, 1], torque), axis=1)
+        return out
+
+    def coupler_efforts(self, lam: np.ndarray) -> np.ndarray:
+        """Generalized force each coupler applies on its joint_j's coordinate: -lam of its
+        row (eq. 25); -ratio times it acts on joint_i's."""
+        return -lam[self.constraint_set.coupler_rows]
 
     def driver_efforts(self, lam: np.ndarray) -> np.ndarray:
         """Generalized force each driver applies to its body_j: -lam of its row."""
         return -lam[self.constraint_set.driver_rows]
+
+    def joint_outputs(self, q, lam, t: float = 0.0, data=None) -> np.ndarray:
+        """Every joint output of ``model.variables.outputs(scene)``, in that order."""
+        values = np.concatenate((self.reactions(q, lam, t, data).ravel(),
+                                 self.coupler_efforts(lam)))
+        return values[self._joint_outputs]
 
     def output_values(self, t, q, qd, qdd, lam, u: InputValues | None = None) -> np.ndarray:
         """Every output of ``model.variables.outputs(scene)`` at one instant, in that order."""
@@ -183,8 +199,19 @@ class Equations:
         Psi, data, nu, _ = self.constraint_values(t, q, qd, u)   # one evaluation for all
         J = self.pattern.jacobian(data, sparse=True)
         parts = [np.concatenate((q.reshape(-1, 3), qd.reshape(-1, 3)), axis=1).ravel(),
-                 self.reactions(q, lam, t, data).ravel(), self.driver_efforts(lam),
+                 self.joint_outputs(q, lam, t, data), self.driver_efforts(lam),
                  self.applied.spring_states(t, q, qd, u).ravel(),
                  [self.kinetic_energy(qd), self.potential_energy(q),
                   float(np.linalg.norm(Psi)), float(np.linalg.norm(J @ qd - nu))]]
         return np.concatenate([np.asarray(p, dtype=float) for p in parts])
+
+
+def _joint_output_plan(scene: Scene, c) -> np.ndarray:
+    """Where each joint output sits in [reactions (nj, 3) raveled | coupler efforts]: the
+    reaction columns Fx, Fy, Tz a joint type declares in the variable table, or its effort."""
+    column = {"Fx": 0, "Fy": 1, "Tz": 2}
+    coupler = {int(k): i for i, k in enumerate(c.coupler_joints)}
+    nj = len(scene.joints)
+    return np.array([3 * nj + coupler[k] if s.suffix == "effort" else 3 * k + column[s.suffix]
+                     for k, j in enumerate(scene.joints) for s in TABLES[type(j)].outputs],
+                    dtype=int)

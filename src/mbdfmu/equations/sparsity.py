@@ -87,22 +87,40 @@ def schur_solve(J, minv: np.ndarray, b: np.ndarray) -> np.ndarray:
 class JacobianPattern:
     """The nonzeros of Psi_q, (rows, cols), fixed for a scene, and what follows from them.
 
-    ``rows``/``cols`` index the entries of a value vector ``data`` in the order ``ConstraintSet``
-    fills it; entries in columns >= n (the virtual ground body) are kept in ``data`` but
-    dropped here. ``banded`` chooses the sparse form (see the module docstring).
+    The constraint kernels fill a vector of term values, one per (row, column) entry of a
+    term; where two terms of one row touch one column (a coupler between joints that share
+    a body, a rolling joint's line and angle terms) their values add up: ``merged`` sums
+    them into ``data``, one value per distinct entry (``merge`` maps each term entry to its
+    entry; without repeats ``data`` is the term vector itself). ``rows``/``cols`` index
+    ``data``'s entries in moving bodies' columns (``keep``); the ones in columns >= n (the
+    virtual ground body) are kept in ``data`` but dropped here. ``banded`` chooses the
+    sparse form (see the module docstring).
     """
 
     def __init__(self, rows, cols, m: int, n: int, minv: np.ndarray, *, banded: bool | None = None):
         rows, cols = np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp)
-        self.flat_with_ground = rows * (n + 3) + cols
+        flat = rows * (n + 3) + cols
+        _, first, inverse = np.unique(flat, return_index=True, return_inverse=True)
+        order = np.argsort(first)                      # distinct entries in order of first use
+        position = np.empty(order.size, dtype=np.intp)
+        position[order] = np.arange(order.size)
+        self.merge = position[inverse.ravel()].astype(np.intp)
+        self.size = int(order.size)
+        self.repeats = self.size < flat.size
+        rows, cols = rows[first[order]], cols[first[order]]
+        self.flat_with_ground = flat[first[order]]
         self.keep = np.flatnonzero(cols < n)
         self.rows, self.cols = rows[self.keep], cols[self.keep]
         self.m, self.n = m, n
         self.flat = self.rows * n + self.cols
-        if np.unique(self.flat).size != self.flat.size:
-            raise ValueError("Jacobian pattern has repeated entries")
         self.banded = (m >= BANDED_MIN_ROWS) if banded is None else bool(banded)
         self._plan_schur_band(minv)   # the compiled kernel uses it at any size
+
+    def merged(self, terms: np.ndarray) -> np.ndarray:
+        """``data`` from the kernels' term values: repeated entries summed."""
+        if not self.repeats:
+            return terms
+        return np.bincount(self.merge, weights=terms, minlength=self.size)
 
     # ------------------------------------------------------------------ both forms
 

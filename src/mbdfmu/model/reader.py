@@ -13,8 +13,8 @@ from typing import Any
 
 from ..errors import Problems, SceneError, suggest
 from .motion import MOTION_TYPES
-from .scene import (FORCE_TYPES, GROUND, IDENTIFIER, JOINT_TYPES, RESERVED_NAMES, Body,
-                    Driver, RevoluteJoint, Scene, SimulationSettings)
+from .scene import (COORDINATE_JOINTS, FORCE_TYPES, GROUND, IDENTIFIER, JOINT_TYPES,
+                    RESERVED_NAMES, Body, Driver, RevoluteJoint, Scene, SimulationSettings)
 from .toml_table import Table, load_toml, read_fields
 
 # [[kind]] arrays of a scene and the class (or type registry) of their items.
@@ -126,7 +126,21 @@ def _reference_problem(refkind: str, value: str, bodies: set, joints: dict) -> s
         return f'unknown joint "{value}"{suggest(value, joints)}'
     if refkind == "revolute joint" and not isinstance(joints[value], RevoluteJoint):
         return f'joint "{value}" is {joints[value].TYPE}, not revolute'
+    if refkind == "coordinate joint" and not isinstance(joints[value], COORDINATE_JOINTS):
+        return (f'joint "{value}" is {joints[value].TYPE}, which has no coordinate '
+                f"(revolute or translational joints have)")
     return ""
+
+
+def _check_placement(items: dict[str, list], problems: Problems) -> None:
+    """Items whose initial placement is part of their definition (a rolling disc's centre at
+    its radius from its line) check it against the bodies' initial positions."""
+    poses = {b.name: (*b.position, b.angle) for b in items["body"]} | {GROUND: (0.0, 0.0, 0.0)}
+    for item in items["joint"]:
+        check = getattr(item, "placement_problems", None)
+        if check is not None and item.body_i in poses and item.body_j in poses:
+            for problem in check(poses):
+                problems.add(f'joint "{item.name}"', problem)
 
 
 def _read_top(data: dict, problems: Problems) -> tuple[Table, dict]:
@@ -179,6 +193,7 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
         problems.add("", "a scene needs at least one [[body]]")
     _check_names(items, problems)
     _check_references(items, problems)
+    _check_placement(items, problems)
     problems.raise_if_any()
     return Scene(source=source, bodies=tuple(items["body"]), joints=tuple(items["joint"]),
                  drivers=tuple(items["driver"]), forces=tuple(items["force"]), **values)

@@ -13,6 +13,7 @@ is ``(r_Pj - r_Pi) . u_i`` (m), ``u_i`` its unit axis in the ground frame.
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
 
@@ -23,6 +24,8 @@ GROUND = "ground"
 RESERVED_NAMES = {GROUND, "energy", "constraint", "time", "gravity", "solver"}
 IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 COORDINATES = ("angle", "x", "y")
+# How far (relative to its radius) a rolling disc's centre may start from its radius.
+PLACEMENT_TOLERANCE = 1e-6
 
 Vec2 = tuple[float, float]
 
@@ -47,19 +50,29 @@ class Body:
 
 
 @dataclass(frozen=True, kw_only=True)
-class TwoBodyJoint:
-    """What every joint has: two bodies, a point on each (body-fixed, m) and the angle of the
-    frame its reactions are reported in (rad)."""
+class BodyPair:
+    """What every joint between two bodies has: its name and the two bodies."""
 
     name: str = key("str")
     body_i: str = key("str", ref="body")
     body_j: str = key("str", ref="body")
-    point_i: Vec2 = key("vec2", (0.0, 0.0))
-    point_j: Vec2 = key("vec2", (0.0, 0.0))
-    frame_angle: float = key("float", 0.0)
 
     def problems(self) -> list[str]:
         return [f'joins body "{self.body_i}" to itself'] if self.body_i == self.body_j else []
+
+    def summary(self) -> str:
+        """What it joins, in a line (``mbdfmu check``)."""
+        return f"{self.body_i} - {self.body_j}"
+
+
+@dataclass(frozen=True, kw_only=True)
+class TwoBodyJoint(BodyPair):
+    """A joint with a point on each body (body-fixed, m) and the angle of the frame its
+    reactions are reported in (rad)."""
+
+    point_i: Vec2 = key("vec2", (0.0, 0.0))
+    point_j: Vec2 = key("vec2", (0.0, 0.0))
+    frame_angle: float = key("float", 0.0)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -84,13 +97,78 @@ class TranslationalJoint(TwoBodyJoint):
     axis_i: Vec2 = key("vec2", nonzero=True)
 
 
+@dataclass(frozen=True, kw_only=True)
+class SlotJoint(TwoBodyJoint):
+    """A pin in a straight slot: point_j (the pin) stays on the line through point_i along
+    ``axis_i`` (body_i's frame); the relative rotation is free.
+
+    Reactions are reported on body_j in the slot's frame (x along the axis, turned by
+    ``frame_angle``): Fx = 0 (no friction), Fy the normal force."""
+
+    TYPE = "slot"
+    axis_i: Vec2 = key("vec2", nonzero=True)
+
+
+@dataclass(frozen=True, kw_only=True)
+class RollingJoint(BodyPair):
+    """A disc (body_j, centred at its centre of mass) rolling without slipping on the line
+    through point_i along ``axis_i`` (body_i's frame), on its left: the disc's centre stays at
+    ``radius`` from the line along the axis turned by +90 degrees.
+
+    Reactions are the contact force on the disc in the line's frame: Fx tangential (along
+    the axis), Fy normal."""
+
+    TYPE = "rolling"
+    point_i: Vec2 = key("vec2", (0.0, 0.0))
+    axis_i: Vec2 = key("vec2", nonzero=True)
+    body_j: str = key("str", ref="moving body")
+    radius: float = key("float", positive=True)
+
+    def placement_problems(self, poses: dict) -> list[str]:
+        """The disc's centre must start at ``radius`` on the left of the line (``poses``:
+        body name -> (x, y, angle), the ground included)."""
+        xi, yi, ai = poses[self.body_i]
+        xj, yj, _ = poses[self.body_j]
+        c, s = math.cos(ai), math.sin(ai)
+        (sx, sy), (ux, uy) = self.point_i, self.axis_i
+        px, py = xi + c * sx - s * sy, yi + s * sx + c * sy        # r_i + A_i s_i
+        nx, ny = -(s * ux + c * uy), c * ux - s * uy               # A_i axis_i turned by +90
+        distance = (nx * (xj - px) + ny * (yj - py)) / math.hypot(ux, uy)
+        if abs(distance - self.radius) <= PLACEMENT_TOLERANCE * self.radius:
+            return []
+        return [f'the centre of body "{self.body_j}" starts {distance:.9g} m from the line '
+                f'(positive on its left, axis_i turned by +90 degrees), not at the radius '
+                f'{self.radius:g} m']
+
+
+@dataclass(frozen=True)
+class CouplerJoint:
+    """Couples two joints' coordinates (gears, rack and pinion, belts):
+    ``q_j - q_j0 = ratio (q_i - q_i0)``, from their values at the scene's initial positions.
+
+    Its output is the effort: the generalized force it applies on joint_j's coordinate (the
+    reaction to it, ``-ratio`` times it, acts on joint_i's)."""
+
+    TYPE = "coupler"
+    name: str = key("str")
+    joint_i: str = key("str", ref="coordinate joint")
+    joint_j: str = key("str", ref="coordinate joint")
+    ratio: float = key("float", nonzero=True)
+
+    def problems(self) -> list[str]:
+        return [f'couples joint "{self.joint_i}" to itself'] if self.joint_i == self.joint_j else []
+
+    def summary(self) -> str:
+        return f"joint {self.joint_j} = {self.ratio:g} x joint {self.joint_i}"
+
+
 @dataclass(frozen=True)
 class Driver:
     """A prescribed motion of a joint's coordinate, or of a body's x, y or angle."""
 
     name: str = key("str")
     motion: Motion = key("table")
-    joint: str | None = key("str", None, ref="joint")
+    joint: str | None = key("str", None, ref="coordinate joint")
     body: str | None = key("str", None, ref="moving body")
     coordinate: str | None = key("str", None)
 
@@ -165,9 +243,12 @@ class RotationalSpringDamper:
     rest_angle: float = key("float", 0.0)
 
 
-Joint = RevoluteJoint | TranslationalJoint
+Joint = RevoluteJoint | TranslationalJoint | SlotJoint | RollingJoint | CouplerJoint
+# Joints with a coordinate (what drivers, couplers and rotational springs act on).
+COORDINATE_JOINTS = (RevoluteJoint, TranslationalJoint)
 Force = PointForce | Torque | SpringDamper | RotationalSpringDamper
-JOINT_TYPES: dict[str, type] = {cls.TYPE: cls for cls in (RevoluteJoint, TranslationalJoint)}
+JOINT_TYPES: dict[str, type] = {cls.TYPE: cls for cls in (RevoluteJoint, TranslationalJoint,
+                                                          SlotJoint, RollingJoint, CouplerJoint)}
 FORCE_TYPES: dict[str, type] = {cls.TYPE: cls for cls in (PointForce, Torque, SpringDamper,
                                                           RotationalSpringDamper)}
 

@@ -94,6 +94,8 @@ class Table:
             problem = _range_problem(value, positive, nonnegative)
         if problem is None and nonzero and kind == "vec2" and math.hypot(*value) < 1e-12:
             problem = "has zero length"
+        if problem is None and nonzero and kind == "float" and value == 0.0:
+            problem = "must not be zero"
         if problem is not None:
             self.fail(f'"{name}" {problem}')
             return None

@@ -6,7 +6,8 @@ item class, like the one ``config.h`` of each Reference-FMUs model): ``parameter
 ``outputs(scene)`` (what a run reports, in the order the equations compute it),
 ``with_parameters`` (a scene with parameters changed) and ``input_layout`` (where each
 input sits in the ``InputValues`` passed to the equations). Units: SI, with ``{pos}`` and
-``{effort}`` standing for a driver's own (rad and N.m, or m and N).
+``{effort}`` standing for a driver's own (rad and N.m, or m and N) or a coupler's joint_j's,
+and ``{ratio}`` for a coupler's ratio (1, m/rad or rad/m).
 """
 
 from __future__ import annotations
@@ -20,8 +21,9 @@ import numpy as np
 
 from ..errors import Problems, SceneError, suggest
 from .motion import ConstantMotion, HarmonicMotion, LinearMotion, PolynomialMotion
-from .scene import (Body, Driver, PointForce, RevoluteJoint, RotationalSpringDamper, Scene,
-                    SpringDamper, Torque, TranslationalJoint, driver_is_angular, driven_body)
+from .scene import (Body, CouplerJoint, Driver, PointForce, RevoluteJoint, RollingJoint,
+                    RotationalSpringDamper, Scene, SlotJoint, SpringDamper, Torque,
+                    TranslationalJoint, driver_is_angular, driven_body)
 
 
 @dataclass(frozen=True)
@@ -55,6 +57,7 @@ class Spec:
     index: int | None = None
     positive: bool = False
     nonnegative: bool = False
+    nonzero: bool = False
     when: str | None = None
 
     def applies(self, item) -> bool:
@@ -89,6 +92,20 @@ TABLES: dict[type, ItemVariables] = {
                  Spec("omega", "rad/s", "angular velocity of {name}"))),
     RevoluteJoint: ItemVariables(outputs=_REACTIONS),
     TranslationalJoint: ItemVariables(outputs=_REACTIONS),
+    SlotJoint: ItemVariables(outputs=(
+        Spec("Fx", "N", "force of slot {name} on the pin ({item.body_j}) along the slot's axis "
+             "(0: no friction)"),
+        Spec("Fy", "N", "force of slot {name} on the pin ({item.body_j}) normal to the slot"))),
+    RollingJoint: ItemVariables(outputs=(
+        Spec("Fx", "N", "contact force of {name} on the disc ({item.body_j}), tangential: "
+             "along the line's axis"),
+        Spec("Fy", "N", "contact force of {name} on the disc ({item.body_j}), normal: the "
+             "axis turned by +90 degrees"))),
+    CouplerJoint: ItemVariables(
+        parameters=(Spec("ratio", "{ratio}", "ratio of {name}: {item.joint_j}'s coordinate "
+                         "change per unit of {item.joint_i}'s", "ratio", nonzero=True),),
+        outputs=(Spec("effort", "{effort}", "generalized force coupler {name} applies on "
+                      "joint {item.joint_j}'s coordinate"),)),
     Driver: ItemVariables(
         inputs=(Spec("position", "{pos}", "prescribed position of {name}", when="is_input"),
                 Spec("velocity", "{pos}/s", "its rate (optional)", when="is_input"),
@@ -147,8 +164,17 @@ def _units(scene: Scene, item) -> dict[str, str]:
     if isinstance(item, Driver):
         angular = driver_is_angular(scene, item)
         return {"pos": "rad" if angular else "m", "effort": "N.m" if angular else "N",
-                "body": driven_body(scene, item)}
-    return {"pos": "m", "effort": "N", "body": ""}
+                "body": driven_body(scene, item), "ratio": ""}
+    if isinstance(item, CouplerJoint):
+        pos_i, pos_j = (coordinate_unit(scene.joint(name)) for name in (item.joint_i, item.joint_j))
+        return {"pos": pos_j, "effort": "N.m" if pos_j == "rad" else "N", "body": "",
+                "ratio": "1" if pos_i == pos_j else f"{pos_j}/{pos_i}"}
+    return {"pos": "m", "effort": "N", "body": "", "ratio": ""}
+
+
+def coordinate_unit(joint) -> str:
+    """The unit of a joint's coordinate: rad (revolute) or m (translational)."""
+    return "rad" if isinstance(joint, RevoluteJoint) else "m"
 
 
 def _make(scene, item, spec: Spec, value=None) -> Variable:
@@ -236,6 +262,8 @@ def _check_value(spec: Spec, name: str, value: float) -> str | None:
         return f'"{name}" must be positive, got {value:g}'
     if spec.nonnegative and value < 0:
         return f'"{name}" must not be negative, got {value:g}'
+    if spec.nonzero and value == 0:
+        return f'"{name}" must not be zero'
     return None
 
 
@@ -292,8 +320,8 @@ def with_parameters(scene: Scene, values: dict[str, float]) -> Scene:
     scene_changes = new(scene)
     return dataclasses.replace(
         scene, gravity=scene_changes.gravity,
-        bodies=tuple(map(new_item, scene.bodies)), drivers=tuple(map(new_item, scene.drivers)),
-        forces=tuple(map(new_item, scene.forces)))
+        bodies=tuple(map(new_item, scene.bodies)), joints=tuple(map(new_item, scene.joints)),
+        drivers=tuple(map(new_item, scene.drivers)), forces=tuple(map(new_item, scene.forces)))
 
 
 # ----------------------------------------------------------------------------- input values
@@ -341,37 +369,3 @@ def input_layout(scene: Scene) -> InputLayout:
             k += len(suffixes)
     return InputLayout(tuple(d.name for d in drivers), tuple(d.motion.initial for d in drivers),
                        forces, fields)
-
-
-def _doc_row(label: str, kind: str, spec: Spec) -> str:
-    """One row of the documentation's variable list."""
-    text = spec.description.format(name="<name>", item=_Placeholder(), pos="{pos}",
-                                   effort="{effort}", body="<body>")
-    if spec.when:
-        text += f" (when `{spec.when.lstrip('!')}` is {'false' if spec.when[0] == '!' else 'true'})"
-    return f"| {label} | {kind} | `<{label.split()[0]}>.{spec.suffix}` | {spec.unit} | {text} |"
-
-
-def markdown_table() -> str:
-    """The variable list of every item type (docs/variables.md is made from it)."""
-    rows = ["| item | kind | name | unit | meaning |", "|---|---|---|---|---|"]
-    for cls, table in TABLES.items():
-        label = getattr(cls, "TYPE", cls.__name__.lower())
-        for kind in ("parameters", "inputs", "outputs"):
-            rows += [_doc_row(label, kind[:-1], s) for s in getattr(table, kind)]
-    for motion, specs in MOTION_PARAMETERS.items():
-        rows += [_doc_row(f"driver ({motion.__name__})", "parameter", s) for s in specs]
-    rows.append("| driver (PolynomialMotion) | parameter | `<driver>.c<k>` | {pos}/s<k> | "
-                "coefficient of t^k |")
-    rows += [f"| scene | parameter | `gravity.{s.suffix}` | {s.unit} | {s.description} |"
-             for s in GRAVITY]
-    rows += [f"| scene | output | `{v.name}` | {v.unit} | {v.description} |"
-             for v in GLOBAL_OUTPUTS]
-    return "\n".join(rows) + "\n"
-
-
-class _Placeholder:
-    """Stands for an item in the documentation's descriptions (``{item.body_j}``)."""
-
-    def __getattr__(self, name: str) -> str:
-        return f"<{name}>"
