@@ -18,10 +18,15 @@ and implements only what the model does:
 4. optional: ``setup()`` (once, at instantiation), ``on_terminate()``, ``on_free()``,
    ``directional_derivative``, ``set_input_derivatives``, ``output_derivatives``.
 
+``self.set_since_step`` holds the values the host set since the last successful
+fmi2DoStep (name -> value; also since instantiation or fmi2Reset), e.g. to tell an input
+set again to the same value from one left alone; the base empties it after each step.
+
 The model reads ``self.time`` (s), ``self.start_time``, ``self.stop_time``,
+``self.tolerance`` (fmi2SetupExperiment's relative tolerance, or None),
 ``self.resources`` (the FMU's resources folder) and logs with ``self.log(text)``. Names
-the base uses, which a model must not assign: ``values``, ``variables``, ``time``,
-``start_time``, ``stop_time``, ``resources``, ``instance_name``, ``guid``, ``log_queue``,
+the base uses, which a model must not assign: ``values``, ``set_since_step``, ``variables``, ``time``,
+``start_time``, ``stop_time``, ``tolerance``, ``resources``, ``instance_name``, ``guid``, ``log_queue``,
 ``take_log`` and everything starting with ``_fmi`` or ``fmi2_``.
 
 The ``fmi2_*`` methods form the protocol with the C wrapper (one per FMI function, see
@@ -118,8 +123,9 @@ class Slave(StateProtocol):
         """The state right after fmi2Instantiate (also what fmi2Reset returns to)."""
         self._fmi_state = State.INSTANTIATED
         self.values = self.variables.start_values()
+        self.set_since_step: dict[str, object] = {}
         self._fmi_time = self.start_time = self._fmi_default_start
-        self.stop_time = None
+        self.stop_time = self.tolerance = None
         self._fmi_dirty = True
         self._fmi_terminate = False
 
@@ -161,6 +167,7 @@ class Slave(StateProtocol):
             raise FmiError(f"tolerance = {tolerance} is not a positive finite number")
         self._fmi_time = self.start_time = float(start)
         self.stop_time = float(stop) if stop_defined else None
+        self.tolerance = float(tolerance) if tolerance_defined else None
         return status.OK, None
 
     @fmi_function("fmi2EnterInitializationMode")
@@ -246,6 +253,7 @@ class Slave(StateProtocol):
             raise FmiError(f"the time after the step, {time} + {step_size}, is not finite")
         self.step(time, step_size)
         self._fmi_time = end
+        self.set_since_step.clear()
         return status.OK, None
 
     @fmi_function("fmi2CancelStep")
