@@ -7,15 +7,18 @@ and implements only what the model does:
    ``time + step_size`` (seconds), reading inputs from and writing outputs to
    ``self.values``. Raise ``Discard(reason)`` for a step that may be retried (it must then
    leave the model unchanged); any other exception is an fmi2Error.
-2. ``initialize()``: compute the internal state and the calculated outputs from the
+2. ``calculate()``: outputs that follow inputs within a communication point (direct
+   feedthrough) or the time, computed before a get that follows a set or a step (the
+   model's ``step`` then need not write them).
+3. ``initialize()``: compute the internal state and the calculated outputs from the
    parameters and inputs in ``self.values``. Called when fmi2ExitInitializationMode
    needs it and before a get in Initialization Mode after a set (so it must be
    repeatable).
-3. ``save_state()`` / ``restore_state(tree)``: the model's own state beyond
+4. ``save_state()`` / ``restore_state(tree)``: the model's own state beyond
    ``self.values`` as a tree of dict, list, str, int, float, bool, None and numpy arrays
    (both copied by the base). Default: no own state. ``check_state(tree)`` returns why a
    tree read from bytes cannot be restored (types, shapes), or None.
-4. optional: ``setup()`` (once, at instantiation), ``on_terminate()``, ``on_free()``,
+5. optional: ``setup()`` (once, at instantiation), ``on_terminate()``, ``on_free()``,
    ``directional_derivative``, ``set_input_derivatives``, ``output_derivatives``.
 
 ``self.set_since_step`` holds the values the host set since the last successful
@@ -66,6 +69,7 @@ class Slave(StateProtocol):
         self._fmi_log = LogQueue(log_categories, logging_on)
         self.log_queue = self._fmi_log.pending   # watched by the C wrapper
         self._fmi_default_start = default_start
+        self._fmi_calculates = type(self).calculate is not Slave.calculate
         self._fmi_restart()
         self.setup()
 
@@ -75,6 +79,11 @@ class Slave(StateProtocol):
 
     def initialize(self) -> None:
         """Derive the internal state and calculated values from ``self.values``."""
+
+    def calculate(self) -> None:
+        """Outputs with direct feedthrough: compute them in ``self.values`` from the inputs
+        and the state at ``self.time``. Called (when overridden) before a get that follows
+        a set or a step in Step Complete; Initialization Mode calls ``initialize``."""
 
     def step(self, time: float, step_size: float) -> None:
         """Advance from ``time`` by ``step_size`` seconds (required)."""
@@ -127,6 +136,7 @@ class Slave(StateProtocol):
         self._fmi_time = self.start_time = self._fmi_default_start
         self.stop_time = self.tolerance = None
         self._fmi_dirty = True
+        self._fmi_stale = False
         self._fmi_terminate = False
 
     def _fmi_error(self, reason: str) -> int:
@@ -202,7 +212,7 @@ class Slave(StateProtocol):
 
     def fmi2_get(self, type_name: str, vrs: tuple):
         """fmi2GetReal/Integer/Boolean/String; payload: a tuple of values (String: bytes)."""
-        if self._fmi_state == State.STEP_COMPLETE:
+        if self._fmi_state == State.STEP_COMPLETE and not self._fmi_stale:
             values = access.fast_get(self, type_name, vrs)
             if values is not None:
                 return status.OK, values
@@ -213,6 +223,9 @@ class Slave(StateProtocol):
         try:
             if self._fmi_state == State.INITIALIZATION_MODE:
                 self._fmi_refresh()
+            elif self._fmi_stale:
+                self._fmi_stale = False
+                self.calculate()
             code, values = access.get_values(self, type_name, vrs)
         except BaseException as exc:  # noqa: B902 - nothing may reach the C side
             skipped = tuple(access.SKIPPED[type_name] for _ in vrs)
@@ -224,6 +237,7 @@ class Slave(StateProtocol):
     def fmi2_set(self, type_name: str, vrs: tuple, values: tuple):
         """fmi2SetReal/Integer/Boolean/String (String values: bytes)."""
         if self._fmi_state == State.STEP_COMPLETE and access.fast_set(self, type_name, vrs, values):
+            self._fmi_stale = self._fmi_calculates
             return status.OK, None
         function = "fmi2Set" + type_name
         if self._fmi_state not in SET_STATES:
@@ -234,6 +248,7 @@ class Slave(StateProtocol):
             return self._fmi_error(f"{function}: {type(exc).__name__}: {exc}"), None
         if self._fmi_state in (State.INSTANTIATED, State.INITIALIZATION_MODE):
             self._fmi_dirty = True
+        self._fmi_stale = self._fmi_calculates
         if code == status.ERROR:
             self._fmi_state = State.ERROR
         return code, None
@@ -254,6 +269,7 @@ class Slave(StateProtocol):
         self.step(time, step_size)
         self._fmi_time = end
         self.set_since_step.clear()
+        self._fmi_stale = self._fmi_calculates
         return status.OK, None
 
     @fmi_function("fmi2CancelStep")

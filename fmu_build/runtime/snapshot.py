@@ -105,6 +105,7 @@ class StateProtocol:
         self.stop_time, self.tolerance = tree["stop_time"], tree["tolerance"]
         self._fmi_dirty, self._fmi_terminate = tree["dirty"], tree["terminate_requested"]
         self._fmi_state = tree["state"]
+        self._fmi_stale = self._fmi_calculates
         return status.OK, None
 
     @fmi_function("fmi2SerializeFMUstate")
