@@ -871,10 +871,12 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
                       fmi2Real communicationStepSize, fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
     ENTER(c);
     char reason[200];
-    if (!isfinite(currentCommunicationPoint) || !isfinite(communicationStepSize)
-        || communicationStepSize <= 0) {
-        snprintf(reason, sizeof reason, "currentCommunicationPoint = %g must be finite and "
-                 "communicationStepSize = %g positive and finite", currentCommunicationPoint,
+    if (!isfinite(currentCommunicationPoint)) {
+        snprintf(reason, sizeof reason, "currentCommunicationPoint = %g is not finite",
+                 currentCommunicationPoint);
+        status = reject(in, "fmi2DoStep", reason);
+    } else if (!isfinite(communicationStepSize) || communicationStepSize <= 0) {
+        snprintf(reason, sizeof reason, "communicationStepSize = %g must be positive and finite",
                  communicationStepSize);
         status = reject(in, "fmi2DoStep", reason);
     } else {
