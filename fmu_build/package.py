@@ -89,8 +89,9 @@ def shared_libpython() -> str | None:
 
 
 def runtime_files() -> dict[str, bytes]:
-    """The runtime package's files (name -> content), without the boot script."""
-    return {p.name: p.read_bytes() for p in sorted(RUNTIME_DIR.glob("*.py")) if p.name != BOOT_FILE}
+    """The runtime package's files (name -> content); boot.py is also shipped alone, as
+    resources/mbdfmu_boot.py, which the wrapper runs first."""
+    return {p.name: p.read_bytes() for p in sorted(RUNTIME_DIR.glob("*.py"))}
 
 
 def _digest(*parts: bytes) -> str:

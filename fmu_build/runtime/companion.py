@@ -77,15 +77,9 @@ class CompanionSlave:
     def __init__(self, host):
         self.host = host
 
-    @property
-    def values(self) -> dict:
-        """Parameters and inputs (and the last outputs) by name."""
-        return self.host.values
-
-    @property
-    def time(self) -> float:
-        """The communication point (s)."""
-        return self.host.time
+    values = property(lambda self: self.host.values,
+                      doc="Parameters and inputs (and the last outputs) by name.")
+    time = property(lambda self: self.host.time, doc="The communication point (s).")
 
     def log(self, text: str) -> None:
         self.host.log(text)

@@ -44,6 +44,7 @@ from pathlib import Path
 from . import access, status
 from .log import LogQueue
 from .machine import ALLOWED, State, fmi_function, refusal
+from .derivatives import DerivativeProtocol
 from .snapshot import StateProtocol
 from .status import Discard, FmiError
 from .variables import VariableTable
@@ -57,7 +58,7 @@ STATUS_ANSWERS = {("Real", LAST_SUCCESSFUL_TIME), ("Boolean", TERMINATED)}
 GET_STATES, SET_STATES = ALLOWED["fmi2GetReal"], ALLOWED["fmi2SetReal"]
 
 
-class Slave(StateProtocol):
+class Slave(StateProtocol, DerivativeProtocol):
     """Base class of every model; see the module docstring for what a model implements."""
 
     def __init__(self, instance_name: str, guid: str, resources: str, variables: VariableTable,
@@ -105,18 +106,6 @@ class Slave(StateProtocol):
 
     def on_free(self) -> None:
         """At fmi2FreeInstance: release outside resources."""
-
-    def directional_derivative(self, unknowns, knowns, seeds):
-        """d(unknowns)/d(knowns) times ``seeds`` (names, names, floats) -> floats."""
-        raise FmiError("directional derivatives are not provided by this FMU")
-
-    def set_input_derivatives(self, names, orders, values) -> None:
-        """Derivatives of Real inputs (canInterpolateInputs)."""
-        raise FmiError("input derivatives are not provided (canInterpolateInputs=false)")
-
-    def output_derivatives(self, names, orders):
-        """Derivatives of Real outputs (maxOutputDerivativeOrder > 0) -> floats."""
-        raise FmiError("output derivatives are not provided (maxOutputDerivativeOrder=0)")
 
     def log(self, text: str, category: str = "logAll") -> None:
         """Queue a debug message (status fmi2OK) for the host's logger."""
@@ -287,32 +276,3 @@ class Slave(StateProtocol):
                                          "retrieved (this FMU runs fmi2DoStep synchronously)")
             return status.DISCARD, None
         return status.OK, self._fmi_time if kind == LAST_SUCCESSFUL_TIME else self._fmi_terminate
-
-    @fmi_function("fmi2GetDirectionalDerivative")
-    def fmi2_get_directional_derivative(self, unknown_vrs, known_vrs, seeds):
-        unknowns, knowns = self._fmi_real_names(unknown_vrs), self._fmi_real_names(known_vrs)
-        result = tuple(float(x) for x in self.directional_derivative(unknowns, knowns, list(seeds)))
-        if len(result) != len(unknowns):
-            raise FmiError(f"the model returned {len(result)} values for {len(unknowns)} unknowns")
-        return status.OK, result
-
-    @fmi_function("fmi2SetRealInputDerivatives")
-    def fmi2_set_real_input_derivatives(self, vrs, orders, values):
-        self.set_input_derivatives(self._fmi_real_names(vrs), list(orders), list(values))
-        return status.OK, None
-
-    @fmi_function("fmi2GetRealOutputDerivatives")
-    def fmi2_get_real_output_derivatives(self, vrs, orders):
-        result = tuple(float(x) for x in self.output_derivatives(self._fmi_real_names(vrs), list(orders)))
-        if len(result) != len(vrs):
-            raise FmiError(f"the model returned {len(result)} values for {len(vrs)} outputs")
-        return status.OK, result
-
-    def _fmi_real_names(self, vrs) -> list[str]:
-        names = []
-        for vr in vrs:
-            v, reason = self.variables.lookup("Real", vr)
-            if v is None:
-                raise FmiError(reason)
-            names.append(v.name)
-        return names
