@@ -253,3 +253,14 @@ def test_the_model_description_declares_dependencies_and_initial_unknowns(scene_
     assert [u.variable.name for u in md.initialUnknowns] == [v.name for v in outputs]
     assert text.count('dependencies=""') == len(outputs)
     assert config["python_library"]       # hosts without Python load this libpython
+
+
+def test_mbdfmu_build_says_in_one_line_that_a_c_compiler_is_missing(tmp_path, monkeypatch,
+                                                                    capsys):
+    from mbdfmu.cli import main
+    monkeypatch.setenv("CC", "no-such-cc")
+    monkeypatch.setenv("MBDFMU_CACHE_DIR", str(tmp_path / "cache"))   # nothing compiled yet
+    assert main(["build", "slider_crank", "-o", str(tmp_path / "x.fmu")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no C compiler found" in err[0] and "apt-get install gcc" in err[0]
+    assert not (tmp_path / "x.fmu").exists()
