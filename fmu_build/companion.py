@@ -81,23 +81,29 @@ def _load(source: Path, text: str) -> type[base.CompanionSlave]:
     return classes[0]
 
 
-def dependencies(cls: type[base.CompanionSlave]) -> dict[str, tuple[str, ...] | None]:
-    """Output -> the inputs it depends on: ``DEPENDENCIES`` if the class gives it, else the
-    inputs ``outputs()`` reads at the start values (all inputs if it cannot run)."""
+def dependencies(cls: type[base.CompanionSlave]) -> dict[str, tuple]:
+    """Output -> (the inputs it depends on within a communication point, its knowns at
+    initialization): ``DEPENDENCIES`` if the class gives it, else the inputs ``outputs()``
+    reads at the start values (all inputs if it cannot run); at initialization also those
+    ``initial_state()`` reads, and every parameter."""
     inputs = [v.name for v in cls.VARIABLES if v.kind == "input"]
+    parameters = tuple(v.name for v in cls.VARIABLES if v.kind == "parameter")
     names = [v.name for v in cls.VARIABLES if v.kind == "output"]
     declared = getattr(cls, "DEPENDENCIES", None)
     if declared is not None:
-        return {n: tuple(declared.get(n, ())) for n in names}
+        return {n: (tuple(declared.get(n, ())), None) for n in names}
     values = _Tracer({v.name: float(v.start) for v in cls.VARIABLES}, set(inputs))
     companion = cls(_Host(values))
     try:
         state = companion.initial_state()
-        values.read.clear()                 # the initial state may read inputs: not feedthrough
+        at_start = set(values.read)
+        values.read.clear()
         companion.outputs(state)
     except Exception:  # noqa: BLE001 - cannot tell: declare every input
-        return {n: None for n in names}
-    return {n: tuple(i for i in inputs if i in values.read) for n in names}
+        return {n: (None, None) for n in names}
+    step = tuple(i for i in inputs if i in values.read)
+    initial = parameters + tuple(i for i in inputs if i in values.read | at_start)
+    return {n: (step, initial) for n in names}
 
 
 def variable_table(cls: type[base.CompanionSlave], source: Path) -> list[Variable]:
@@ -108,7 +114,8 @@ def variable_table(cls: type[base.CompanionSlave], source: Path) -> list[Variabl
     depends = dependencies(cls)
     table = []
     for k, v in enumerate(cls.VARIABLES):
-        extra = (dict(initial="calculated", dependencies=depends[v.name]) if v.kind == "output"
+        extra = (dict(initial="calculated", dependencies=depends[v.name][0],
+                      initial_dependencies=depends[v.name][1]) if v.kind == "output"
                  else dict(start=float(v.start)))
         table.append(Variable(v.name, k, causality=v.kind, unit=v.unit or None,
                               description=v.description, **extra))

@@ -34,7 +34,9 @@ from ..integrators import METHOD_NAMES
 from ..integrators.settings import settings_from_scene
 from ..model.reader import resolve_scene_path, scene_from_dict
 from ..model.toml_table import load_toml
-from ..model.variables import input_layout, inputs, outputs, parameters, with_parameters
+from ..model.scene import Body, SpringDamper
+from ..model.variables import (GLOBAL_OUTPUTS, TABLES, input_layout, inputs, outputs,
+                               parameters, with_parameters)
 from .common import BuildError, digest, fill_template, write_checked
 from .model_description import DefaultExperiment, ModelInfo
 from .runtime.variables import Variable
@@ -90,10 +92,22 @@ def solver_variables(scene) -> list[tuple]:
     ]
 
 
+def kinematic_outputs(scene) -> set[str]:
+    """Outputs of positions and velocities only (body states, spring lengths and rates,
+    energies, constraint errors): at initialization they follow the driver inputs (the
+    assembly) but no force input, unlike reactions, efforts and tensions."""
+    names = {f"{b.name}.{s.suffix}" for b in scene.bodies for s in TABLES[Body].outputs}
+    names |= {f"{f.name}.{suffix}" for f in scene.forces if isinstance(f, SpringDamper)
+              for suffix in ("length", "velocity")}
+    return names | {v.name for v in GLOBAL_OUTPUTS}
+
+
 def variable_table(scene) -> list[Variable]:
     """Every variable of the scene's FMU in value-reference order: parameters (start values
     as in ``scene``), solver parameters, inputs, outputs (``initial="calculated"``; no
-    direct feedthrough: inputs reach the outputs at the next fmi2DoStep)."""
+    direct feedthrough: inputs reach the outputs at the next fmi2DoStep; in Initialization
+    Mode kinematic outputs depend on the parameters and driver inputs, the others on every
+    known)."""
     rows = [dict(name=p.name, start=p.value, unit=p.unit, description=p.description,
                  causality="parameter") for p in parameters(scene)]
     rows += [dict(name=n, type=t, unit=u, start=start, description=d, causality="parameter")
@@ -102,8 +116,13 @@ def variable_table(scene) -> list[Variable]:
     starts = {f"{d}.position": x0 for d, x0 in zip(layout.drivers, layout.driver_initial)}
     rows += [dict(name=v.name, start=float(starts.get(v.name, 0.0)), unit=v.unit,
                   description=v.description, causality="input") for v in inputs(scene)]
+    # knowns of the kinematic outputs at initialization: parameters and driver inputs
+    assembly = tuple(r["name"] for r in rows if r["causality"] == "parameter"
+                     or r["name"].split(".")[0] in layout.drivers)
+    kinematic = kinematic_outputs(scene)
     rows += [dict(name=v.name, unit=v.unit, description=v.description, causality="output",
-                  initial="calculated", dependencies=())
+                  initial="calculated", dependencies=(),
+                  initial_dependencies=assembly if v.name in kinematic else None)
              for v in select_outputs(scene, outputs(scene))]
     return [Variable(value_reference=k, **row) for k, row in enumerate(rows)]
 
