@@ -37,8 +37,10 @@ COMMANDS = {
     "fmpy": "fmpy simulate {fmu} --stop-time {T} --output-interval {h} --output-file out.csv",
     "libcosim": "python benchmarks/fmu_hosts_matrix.py run libcosim {fmu} {T} {h} out.csv",
     "ecospy": "python benchmarks/fmu_hosts_matrix.py run ecospy {fmu} {T} {h} out.csv",
-    "ecos CLI": "env -i PATH=/usr/bin:/bin ecos simulate --path {fmu} --stopTime {T}+{h}/2 --stepSize {h}",
-    "checker": "env -i PATH=/usr/bin:/bin fmuCheck.linux64 -k cs -s {T} -h {h} -n 0 -o out.csv {fmu}",
+    "ecos CLI": "env -i PATH=/usr/bin:/bin ecos simulate --path {fmu} --stopTime {T}+{h}/2 "
+                "--stepSize {h}",
+    "checker": "env -i PATH=/usr/bin:/bin fmuCheck.linux64 -k cs -s {T} -h {h} -n 0 "
+               "-o out.csv {fmu}",
 }
 
 
@@ -117,8 +119,9 @@ def cell(host: str, fmu: Path, t_end: float, h: float, work: Path, expected) -> 
     from fmu_models import hosts
     work.mkdir(parents=True, exist_ok=True)
     if host == "fmpy":
-        command = [str(Path(sys.executable).with_name("fmpy")), "simulate", str(fmu), "--stop-time",
-                   repr(t_end), "--output-interval", repr(h), "--output-file", str(work / "out.csv")]
+        command = [str(Path(sys.executable).with_name("fmpy")), "simulate", str(fmu),
+                   "--stop-time", repr(t_end), "--output-interval", repr(h),
+                   "--output-file", str(work / "out.csv")]
         run = subprocess.run(command, capture_output=True, text=True, timeout=600, cwd=work)
     elif host in ("libcosim", "ecospy"):
         run = subprocess.run([sys.executable, __file__, "run", host, str(fmu), repr(t_end), repr(h),
@@ -126,11 +129,12 @@ def cell(host: str, fmu: Path, t_end: float, h: float, work: Path, expected) -> 
     elif host == "ecos CLI":
         # it stops a step short of stopTime when the sum of steps rounds below it
         run = hosts.run_ecos_cli(hosts.ecos_cli(work), fmu, work, t_end + h / 2, h, timeout=600)
-        (work / f"{fmu.stem}.csv").replace(work / "out.csv") if (work / f"{fmu.stem}.csv").exists() else None
+        if (work / f"{fmu.stem}.csv").exists():
+            (work / f"{fmu.stem}.csv").replace(work / "out.csv")
     else:
         run = hosts.run_checker(fmu, work, t_end, h, timeout=600)
-    result = {"exit": run.returncode, "rows": 0, "error": math.inf,
-              "note": (run.stderr or run.stdout).strip().splitlines()[-1:] if run.returncode else []}
+    note = (run.stderr or run.stdout).strip().splitlines()[-1:] if run.returncode else []
+    result = {"exit": run.returncode, "rows": 0, "error": math.inf, "note": note}
     if (work / "out.csv").exists():
         got = read_columns(work / "out.csv")
         names = [n for n in expected.names if n in got]
@@ -153,7 +157,8 @@ def cell(host: str, fmu: Path, t_end: float, h: float, work: Path, expected) -> 
 def mark(host: str, r: dict, points: int) -> str:
     ok = (r["exit"] == 0 and r["rows"] >= points and r["error"] <= TOLERANCE.get(host, 1e-9)
           and r.get("checker", True))
-    return f"{'✔' if ok else '✘'} {r['error']:.0e}" + ("" if r["exit"] == 0 else f" (exit {r['exit']})")
+    status = "" if r["exit"] == 0 else f" (exit {r['exit']})"
+    return f"{'✔' if ok else '✘'} {r['error']:.0e}{status}"
 
 
 def main(argv=None) -> int:

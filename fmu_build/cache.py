@@ -15,7 +15,8 @@ def _tree_digest(*roots: Path) -> bytes:
     h = hashlib.sha256()
     for root in roots:
         files = [root] if root.is_file() else sorted(
-            p for p in root.rglob("*") if p.suffix in (".py", ".c") and "__pycache__" not in p.parts)
+            p for p in root.rglob("*")
+            if p.suffix in (".py", ".c") and "__pycache__" not in p.parts)
         for f in files:
             h.update(str(f.name).encode() + b"\0" + f.read_bytes())
     return h.digest()

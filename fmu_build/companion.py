@@ -35,7 +35,8 @@ from .runtime.variables import Variable
 BASE_IMPORT = re.compile(
     r"^from mbdfmu\.fmu_build\.runtime import companion as base[ \t]*$", re.M)
 FMU_IMPORT = "from . import companion as base"
-MODEL_CLASS = "\n\nclass Model(base.CompanionModel):\n    COMPANION = {name}\n    OUTPUTS = {outputs!r}\n"
+MODEL_CLASS = ("\n\nclass Model(base.CompanionModel):\n"
+               "    COMPANION = {name}\n    OUTPUTS = {outputs!r}\n")
 
 
 class _Tracer(dict):

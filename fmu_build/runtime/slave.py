@@ -28,8 +28,9 @@ set again to the same value from one left alone; the base empties it after each 
 The model reads ``self.time`` (s), ``self.start_time``, ``self.stop_time``,
 ``self.tolerance`` (fmi2SetupExperiment's relative tolerance, or None),
 ``self.resources`` (the FMU's resources folder) and logs with ``self.log(text)``. Names
-the base uses, which a model must not assign: ``values``, ``set_since_step``, ``variables``, ``time``,
-``start_time``, ``stop_time``, ``tolerance``, ``resources``, ``instance_name``, ``guid``, ``log_queue``,
+the base uses, which a model must not assign: ``values``, ``set_since_step``,
+``variables``, ``time``, ``start_time``, ``stop_time``, ``tolerance``, ``resources``,
+``instance_name``, ``guid``, ``log_queue``,
 ``take_log`` and everything starting with ``_fmi`` or ``fmi2_``.
 
 The ``fmi2_*`` methods form the protocol with the C wrapper (one per FMI function, see
