@@ -7,9 +7,11 @@ clean exit, a negative number is the signal that killed it (-11 SIGSEGV, -6 SIGA
 Hosts: fmpy and libcosimpy (Python), the FMU Compliance Checker, a small C host and
 Ecos' command line (C/C++, no Python inside; run from a clean environment). With
 ``--pythonfmu`` the same toy built with pythonfmu 0.7 runs too, plainly and in the
-checker with LD_PRELOAD and PYTHONPATH set by hand (the only way it loads there).
+checker with LD_PRELOAD and PYTHONPATH set by hand (the only way it loads there). With
+``--scene NAME`` a shipped scene's FMU (mbdfmu build) runs instead of the toy, in fmpy,
+libcosimpy, libcosim then fmpy, the checker and Ecos' command line.
 
-    python benchmarks/fmu_hosts_stress.py [--runs 200] [--pythonfmu] [-o DIR]
+    python benchmarks/fmu_hosts_stress.py [--runs 200] [--pythonfmu] [--scene NAME] [-o DIR]
 
 Writes fmu_hosts_stress.csv (runtime, host, exit status, count) in DIR and prints it.
 """
@@ -67,14 +69,20 @@ def preloaded_checker_run(fmu: Path, workdir: Path) -> subprocess.CompletedProce
     return subprocess.run(command, capture_output=True, text=True, timeout=120, env=env, cwd=workdir)
 
 
-def host_runners(workdir: Path, pythonfmu: bool) -> dict:
-    """Host name -> function(fmu, run folder) -> CompletedProcess, for the hosts available."""
-    c_host = hosts.compile_host(workdir)
+def host_runners(workdir: Path, pythonfmu: bool, variable: str = "x") -> dict:
+    """Host name -> function(fmu, run folder) -> CompletedProcess, for the hosts available
+    (the Python hosts print ``variable``; the C host only runs the toy)."""
     runners = {
-        "fmpy": lambda fmu, d: hosts.run_python(hosts.FMPY_RUN, fmu, STEPS, H),
-        "libcosim": lambda fmu, d: hosts.run_python(hosts.LIBCOSIM_RUN, fmu, STEPS, H),
-        "C host": lambda fmu, d: c_host_run(c_host, fmu, d),
+        "fmpy": lambda fmu, d: hosts.run_python(hosts.FMPY_RUN, fmu, STEPS, H, variable=variable),
+        "libcosim": lambda fmu, d: hosts.run_python(hosts.LIBCOSIM_RUN, fmu, STEPS, H,
+                                                    variable=variable),
     }
+    if variable == "x":
+        c_host = hosts.compile_host(workdir)
+        runners["C host"] = lambda fmu, d: c_host_run(c_host, fmu, d)
+    else:
+        runners["libcosim then fmpy"] = lambda fmu, d: hosts.run_python(
+            hosts.LIBCOSIM_THEN_FMPY, fmu, STEPS, H, variable=variable)
     if hosts.CHECKER.exists():
         runners["checker"] = lambda fmu, d: hosts.run_checker(fmu, d, STEPS * H, H)
         if pythonfmu:
@@ -94,20 +102,29 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--runs", type=int, default=200)
     parser.add_argument("--pythonfmu", action="store_true", help="also run pythonfmu's toy")
+    parser.add_argument("--scene", default=None, help="a shipped scene's FMU instead of the toy")
     parser.add_argument("-o", "--out", type=Path, default=None)
     args = parser.parse_args(argv)
     out = args.out or Path(tempfile.mkdtemp(prefix="fmu_stress_"))
     out.mkdir(parents=True, exist_ok=True)
-    from fmu_models.toy import build_toy
-    fmus = {"native": build_toy(out / "MassSpring.fmu", cache_dir=out / "cache")}
+    variable = "x"
+    if args.scene:
+        from mbdfmu.fmu_build.scene_fmu import build_fmu
+        path = build_fmu(args.scene, out / f"{args.scene}.fmu")
+        fmus = {f"native {args.scene}": path}
+        variable = [v.name for v in read_model_description(path).modelVariables
+                    if v.causality == "output"][0]
+    else:
+        from fmu_models.toy import build_toy
+        fmus = {"native": build_toy(out / "MassSpring.fmu", cache_dir=out / "cache")}
     if args.pythonfmu:
         from fmu_native_vs_pythonfmu import build_both
         fmus["pythonfmu"] = build_both(out)["pythonfmu"]
-    runners = host_runners(out, args.pythonfmu)
+    runners = host_runners(out, args.pythonfmu, variable)
     counts: collections.Counter = collections.Counter()
     for runtime, fmu in fmus.items():
         for host, run in runners.items():
-            if host == "checker + LD_PRELOAD" and runtime == "native":
+            if host == "checker + LD_PRELOAD" and runtime.startswith("native"):
                 continue
             folder = out / f"{runtime}-{host}".replace(" ", "_").replace("+", "")
             for i in range(args.runs):
@@ -116,11 +133,12 @@ def main(argv=None) -> int:
                 counts[(runtime, host, run(fmu, work).returncode)] += 1
             print(runtime, host, {rc: n for (r, h, rc), n in counts.items()
                                   if (r, h) == (runtime, host)}, flush=True)
-    with open(out / "fmu_hosts_stress.csv", "w", newline="") as f:
+    name = f"fmu_hosts_stress_{args.scene}.csv" if args.scene else "fmu_hosts_stress.csv"
+    with open(out / name, "w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(["runtime", "host", "exit_status", "count"])
         writer.writerows([*key, n] for key, n in sorted(counts.items(), key=str))
-    print(f"written: {out / 'fmu_hosts_stress.csv'}")
+    print(f"written: {out / name}")
     return 0
 
 

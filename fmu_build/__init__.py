@@ -8,16 +8,16 @@ from pathlib import Path
 from .common import BuildError
 
 
-def build(path, output=None, parameters=None) -> Path:
+def build(path, output=None, parameters: dict[str, float] | None = None) -> Path:
     """``mbdfmu build``: a scene or a companion source into an FMI 2.0 co-simulation FMU;
-    returns the FMU's path. ``parameters``: start values of a scene FMU's parameters."""
+    returns the FMU's path. ``parameters``: start values baked into a scene's FMU."""
     if Path(path).suffix == ".py":
         if parameters:
-            raise BuildError(f"{path}: --set applies to scene FMUs, not to companion sources")
+            raise BuildError(f"{path}: start values are baked into scene FMUs only")
         from .companion import build_companion
         return build_companion(path, output)
     from .scene_fmu import build_fmu
-    return build_fmu(path, output, parameters=parameters)
+    return build_fmu(path, output, parameters)
 
 
 __all__ = ["BuildError", "build"]

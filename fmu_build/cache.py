@@ -15,17 +15,18 @@ def _tree_digest(*roots: Path) -> bytes:
     h = hashlib.sha256()
     for root in roots:
         files = [root] if root.is_file() else sorted(
-            p for p in root.rglob("*.py") if "__pycache__" not in p.parts)
+            p for p in root.rglob("*")
+            if p.suffix in (".py", ".c") and "__pycache__" not in p.parts)
         for f in files:
             h.update(str(f.name).encode() + b"\0" + f.read_bytes())
     return h.digest()
 
 
 def _tools_digest(kind: str) -> bytes:
-    """What else goes into an FMU of this kind: the mbdfmu core and this package for
-    scenes, the companion base and builder for companion sources."""
+    """What else goes into an FMU of this kind: this package (the builders, the runtime,
+    the native wrapper's source) and, for scenes, the mbdfmu core."""
     if kind == ".py":
-        return _tree_digest(HERE / "companion_base.py", HERE / "companion.py", HERE / "common.py")
+        return _tree_digest(HERE)
     from .scene_fmu import core_init
     return _tree_digest(Path(core_init).resolve().parent, HERE)
 

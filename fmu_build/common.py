@@ -1,18 +1,15 @@
-"""What every mbdfmu FMU build shares: capability flags, content digests, and running
-pythonfmu's builder without leaving traces in this process."""
+"""What every mbdfmu FMU build shares: content digests, filling a model template, and
+writing the FMU with one kind of error (``BuildError``, one line) for every failure."""
 
 from __future__ import annotations
 
 import hashlib
-import sys
+import re
 from pathlib import Path
 
 from ..errors import MbdfmuError
 
-# What every mbdfmu FMU advertises: masters may roll back, serialize and vary the step.
-CAPABILITIES = dict(needsExecutionTool=True, canHandleVariableCommunicationStepSize=True,
-                    canGetAndSetFMUstate=True, canSerializeFMUstate=True,
-                    canInterpolateInputs=False, canBeInstantiatedOnlyOncePerProcess=False)
+GENERATED = re.compile(r"(# >>> GENERATED[^\n]*\n)(.*?)(# <<< GENERATED\n)", re.S)
 
 
 class BuildError(MbdfmuError):
@@ -28,20 +25,36 @@ def digest(*chunks: bytes) -> str:
     return h.hexdigest()[:12]
 
 
-def build_isolated(script: Path, dest: Path, own_modules: set[str], **options) -> Path:
-    """pythonfmu's ``build_FMU``, leaving this process as it found it.
+def fill_template(template: Path, values: dict) -> str:
+    """``template``'s text with its GENERATED block replaced by ``NAME = repr(value)`` lines."""
+    block = "".join(f"{name} = {value!r}\n" for name, value in values.items())
+    text, n = GENERATED.subn(lambda m: m.group(1) + block + m.group(3),
+                             template.read_text(encoding="utf-8"))
+    if n != 1:
+        raise BuildError(f"{template}: the GENERATED block is missing")
+    return text
 
-    pythonfmu imports the script (and what it ships) in this process and leaves its folder
-    on ``sys.path``: both are undone (for the FMU's own modules only; third-party modules
-    imported on the way stay), so this process later loads the FMU's own copy.
-    """
-    from pythonfmu.builder import FmuBuilder
 
-    saved_path, saved_modules = list(sys.path), set(sys.modules)
+def fmu_path(output, identifier: str) -> Path:
+    """Where to write: ``output``, or ``<identifier>.fmu`` in the cwd; must end in .fmu."""
+    path = Path(output) if output is not None else Path.cwd() / f"{identifier}.fmu"
+    if path.suffix != ".fmu":
+        raise BuildError(f"{path}: an FMU file name must end in .fmu")
+    return path
+
+
+def write_checked(output, identifier: str, variables, source: str, **options) -> Path:
+    """``package.write_fmu`` with its failures (no C compiler, no fmpy headers, a table or
+    source FMI cannot express) as one-line ``BuildError``s."""
+    from .model_description import ModelDescriptionError
+    from .native import CompileError
+    from .package import PackageError, write_fmu
+    from .runtime.variables import VariableError
+
+    path = fmu_path(output, identifier)
     try:
-        return Path(FmuBuilder.build_FMU(script, dest=dest, **options))
-    finally:
-        sys.path[:] = saved_path
-        for m in set(sys.modules) - saved_modules:
-            if m.split(".")[0] in own_modules:
-                del sys.modules[m]
+        return write_fmu(path, identifier, variables, source, **options)
+    except CompileError as exc:
+        raise BuildError(f"cannot build the FMU's binary: {exc}") from None
+    except (PackageError, ModelDescriptionError, VariableError) as exc:
+        raise BuildError(f"{identifier}: {exc}") from None

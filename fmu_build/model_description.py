@@ -24,7 +24,8 @@ SYMBOLS: dict[str, dict[str, int]] = {
     "mol": {"mol": 1}, "cd": {"cd": 1}, "rad": {"rad": 1},
     "N": {"kg": 1, "m": 1, "s": -2}, "J": {"kg": 1, "m": 2, "s": -2},
     "W": {"kg": 1, "m": 2, "s": -3}, "Pa": {"kg": 1, "m": -1, "s": -2}, "Hz": {"s": -1},
-    "V": {"kg": 1, "m": 2, "s": -3, "A": -1},
+    "V": {"kg": 1, "m": 2, "s": -3, "A": -1}, "Ohm": {"kg": 1, "m": 2, "s": -3, "A": -2},
+    "H": {"kg": 1, "m": 2, "s": -2, "A": -2},
 }
 BASE_UNITS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
 
@@ -50,6 +51,16 @@ class Capabilities:
 
 
 @dataclass(frozen=True)
+class ModelInfo:
+    """The model description's descriptive attributes (FMI 2.0 section 2.2.1)."""
+
+    description: str = ""
+    author: str = ""
+    version: str = ""
+    generation_tool: str = "mbdfmu"
+
+
+@dataclass(frozen=True)
 class DefaultExperiment:
     """Suggested run settings (seconds; tolerance relative); None leaves one out."""
 
@@ -60,9 +71,12 @@ class DefaultExperiment:
 
 
 def unit_exponents(unit: str) -> dict[str, int]:
-    """SI base-unit exponents of a unit name such as ``N.m``, ``m/s2`` or ``kg.m2``."""
+    """SI base-unit exponents of a unit name such as ``N.m``, ``m/s2``, ``kg.m2`` or
+    ``m3/(s.Pa)``."""
     exponents: dict[str, int] = {}
     numerator, _, denominator = unit.partition("/")
+    if denominator.startswith("(") and denominator.endswith(")"):
+        denominator = denominator[1:-1]
     for part, sign in ((numerator, 1), (denominator, -1)):
         for token in filter(None, part.split(".")):
             match = re.fullmatch(r"([A-Za-z]+|1)(-?\d*)", token)
@@ -89,14 +103,14 @@ def _start_text(v: Variable) -> str:
 
 
 def model_description(table: VariableTable, model_name: str, model_identifier: str, guid: str, *,
-                      description: str = "", capabilities: Capabilities = Capabilities(),
+                      info: ModelInfo = ModelInfo(), capabilities: Capabilities = Capabilities(),
                       default_experiment: DefaultExperiment | None = None,
-                      log_categories: dict[str, str] | None = None,
-                      generation_tool: str = "mbdfmu") -> str:
+                      log_categories: dict[str, str] | None = None) -> str:
     """The modelDescription.xml text (UTF-8 declaration included)."""
     root = ET.Element("fmiModelDescription", {
-        "fmiVersion": "2.0", "modelName": model_name, "guid": guid, "description": description,
-        "generationTool": generation_tool, "variableNamingConvention": "flat"})
+        "fmiVersion": "2.0", "modelName": model_name, "guid": guid, "description": info.description,
+        **{k: v for k, v in (("author", info.author), ("version", info.version)) if v},
+        "generationTool": info.generation_tool, "variableNamingConvention": "flat"})
     ET.SubElement(root, "CoSimulation", {
         "modelIdentifier": model_identifier, "needsExecutionTool": "false",
         "canHandleVariableCommunicationStepSize":

@@ -35,7 +35,7 @@ import zipfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from .model_description import Capabilities, DefaultExperiment, model_description
+from .model_description import Capabilities, DefaultExperiment, ModelInfo, model_description
 from .native import compile_wrapper
 from .runtime.variables import VariableTable
 
@@ -89,8 +89,9 @@ def shared_libpython() -> str | None:
 
 
 def runtime_files() -> dict[str, bytes]:
-    """The runtime package's files (name -> content), without the boot script."""
-    return {p.name: p.read_bytes() for p in sorted(RUNTIME_DIR.glob("*.py")) if p.name != BOOT_FILE}
+    """The runtime package's files (name -> content); boot.py is also shipped alone, as
+    resources/mbdfmu_boot.py, which the wrapper runs first."""
+    return {p.name: p.read_bytes() for p in sorted(RUNTIME_DIR.glob("*.py"))}
 
 
 def _digest(*parts: bytes) -> str:
@@ -152,13 +153,15 @@ def _zip(output: Path, members: dict[str, bytes]) -> None:
 
 def write_fmu(output, model_identifier: str, variables, model_module_source: str, *,
               model_class: str = "Model", model_name: str | None = None, description: str = "",
+              info: ModelInfo | None = None,
               extra_resources=None, capabilities: Capabilities = Capabilities(),
               default_experiment: DefaultExperiment | None = DefaultExperiment(),
               log_categories: dict[str, str] | None = None,
               python: PythonEnvironment | None = None, binary=None, cache_dir=None) -> Path:
     """Write an FMI 2.0 co-simulation FMU to ``output`` and return its path.
 
-    ``variables``: ``Variable`` objects (the one table of value references);
+    ``variables``: ``Variable`` objects (the one table of value references); ``info``:
+    author, version, generation tool (and the description, overriding ``description``);
     ``model_module_source``: Python source defining ``model_class``, a subclass of the
     runtime's ``Slave`` imported with ``from . import Slave``; ``extra_resources``: name
     under resources/ -> bytes, text, or the path of a file or folder; ``log_categories``:
@@ -184,7 +187,8 @@ def write_fmu(output, model_identifier: str, variables, model_module_source: str
     guid = "{%s}" % uuid.UUID(_digest(
         model_identifier.encode(), model_class.encode(), json.dumps(variables_json).encode(),
         model_module_source.encode(), runtime_package.encode(), binary_bytes,
-        json.dumps([sorted(extras), experiment, asdict(capabilities), log_categories]).encode(),
+        json.dumps([sorted(extras), experiment, asdict(capabilities), log_categories,
+                    asdict(info) if info else description]).encode(),
         *extras.values())[:32])
     config = {"format": CONFIG_FORMAT, "model_identifier": model_identifier, "guid": guid,
               "python_library": python.library, "python_home": python.home,
@@ -193,8 +197,9 @@ def write_fmu(output, model_identifier: str, variables, model_module_source: str
               "model_module": model_module, "model_class": model_class,
               "variables": variables_json, "log_categories": dict(log_categories or {}),
               "default_experiment": experiment}
+    info = info or ModelInfo(description=description)
     xml = model_description(table, model_name or model_identifier, model_identifier, guid,
-                            description=description, capabilities=capabilities,
+                            info=info, capabilities=capabilities,
                             default_experiment=default_experiment, log_categories=log_categories)
     members = {"modelDescription.xml": xml.encode("utf-8"),
                f"binaries/linux64/{model_identifier}.so": binary_bytes,

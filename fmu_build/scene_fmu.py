@@ -1,74 +1,57 @@
-"""Turn a scene into an FMI 2.0 co-simulation FMU: ``build_fmu(scene_path, output=None)``.
+"""Turn a scene into an FMI 2.0 co-simulation FMU on the native runtime:
+``build_fmu(scene_path, output=None, parameters=None)``.
 
-The FMU holds, under ``resources/``:
+The FMU (``package.write_fmu``) holds the native wrapper, the runtime package, and under
+``resources/``:
 
-* ``<module>.py``: ``slave.py`` with its generated block filled in (model identity, the
-  variable table, units) and its class renamed; ``<module>`` is
-  ``mbdfmu_<Model>_<hash>``, unique to the model and to everything shipped, so two
-  different mbdfmu FMUs never share a module in one process;
-* ``_mbdfmu_<hash>/``: a copy of the parts of mbdfmu a simulation needs (``SHIPPED``: the
-  model, equations and integrators, the simulation; no CLI, plotting, benchmarks,
-  co-simulation or FMU building), imported under that name, so the FMU never uses (and is
-  never shadowed by) an mbdfmu installed in the host;
+* the model module: ``scene_model.py`` with its generated block filled in (the core
+  package's name, the scene file, the outputs);
+* ``_mbdfmu_<hash>/``: a copy of the parts of mbdfmu a simulation needs
+  (``SHIPPED_PACKAGES``, ``SHIPPED_MODULES``: the model, equations and integrators, the
+  simulation; no CLI, plotting, benchmarks, co-simulation or FMU building), imported under
+  that name, so the FMU never uses (and is never shadowed by) an mbdfmu installed in the
+  host, and two FMUs with different cores never share one;
 * ``scene.json`` (the scene as read, what the FMU loads: no TOML reader needed at run
-  time) and ``scene.toml`` (the source, for people);
-* ``pythonfmu/`` (pythonfmu adds it).
+  time) and ``scene.toml`` (the source, for people).
 
-pythonfmu cannot express units, unit definitions or a generation tool of our own: the slave's
-``to_xml`` adds them, so the model description comes out complete from pythonfmu's builder.
+The variable table comes from ``mbdfmu.model.variables`` (parameters, inputs, outputs)
+and ``solver_variables`` (the ``solver.*`` parameters from ``SolverSettings``): there is
+no second list of names.
 """
 
 from __future__ import annotations
 
 import json
-import re
-import shutil
-import tempfile
 from pathlib import Path
 
 from .. import __file__ as core_init
 from .. import __version__
 from ..equations import Equations
 from ..equations.projection import assemble
+from ..errors import SceneError
 from ..integrators import METHOD_NAMES
 from ..integrators.settings import settings_from_scene
 from ..model.reader import resolve_scene_path, scene_from_dict
+from ..model.scene import Body, SpringDamper
 from ..model.toml_table import load_toml, tomllib
-from ..model.variables import inputs, parameters, selected_outputs
-from ..errors import SceneError
-from .common import CAPABILITIES, BuildError, build_isolated, digest
+from ..model.variables import (GLOBAL_OUTPUTS, TABLES, input_layout, inputs, parameters,
+                               selected_outputs)
+from .common import BuildError, digest, fill_template, write_checked
+from .model_description import DefaultExperiment, ModelInfo
+from .runtime.variables import Variable
 
 HERE = Path(__file__).resolve().parent
-TEMPLATE = HERE / "slave.py"
-TEMPLATE_CLASS = "MbdfmuSlave"
-GENERATED = re.compile(r"# >>> GENERATED.*?\n(.*?)# <<< GENERATED\n", re.S)
+TEMPLATE = HERE / "scene_model.py"
 # What of mbdfmu an FMU ships: the layers a simulation runs on (no CLI, plotting,
 # benchmarks, co-simulation masters or FMU building: they would pull in matplotlib, dask,
 # fmpy or libcosimpy, and change the host's process).
 SHIPPED_PACKAGES = ("model", "equations", "integrators")
 SHIPPED_MODULES = ("__init__.py", "errors.py", "plain.py", "result.py", "signals.py",
                    "simulation.py")
-
-# SI base-unit exponents of each unit symbol that may appear in a unit name.
-_SYMBOLS = {
-    "1": {}, "kg": {"kg": 1}, "m": {"m": 1}, "s": {"s": 1}, "rad": {"rad": 1},
-    "N": {"kg": 1, "m": 1, "s": -2}, "J": {"kg": 1, "m": 2, "s": -2},
-    "Hz": {"s": -1}, "W": {"kg": 1, "m": 2, "s": -3},
-}
-
-
-def base_units(unit: str) -> dict[str, int]:
-    """SI exponents of a unit name such as ``N.m.s/rad`` or ``kg.m2``."""
-    exponents: dict[str, int] = {}
-    numerator, _, denominator = unit.partition("/")
-    for part, sign in ((numerator, 1), (denominator, -1)):
-        for token in filter(None, part.split(".")):
-            symbol, power = re.fullmatch(r"([A-Za-z]+|1)(-?\d*)", token).groups()
-            if symbol not in _SYMBOLS:
-                raise BuildError(f'unit "{unit}": unknown symbol "{symbol}"')
-            for base, e in _SYMBOLS[symbol].items():
-                exponents[base] = exponents.get(base, 0) + sign * e * int(power or 1)
-    return {k: v for k, v in exponents.items() if v}
+# Work limits of one communication step (0: none): a step that needs more returns
+# fmi2Discard with the reason, and the FMU stays at its last communication point.
+MAX_STEPS_DEFAULT = 100_000
+MAX_CPU_DEFAULT = 10.0
 
 
 def select_outputs(scene) -> list:
@@ -80,34 +63,61 @@ def select_outputs(scene) -> list:
         raise BuildError(str(exc)) from None
 
 
-def solver_variables(scene) -> tuple[list[tuple], dict]:
-    """The solver parameters (table rows) and their start values: the scene's settings as
-    ``SolverSettings`` defaults and checks them (step 0: the method's default)."""
-    settings = settings_from_scene(scene)
-    rows = [
-        ("solver.method", "solver", "String", "",
+def solver_variables(scene) -> list[tuple]:
+    """The solver parameters as (name, type, unit, start, description): the scene's settings
+    as ``SolverSettings`` defaults and checks them (step 0: the method's default), and the
+    work limits of a communication step."""
+    s = settings_from_scene(scene)
+    return [
+        ("solver.method", "String", None, s.method_name,
          f"integration method: {', '.join(METHOD_NAMES)}"),
-        ("solver.step", "solver", "Real", "s",
+        ("solver.step", "Real", "s", float(s.step or 0.0),
          "internal step of fixed-step methods; largest step of adaptive ones "
          "(0: the method's default, no limit for adaptive methods)"),
-        ("solver.rtol", "solver", "Real", "1", "relative tolerance of adaptive methods"),
-        ("solver.atol", "solver", "Real", "1", "absolute tolerance of adaptive methods"),
+        ("solver.rtol", "Real", "1", s.rtol, "relative tolerance of adaptive methods "
+         "(default: fmi2SetupExperiment's tolerance when the master gives one)"),
+        ("solver.atol", "Real", "1", s.atol, "absolute tolerance of adaptive methods"),
+        ("solver.max_steps_per_communication_step", "Integer", None, MAX_STEPS_DEFAULT,
+         "most internal steps (accepted and rejected) of one fmi2DoStep, else fmi2Discard "
+         "(0: no limit)"),
+        ("solver.max_cpu_per_communication_step", "Real", "s", MAX_CPU_DEFAULT,
+         "most CPU seconds of one fmi2DoStep, else fmi2Discard (0: no limit)"),
     ]
-    values = {"solver.method": settings.method_name, "solver.step": float(settings.step or 0.0),
-              "solver.rtol": settings.rtol, "solver.atol": settings.atol}
-    return rows, values
 
 
-def variable_table(scene) -> tuple[list[tuple], dict]:
-    """Every variable of the scene's FMU in value-reference order (from the variable table,
-    ``model/variables.py``), and the solver starts."""
-    rows = [(p.name, "parameter", "Real", p.unit, p.description) for p in parameters(scene)]
-    solver_rows, solver_values = solver_variables(scene)
-    rows += solver_rows
-    rows += [(v.name, "input", "Real", v.unit, v.description) for v in inputs(scene)]
-    rows += [(v.name, "output", "Real", v.unit, v.description)
+def kinematic_outputs(scene) -> set[str]:
+    """Outputs of positions and velocities only (body states, spring lengths and rates,
+    energies, constraint errors): at initialization they follow the driver inputs (the
+    assembly) but no force input, unlike reactions, efforts and tensions."""
+    names = {f"{b.name}.{s.suffix}" for b in scene.bodies for s in TABLES[Body].outputs}
+    names |= {f"{f.name}.{suffix}" for f in scene.forces if isinstance(f, SpringDamper)
+              for suffix in ("length", "velocity")}
+    return names | {v.name for v in GLOBAL_OUTPUTS}
+
+
+def variable_table(scene) -> list[Variable]:
+    """Every variable of the scene's FMU in value-reference order: parameters (start values
+    as in ``scene``), solver parameters, inputs, outputs (``initial="calculated"``; no
+    direct feedthrough: inputs reach the outputs at the next fmi2DoStep; in Initialization
+    Mode kinematic outputs depend on the parameters and driver inputs, the others on every
+    known)."""
+    rows = [dict(name=p.name, start=p.value, unit=p.unit, description=p.description,
+                 causality="parameter") for p in parameters(scene)]
+    rows += [dict(name=n, type=t, unit=u, start=start, description=d, causality="parameter")
+             for n, t, u, start, d in solver_variables(scene)]
+    layout = input_layout(scene)
+    starts = {f"{d}.position": x0 for d, x0 in zip(layout.drivers, layout.driver_initial)}
+    rows += [dict(name=v.name, start=float(starts.get(v.name, 0.0)), unit=v.unit,
+                  description=v.description, causality="input") for v in inputs(scene)]
+    # knowns of the kinematic outputs at initialization: parameters and driver inputs
+    assembly = tuple(r["name"] for r in rows if r["causality"] == "parameter"
+                     or r["name"].split(".")[0] in layout.drivers)
+    kinematic = kinematic_outputs(scene)
+    rows += [dict(name=v.name, unit=v.unit, description=v.description, causality="output",
+                  initial="calculated", dependencies=(),
+                  initial_dependencies=assembly if v.name in kinematic else None)
              for v in select_outputs(scene)]
-    return rows, solver_values
+    return [Variable(value_reference=k, **row) for k, row in enumerate(rows)]
 
 
 def shipped_files(package_dir: Path) -> list[Path]:
@@ -118,18 +128,13 @@ def shipped_files(package_dir: Path) -> list[Path]:
     return sorted(files)
 
 
-def render_slave(model: dict, variables: list[tuple], class_name: str) -> str:
-    """The template with its generated block filled in and its class renamed."""
-    units = {row[3]: base_units(row[3]) for row in variables if row[3]}
-    block = (f"CORE_PACKAGE = {model['core_package']!r}\n"
-             f"MODEL = {model!r}\n"
-             f"VARIABLES = (\n" + "".join(f"    {row!r},\n" for row in variables) + ")\n"
-             f"UNITS = {units!r}\n")
-    text = TEMPLATE.read_text(encoding="utf-8")
-    text, n = GENERATED.subn(lambda m: m.group(0).replace(m.group(1), block), text)
-    if n != 1:
-        raise BuildError(f"{TEMPLATE}: the GENERATED block is missing")
-    return text.replace(TEMPLATE_CLASS, class_name)
+def _core_files() -> tuple[str, dict[str, bytes]]:
+    """The core package's name (unique to its content) and its files by resource path."""
+    package_dir = Path(core_init).resolve().parent
+    files = {f.relative_to(package_dir).as_posix(): f.read_bytes()
+             for f in shipped_files(package_dir)}
+    name = "_mbdfmu_" + digest(*(k.encode() + b"\0" + v for k, v in files.items()))
+    return name, {f"{name}/{k}": v for k, v in files.items()}
 
 
 def with_start_values(scene_path: Path, parameters: dict) -> tuple[dict, str]:
@@ -147,69 +152,48 @@ def with_start_values(scene_path: Path, parameters: dict) -> tuple[dict, str]:
     doc = tomlkit.parse(text)
     set_parameters(doc, scene, {k: v for k, v in parameters.items()
                                 if not k.startswith("solver.")})
+    solver_names = {row[0] for row in solver_variables(scene)}
     for name, value in parameters.items():
         if name.startswith("solver."):
-            if name not in {row[0] for row in solver_variables(scene)[0]}:
+            if name not in solver_names:
                 raise BuildError(f"{scene_path.name}: unknown parameter {name!r}")
             doc.setdefault("simulation", tomlkit.table())[name[len("solver."):]] = value
     text = tomlkit.dumps(doc)
     return tomllib.loads(text), text
 
 
-def build_fmu(scene_path, output=None, parameters=None) -> Path:
-    """Build the FMU of a scene file (or a shipped scene's name); returns its path (default
-    ``<Model>.fmu`` in the cwd). ``parameters``: start values of the FMU's parameters
-    (names as in its model description), checked as the FMU checks them."""
-    from pythonfmu import __version__ as pythonfmu_version
+def _load(scene_path, values: dict[str, float] | None):
+    """The scene's file, its data and text with ``values`` written in (so the shipped
+    scene.json and scene.toml carry them, and the FMU's start values are them), and the
+    scene built from them, assembled once to prove it can start."""
     scene_path = resolve_scene_path(scene_path)
-    scene_data, scene_text = with_start_values(scene_path, parameters or {})
-    scene = scene_from_dict(scene_data, source=scene_path.name)
-    name = scene.name
+    try:
+        data, text = with_start_values(scene_path, values or {})
+    except SceneError as exc:
+        raise BuildError(f"build parameters: {exc}") from None
+    scene = scene_from_dict(data, source=scene_path.name)
     assemble(Equations(scene, kernel="numpy"))   # a scene that cannot start is no FMU
-    variables, solver_values = variable_table(scene)
-    scene_json = json.dumps(scene_data, indent=1, sort_keys=True).encode()
+    return scene_path, data, text, scene
 
-    package_dir = Path(core_init).resolve().parent
-    files = shipped_files(package_dir)
-    package_tag = digest(*(f.relative_to(package_dir).as_posix().encode() + b"\0" + f.read_bytes()
-                            for f in files))
+
+def build_fmu(scene_path, output=None, parameters: dict[str, float] | None = None) -> Path:
+    """Build the FMU of a scene file (or a shipped scene's name); returns its path (default
+    ``<Model>.fmu`` in the cwd). ``parameters``: start values baked into the FMU
+    (``{"crank.mass": 0.3}``; names and ranges as ``mbdfmu.with_parameters`` checks them)."""
+    scene_path, data, text, scene = _load(scene_path, parameters)
+    table = variable_table(scene)
+    core, core_files = _core_files()
+    outputs_ = tuple(v.name for v in table if v.causality == "output")
+    source = fill_template(TEMPLATE, {"CORE_PACKAGE": core, "SCENE_FILE": "scene.json",
+                                      "OUTPUTS": outputs_})
     run = scene.simulation
-    interval = settings_from_scene(scene).output_interval_for(run.t_end)
-    experiment = {"start": 0.0, "stop": run.t_end, "step": interval}
-    if run.rtol is not None:
-        experiment["tolerance"] = run.rtol
-    model = {
-        "name": name,
-        "description": scene.description,
-        "version": scene.version,
-        "author": scene.author or "mbdfmu",
-        "generation_tool": f"mbdfmu {__version__} (pythonfmu {pythonfmu_version})",
-        "default_experiment": experiment,
-        "scene_file": "scene.json",
-        "solver": solver_values,
-        "core_package": f"_mbdfmu_{package_tag}",
-    }
-    tag = digest(package_tag.encode(), scene_json, TEMPLATE.read_bytes(),
-                  repr(variables).encode(), repr(model).encode())
-    module = f"mbdfmu_{name}_{tag}"
-    source = render_slave(model, variables, class_name=f"{name}_{tag}")
-
-    output = Path(output) if output is not None else Path.cwd() / f"{name}.fmu"
-    if output.suffix != ".fmu":
-        raise BuildError(f"{output}: an FMU file name must end in .fmu")
-    output.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix="mbdfmu_build_") as tmp:
-        stage = Path(tmp)
-        script = stage / f"{module}.py"
-        script.write_text(source, encoding="utf-8")
-        core = stage / model["core_package"]
-        for f in files:
-            target = core / f.relative_to(package_dir)
-            target.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(f, target)
-        (stage / "scene.json").write_bytes(scene_json)
-        (stage / "scene.toml").write_text(scene_text, encoding="utf-8")
-        fmu = build_isolated(
-            script, dest=output, own_modules={module, model["core_package"]},
-            project_files=[core, stage / "scene.json", stage / "scene.toml"], **CAPABILITIES)
-    return Path(fmu)
+    settings = settings_from_scene(scene)
+    experiment = DefaultExperiment(0.0, run.t_end, settings.output_interval_for(run.t_end),
+                                   run.rtol)
+    info = ModelInfo(description=scene.description, author=scene.author or "mbdfmu",
+                     version=scene.version or __version__,
+                     generation_tool=f"mbdfmu {__version__} (native FMI 2.0 runtime)")
+    resources = {**core_files, "scene.toml": text.encode(),
+                 "scene.json": json.dumps(data, indent=1, sort_keys=True).encode()}
+    return write_checked(output, scene.name, table, source, info=info,
+                         default_experiment=experiment, extra_resources=resources)

@@ -7,6 +7,7 @@ closed form from ``exact_solutions.py``.
 """
 from __future__ import annotations
 
+import json
 import math
 import shutil
 import subprocess
@@ -196,8 +197,18 @@ class Slave:
             name = key.replace("__", ".")
             if self.type[name] == "String":
                 self.fmu.setString([self.vr[name]], [value])
+            elif self.type[name] == "Integer":
+                self.fmu.setInteger([self.vr[name]], [value])
             else:
                 self.fmu.setReal([self.vr[name]], [value])
+
+    def status(self, call, *args) -> int:
+        """A call through fmpy's wrapper; its status (fmpy raises on discard and worse)."""
+        try:
+            getattr(self.fmu, call)(*args)
+        except FMICallException as exc:
+            return exc.status
+        return OK
 
     def get(self, *names) -> np.ndarray:
         return np.array(self.fmu.getReal([self.vr[n] for n in names]))
@@ -225,7 +236,7 @@ class Slave:
         return "\n".join(m for _, _, m in self.messages)
 
     def close(self) -> None:
-        self.fmu.terminate()
+        self.status("terminate")        # fmi2Error in the Error state: free it anyway
         self.fmu.freeInstance()
         shutil.rmtree(self.dir, ignore_errors=True)
 
@@ -277,12 +288,13 @@ def test_default_outputs_are_body_states_reactions_and_efforts(fmu):
     assert not any(n.startswith(("energy.", "constraint.")) for n in names)
 
 
-def test_scene_outputs_globs_select_the_outputs(tmp_path):
+def test_scene_outputs_globs_select_the_outputs(tmp_path, fmu):
     text = (SCENES / "slider_crank.toml").read_text()
     scene = tmp_path / "sc.toml"
     scene.write_text(text.replace('description = "', 'outputs = ["slider.*", "motor.effort", '
                                   '"energy.*"]\ndescription = "', 1))
     names = _outputs(build_fmu(scene, tmp_path / "sc.fmu"))
+    assert _config(tmp_path / "sc.fmu")["model_module"] != _config(fmu("slider_crank"))["model_module"]
     assert names == ["slider.x", "slider.y", "slider.phi", "slider.vx", "slider.vy",
                      "slider.omega", "motor.effort", "energy.kinetic", "energy.potential"]
 
@@ -300,19 +312,26 @@ def test_inputs_and_parameters_are_what_the_scene_needs(fmu):
     assert "input" not in {v.causality for v in read_model_description(fmu("slider_crank")).modelVariables}
 
 
+def _config(path: Path) -> dict:
+    with zipfile.ZipFile(path) as z:
+        return json.loads(z.read("resources/mbdfmu.json"))
+
+
 def test_the_fmu_ships_its_scene_and_a_uniquely_named_core(fmu):
     with zipfile.ZipFile(fmu("slider_crank")) as z:
         names = z.namelist()
-        module = z.read("resources/slavemodule.txt").decode().strip()
-    assert module.startswith("mbdfmu_SliderCrank_")
+    module = _config(fmu("slider_crank"))["model_module"]
+    assert module.startswith("model_") and f"resources/{module}.py" in names
     assert "resources/scene.json" in names and "resources/scene.toml" in names
     cores = {n.split("/")[1] for n in names if n.startswith("resources/_mbdfmu_")}
     assert len(cores) == 1
     assert not any(n.startswith("resources/mbdfmu/") or n.endswith(("cli.py", "plotting.py"))
                    for n in names)
-    with zipfile.ZipFile(fmu("slider_crank_input")) as z:
-        other = z.read("resources/slavemodule.txt").decode().strip()
-    assert other != module
+    # module names follow the code: the same outputs share one module (safely: the scene
+    # is read per instance), other outputs get another; the FMUs differ (GUID)
+    other = _config(fmu("slider_crank_input"))
+    assert other["model_module"] == module
+    assert other["guid"] != _config(fmu("slider_crank"))["guid"]
 
 
 # ----------------------------------------------------------------------------- equality with mbdfmu
@@ -569,10 +588,11 @@ def test_libcosim_runs_the_fmu_like_fmpy(fmu):
 def test_non_finite_input_is_discarded_with_a_reason_and_can_be_retried(fmu, slave):
     s = slave(fmu("slider_force"))
     s.init()
-    s.set(push__fx=math.nan)
-    assert s.step(1e-2) == DISCARD
-    assert "push.fx" in s.messages[-1][2] and "not finite" in s.messages[-1][2]
-    assert s.messages[-1][0] == DISCARD
+    s.set(push__fx=2.0)
+    assert s.status("setReal", [s.vr["push.fx"]], [math.nan]) == DISCARD
+    assert '"push.fx" = nan is not finite' in s.messages[-1][2]
+    assert s.messages[-1][0] == DISCARD and s.get("push.fx")[0] == 2.0   # not applied
+    assert s.step(1e-2) == OK
     s.set(push__fx=1.0)
     assert s.step(1e-2) == OK
 
@@ -606,38 +626,52 @@ def test_after_an_error_every_step_is_refused_with_the_reason(fmu, slave):
     s = slave(fmu("pendulum_torque"))
     s.init()
     s.t = 0.5  # a communication point that is not the FMU's time: a master error
-    assert s.step(1e-3) == DISCARD
+    assert s.step(1e-3) == ERROR
     assert s.messages[-1][1] == "logStatusError" and "not the FMU's time" in s.messages[-1][2]
     s.t = 0.0
-    assert s.step(1e-3) == DISCARD
+    assert s.step(1e-3) == ERROR
     assert s.messages[-1][0] == ERROR and "refused" in s.messages[-1][2]
     s.fmu.reset()
     s.init()
     assert s.step(1e-3) == OK
 
 
-def test_a_bad_parameter_is_reported_and_the_fmu_refuses_to_step(fmu, slave):
-    s = slave(fmu("pendulum_torque"))
-    s.init(rod__mass=-1.0)
-    assert any(status == ERROR and "rod.mass" in msg for status, _, msg in s.messages)
-    assert s.step(1e-3) == DISCARD
-    assert "refused" in s.messages[-1][2]
+def _init_status(s, **values) -> int:
+    s.fmu.setupExperiment(startTime=0.0)
+    s.fmu.enterInitializationMode()
+    s.set(**values)
+    return s.status("exitInitializationMode")
 
 
-def test_setting_a_parameter_after_initialization_is_ignored_with_an_error(fmu, slave):
+@pytest.mark.parametrize("values, words", [
+    (dict(rod__mass=-1.0), '"rod.mass" must be positive, got -1'),
+    ({"solver.method": "euler"}, 'solver.method "euler" is not a method'),
+    ({"solver.method": "rk5"}, 'solver.method "rk5" is not a method'),
+    ({"solver.rtol": 2.0}, "solver.rtol must be below 1"),
+    ({"solver.max_steps_per_communication_step": -5},
+     "solver.max_steps_per_communication_step must be 0 (no limit) or positive"),
+])
+def test_a_bad_parameter_fails_exit_initialization_naming_it(fmu, slave, values, words):
     s = slave(fmu("pendulum_torque"))
+    assert _init_status(s, **values) == ERROR
+    assert s.messages[-1][:2] == (ERROR, "logStatusError")
+    assert "fmi2ExitInitializationMode" in s.messages[-1][2] and words in s.messages[-1][2]
+    assert s.step(1e-3) == ERROR and "refused" in s.messages[-1][2]
+    s.fmu.reset()
     s.init()
-    s.set(rod__mass=5.0)
-    assert s.messages[-1][0] == ERROR and "rod.mass" in s.messages[-1][2]
-    assert s.get("rod.mass")[0] == 1.0
     assert s.step(1e-3) == OK
 
 
-def test_an_unknown_method_is_reported(fmu, slave):
+def test_setting_a_parameter_after_initialization_is_an_error(fmu, slave):
     s = slave(fmu("pendulum_torque"))
-    s.init(**{"solver.method": "euler"})
-    assert any("euler" in msg for _, _, msg in s.messages)
-    assert s.step(1e-3) == DISCARD
+    s.init()
+    assert s.status("setReal", [s.vr["rod.mass"]], [5.0]) == ERROR
+    assert s.messages[-1][0] == ERROR and 'parameter "rod.mass" is fixed' in s.messages[-1][2]
+    assert s.get("rod.mass")[0] == 1.0
+    assert s.step(1e-3) == ERROR and "refused" in s.messages[-1][2]
+    s.fmu.reset()
+    s.init()
+    assert s.step(1e-3) == OK
 
 
 # ----------------------------------------------------------------------------- the host
@@ -700,19 +734,17 @@ def test_the_start_time_of_setup_experiment_is_honoured(fmu, slave):
     np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12)
 
 
-def test_setting_an_output_is_ignored_with_an_error(fmu, slave):
+def test_setting_an_output_is_an_error(fmu, slave):
     s = slave(fmu("slider_force"))
     s.init()
-    s.set(slider__x=3.0)
-    assert s.messages[-1][0] == ERROR and "slider.x" in s.messages[-1][2]
+    assert s.status("setReal", [s.vr["slider.x"]], [3.0]) == ERROR
+    assert s.messages[-1][0] == ERROR and '"slider.x" is an output' in s.messages[-1][2]
     assert s.get("slider.x")[0] == 0.0
 
 
 def test_a_corrupt_serialized_state_is_refused_with_a_reason(fmu, slave):
     s = slave(fmu("slider_force"))
     s.init()
-    state = s.fmu.deSerializeFMUstate(b"not a state")
-    s.fmu.setFMUstate(state)
-    s.fmu.freeFMUstate(state)
-    assert s.messages[-1][0] == ERROR and "cannot deserialize" in s.messages[-1][2]
-    assert s.step(1e-3) == DISCARD and "refused" in s.messages[-1][2]
+    assert s.status("deSerializeFMUstate", b"not a state") == ERROR
+    assert s.messages[-1][0] == ERROR and "fmi2DeSerializeFMUstate: refused" in s.messages[-1][2]
+    assert s.step(1e-3) == ERROR and "refused" in s.messages[-1][2]

@@ -585,29 +585,17 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fm
     LEAVE();
 }
 
-fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
+/* The FMI functions that pass nothing but the instance. */
+static fmi2Status call_without_arguments(fmi2Component c, Method m) {
     ENTER(c);
-    status = call(in, M_ENTER_INIT, py.Py_BuildValue("()"), NULL);
+    status = call(in, m, py.Py_BuildValue("()"), NULL);
     LEAVE();
 }
 
-fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
-    ENTER(c);
-    status = call(in, M_EXIT_INIT, py.Py_BuildValue("()"), NULL);
-    LEAVE();
-}
-
-fmi2Status fmi2Terminate(fmi2Component c) {
-    ENTER(c);
-    status = call(in, M_TERMINATE, py.Py_BuildValue("()"), NULL);
-    LEAVE();
-}
-
-fmi2Status fmi2Reset(fmi2Component c) {
-    ENTER(c);
-    status = call(in, M_RESET, py.Py_BuildValue("()"), NULL);
-    LEAVE();
-}
+fmi2Status fmi2EnterInitializationMode(fmi2Component c) { return call_without_arguments(c, M_ENTER_INIT); }
+fmi2Status fmi2ExitInitializationMode(fmi2Component c) { return call_without_arguments(c, M_EXIT_INIT); }
+fmi2Status fmi2Terminate(fmi2Component c) { return call_without_arguments(c, M_TERMINATE); }
+fmi2Status fmi2Reset(fmi2Component c) { return call_without_arguments(c, M_RESET); }
 
 /* ---- FMI functions: getting and setting values --------------------------------------------- */
 
@@ -768,34 +756,39 @@ static PyObject *serialized(Instance *in, StateHandle *h, fmi2Status *status) {
     return NULL;
 }
 
+/* The serialized bytes of state h as (data, n): 1, or 0 with *status and the reason set.
+   `buffer` is the caller's buffer when it needs one (checked against NULL). */
+static int serialized_data(Instance *in, const char *function, StateHandle *h, const void *buffer,
+                           fmi2Status *status, char **data, Py_ssize_t *n) {
+    PyObject *bytes;
+    if (!h || !buffer) {
+        *status = reject(in, function, "FMUstate is not an FMU state, or a pointer is NULL");
+        return 0;
+    }
+    if (!(bytes = serialized(in, h, status))) return 0;
+    if (py.PyBytes_AsStringAndSize(bytes, data, n) == 0) return 1;
+    *status = protocol_error(in, function);
+    return 0;
+}
+
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size) {
     ENTER(c) = fmi2OK;
-    StateHandle *h = as_state(FMUstate);
-    PyObject *bytes;
     char *data;
     Py_ssize_t n;
-    if (!h || !size)
-        status = reject(in, "fmi2SerializedFMUstateSize", "FMUstate is not an FMU state or size is NULL");
-    else if ((bytes = serialized(in, h, &status))) {
-        if (py.PyBytes_AsStringAndSize(bytes, &data, &n) == 0) *size = (size_t)n;
-        else status = protocol_error(in, "fmi2SerializedFMUstateSize");
-    }
+    if (serialized_data(in, "fmi2SerializedFMUstateSize", as_state(FMUstate), size, &status,
+                        &data, &n))
+        *size = (size_t)n;
     LEAVE();
 }
 
 fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[],
                                  size_t size) {
     ENTER(c) = fmi2OK;
-    StateHandle *h = as_state(FMUstate);
-    PyObject *bytes;
     char *data;
     Py_ssize_t n;
-    if (!h || !serializedState)
-        status = reject(in, "fmi2SerializeFMUstate", "FMUstate is not an FMU state or serializedState is NULL");
-    else if ((bytes = serialized(in, h, &status))) {
-        if (py.PyBytes_AsStringAndSize(bytes, &data, &n) != 0)
-            status = protocol_error(in, "fmi2SerializeFMUstate");
-        else if ((size_t)n > size)
+    if (serialized_data(in, "fmi2SerializeFMUstate", as_state(FMUstate), serializedState,
+                        &status, &data, &n)) {
+        if ((size_t)n > size)
             status = reject(in, "fmi2SerializeFMUstate", "size is smaller than "
                             "fmi2SerializedFMUstateSize gave");
         else
@@ -871,10 +864,12 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
                       fmi2Real communicationStepSize, fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
     ENTER(c);
     char reason[200];
-    if (!isfinite(currentCommunicationPoint) || !isfinite(communicationStepSize)
-        || communicationStepSize <= 0) {
-        snprintf(reason, sizeof reason, "currentCommunicationPoint = %g must be finite and "
-                 "communicationStepSize = %g positive and finite", currentCommunicationPoint,
+    if (!isfinite(currentCommunicationPoint)) {
+        snprintf(reason, sizeof reason, "currentCommunicationPoint = %g is not finite",
+                 currentCommunicationPoint);
+        status = reject(in, "fmi2DoStep", reason);
+    } else if (!isfinite(communicationStepSize) || communicationStepSize <= 0) {
+        snprintf(reason, sizeof reason, "communicationStepSize = %g must be positive and finite",
                  communicationStepSize);
         status = reject(in, "fmi2DoStep", reason);
     } else {
@@ -885,11 +880,7 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
 }
 
 /* canRunAsynchronuously is false, so there is never a step to cancel: fmi2Error. */
-fmi2Status fmi2CancelStep(fmi2Component c) {
-    ENTER(c);
-    status = call(in, M_CANCEL_STEP, py.Py_BuildValue("()"), NULL);
-    LEAVE();
-}
+fmi2Status fmi2CancelStep(fmi2Component c) { return call_without_arguments(c, M_CANCEL_STEP); }
 
 /* All five status functions: the slave answers fmi2LastSuccessfulTime (Real) and
  * fmi2Terminated (Boolean); other kinds cannot be retrieved (fmi2Discard). */

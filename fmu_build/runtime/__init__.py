@@ -11,13 +11,13 @@ Entry point for the C wrapper (through ``resources/mbdfmu_boot.py``):
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
+from .boot import load_module
 from .slave import Slave
 from .status import DISCARD, ERROR, FATAL, OK, PENDING, WARNING, Discard, FmiError
 from .variables import Variable, VariableTable
+from . import companion  # noqa: E402 - every submodule now: hosts may delete the extracted files
 
 __all__ = ["Slave", "Discard", "FmiError", "Variable", "VariableTable", "instantiate",
            "load_package", "OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING"]
@@ -32,23 +32,7 @@ def load_package(resources_dir: str, name: str, parent: str | None = None):
     ``parent.name`` (so it can use relative imports from the parent package).
     """
     full = f"{parent}.{name}" if parent else name
-    module = sys.modules.get(full)
-    if module is not None:
-        return module
-    path = Path(resources_dir) / name
-    if path.is_dir():
-        spec = importlib.util.spec_from_file_location(
-            full, path / "__init__.py", submodule_search_locations=[str(path)])
-    else:
-        spec = importlib.util.spec_from_file_location(full, path.with_suffix(".py"))
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[full] = module
-    try:
-        spec.loader.exec_module(module)
-    except BaseException:
-        del sys.modules[full]
-        raise
-    return module
+    return load_module(full, str(Path(resources_dir) / name))
 
 
 def instantiate(resources_dir: str, config: dict, instance_name: str, guid: str,

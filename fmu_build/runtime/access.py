@@ -122,6 +122,7 @@ def fast_set(slave, type_name: str, vrs, new_values) -> bool:
     except (KeyError, TypeError, ValueError):
         return False
     slave.values.update(pairs)
+    slave.set_since_step.update(pairs)
     return True
 
 
@@ -142,7 +143,7 @@ def set_values(slave, type_name: str, vrs, new_values) -> int:
             if reason is None and type_name == "Real" and not math.isfinite(value):
                 reason, worst = f'"{v.name}" = {value} is not finite; value not applied', status.DISCARD
         if reason is None:
-            values[v.name] = value
+            values[v.name] = slave.set_since_step[v.name] = value
             continue
         log.status(worst, f"fmi2Set{type_name}: {reason}")
         code = max(code, worst)

@@ -60,17 +60,25 @@ def prepare_path(config: dict, own_interpreter: bool) -> None:
 
 def load_runtime(resources_dir: str, name: str):
     """The runtime package ``name`` from the resources (once per process and name)."""
-    if name in sys.modules:
-        return sys.modules[name]
-    folder = os.path.join(resources_dir, name)
-    spec = importlib.util.spec_from_file_location(
-        name, os.path.join(folder, "__init__.py"), submodule_search_locations=[folder])
+    return load_module(name, os.path.join(resources_dir, name))
+
+
+def load_module(full_name: str, path: str):
+    """Import the package in folder ``path`` (or the module ``path``.py) as ``full_name``,
+    once per process: a module already imported under that name is returned as is."""
+    if full_name in sys.modules:
+        return sys.modules[full_name]
+    if os.path.isdir(path):
+        spec = importlib.util.spec_from_file_location(
+            full_name, os.path.join(path, "__init__.py"), submodule_search_locations=[path])
+    else:
+        spec = importlib.util.spec_from_file_location(full_name, path + ".py")
     module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
+    sys.modules[full_name] = module
     try:
         spec.loader.exec_module(module)
     except BaseException:
-        del sys.modules[name]
+        del sys.modules[full_name]
         raise
     return module
 

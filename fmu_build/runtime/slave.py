@@ -7,21 +7,30 @@ and implements only what the model does:
    ``time + step_size`` (seconds), reading inputs from and writing outputs to
    ``self.values``. Raise ``Discard(reason)`` for a step that may be retried (it must then
    leave the model unchanged); any other exception is an fmi2Error.
-2. ``initialize()``: compute the internal state and the calculated outputs from the
+2. ``calculate()``: outputs that follow inputs within a communication point (direct
+   feedthrough) or the time, computed before a get that follows a set or a step (the
+   model's ``step`` then need not write them).
+3. ``initialize()``: compute the internal state and the calculated outputs from the
    parameters and inputs in ``self.values``. Called when fmi2ExitInitializationMode
    needs it and before a get in Initialization Mode after a set (so it must be
    repeatable).
-3. ``save_state()`` / ``restore_state(tree)``: the model's own state beyond
+4. ``save_state()`` / ``restore_state(tree)``: the model's own state beyond
    ``self.values`` as a tree of dict, list, str, int, float, bool, None and numpy arrays
    (both copied by the base). Default: no own state. ``check_state(tree)`` returns why a
    tree read from bytes cannot be restored (types, shapes), or None.
-4. optional: ``setup()`` (once, at instantiation), ``on_terminate()``, ``on_free()``,
+5. optional: ``setup()`` (once, at instantiation), ``on_terminate()``, ``on_free()``,
    ``directional_derivative``, ``set_input_derivatives``, ``output_derivatives``.
 
+``self.set_since_step`` holds the values the host set since the last successful
+fmi2DoStep (name -> value; also since instantiation or fmi2Reset), e.g. to tell an input
+set again to the same value from one left alone; the base empties it after each step.
+
 The model reads ``self.time`` (s), ``self.start_time``, ``self.stop_time``,
+``self.tolerance`` (fmi2SetupExperiment's relative tolerance, or None),
 ``self.resources`` (the FMU's resources folder) and logs with ``self.log(text)``. Names
-the base uses, which a model must not assign: ``values``, ``variables``, ``time``,
-``start_time``, ``stop_time``, ``resources``, ``instance_name``, ``guid``, ``log_queue``,
+the base uses, which a model must not assign: ``values``, ``set_since_step``,
+``variables``, ``time``, ``start_time``, ``stop_time``, ``tolerance``, ``resources``,
+``instance_name``, ``guid``, ``log_queue``,
 ``take_log`` and everything starting with ``_fmi`` or ``fmi2_``.
 
 The ``fmi2_*`` methods form the protocol with the C wrapper (one per FMI function, see
@@ -36,6 +45,7 @@ from pathlib import Path
 from . import access, status
 from .log import LogQueue
 from .machine import ALLOWED, State, fmi_function, refusal
+from .derivatives import DerivativeProtocol
 from .snapshot import StateProtocol
 from .status import Discard, FmiError
 from .variables import VariableTable
@@ -49,7 +59,7 @@ STATUS_ANSWERS = {("Real", LAST_SUCCESSFUL_TIME), ("Boolean", TERMINATED)}
 GET_STATES, SET_STATES = ALLOWED["fmi2GetReal"], ALLOWED["fmi2SetReal"]
 
 
-class Slave(StateProtocol):
+class Slave(StateProtocol, DerivativeProtocol):
     """Base class of every model; see the module docstring for what a model implements."""
 
     def __init__(self, instance_name: str, guid: str, resources: str, variables: VariableTable,
@@ -61,6 +71,7 @@ class Slave(StateProtocol):
         self._fmi_log = LogQueue(log_categories, logging_on)
         self.log_queue = self._fmi_log.pending   # watched by the C wrapper
         self._fmi_default_start = default_start
+        self._fmi_calculates = type(self).calculate is not Slave.calculate
         self._fmi_restart()
         self.setup()
 
@@ -70,6 +81,11 @@ class Slave(StateProtocol):
 
     def initialize(self) -> None:
         """Derive the internal state and calculated values from ``self.values``."""
+
+    def calculate(self) -> None:
+        """Outputs with direct feedthrough: compute them in ``self.values`` from the inputs
+        and the state at ``self.time``. Called (when overridden) before a get that follows
+        a set or a step in Step Complete; Initialization Mode calls ``initialize``."""
 
     def step(self, time: float, step_size: float) -> None:
         """Advance from ``time`` by ``step_size`` seconds (required)."""
@@ -92,21 +108,14 @@ class Slave(StateProtocol):
     def on_free(self) -> None:
         """At fmi2FreeInstance: release outside resources."""
 
-    def directional_derivative(self, unknowns, knowns, seeds):
-        """d(unknowns)/d(knowns) times ``seeds`` (names, names, floats) -> floats."""
-        raise FmiError("directional derivatives are not provided by this FMU")
-
-    def set_input_derivatives(self, names, orders, values) -> None:
-        """Derivatives of Real inputs (canInterpolateInputs)."""
-        raise FmiError("input derivatives are not provided (canInterpolateInputs=false)")
-
-    def output_derivatives(self, names, orders):
-        """Derivatives of Real outputs (maxOutputDerivativeOrder > 0) -> floats."""
-        raise FmiError("output derivatives are not provided (maxOutputDerivativeOrder=0)")
-
     def log(self, text: str, category: str = "logAll") -> None:
         """Queue a debug message (status fmi2OK) for the host's logger."""
         self._fmi_log.emit(status.OK, category, text)
+
+    def warn(self, text: str) -> None:
+        """Queue a warning (status fmi2Warning) for the host's logger: the call still
+        succeeds, but the master should know."""
+        self._fmi_log.emit(status.WARNING, "logStatusWarning", text)
 
     @property
     def time(self) -> float:
@@ -118,9 +127,11 @@ class Slave(StateProtocol):
         """The state right after fmi2Instantiate (also what fmi2Reset returns to)."""
         self._fmi_state = State.INSTANTIATED
         self.values = self.variables.start_values()
+        self.set_since_step: dict[str, object] = {}
         self._fmi_time = self.start_time = self._fmi_default_start
-        self.stop_time = None
+        self.stop_time = self.tolerance = None
         self._fmi_dirty = True
+        self._fmi_stale = False
         self._fmi_terminate = False
 
     def _fmi_error(self, reason: str) -> int:
@@ -161,6 +172,7 @@ class Slave(StateProtocol):
             raise FmiError(f"tolerance = {tolerance} is not a positive finite number")
         self._fmi_time = self.start_time = float(start)
         self.stop_time = float(stop) if stop_defined else None
+        self.tolerance = float(tolerance) if tolerance_defined else None
         return status.OK, None
 
     @fmi_function("fmi2EnterInitializationMode")
@@ -195,7 +207,7 @@ class Slave(StateProtocol):
 
     def fmi2_get(self, type_name: str, vrs: tuple):
         """fmi2GetReal/Integer/Boolean/String; payload: a tuple of values (String: bytes)."""
-        if self._fmi_state == State.STEP_COMPLETE:
+        if self._fmi_state == State.STEP_COMPLETE and not self._fmi_stale:
             values = access.fast_get(self, type_name, vrs)
             if values is not None:
                 return status.OK, values
@@ -206,6 +218,9 @@ class Slave(StateProtocol):
         try:
             if self._fmi_state == State.INITIALIZATION_MODE:
                 self._fmi_refresh()
+            elif self._fmi_stale:
+                self._fmi_stale = False
+                self.calculate()
             code, values = access.get_values(self, type_name, vrs)
         except BaseException as exc:  # noqa: B902 - nothing may reach the C side
             skipped = tuple(access.SKIPPED[type_name] for _ in vrs)
@@ -217,6 +232,7 @@ class Slave(StateProtocol):
     def fmi2_set(self, type_name: str, vrs: tuple, values: tuple):
         """fmi2SetReal/Integer/Boolean/String (String values: bytes)."""
         if self._fmi_state == State.STEP_COMPLETE and access.fast_set(self, type_name, vrs, values):
+            self._fmi_stale = self._fmi_calculates
             return status.OK, None
         function = "fmi2Set" + type_name
         if self._fmi_state not in SET_STATES:
@@ -227,6 +243,7 @@ class Slave(StateProtocol):
             return self._fmi_error(f"{function}: {type(exc).__name__}: {exc}"), None
         if self._fmi_state in (State.INSTANTIATED, State.INITIALIZATION_MODE):
             self._fmi_dirty = True
+        self._fmi_stale = self._fmi_calculates
         if code == status.ERROR:
             self._fmi_state = State.ERROR
         return code, None
@@ -246,6 +263,8 @@ class Slave(StateProtocol):
             raise FmiError(f"the time after the step, {time} + {step_size}, is not finite")
         self.step(time, step_size)
         self._fmi_time = end
+        self.set_since_step.clear()
+        self._fmi_stale = self._fmi_calculates
         return status.OK, None
 
     @fmi_function("fmi2CancelStep")
@@ -263,32 +282,3 @@ class Slave(StateProtocol):
                                          "retrieved (this FMU runs fmi2DoStep synchronously)")
             return status.DISCARD, None
         return status.OK, self._fmi_time if kind == LAST_SUCCESSFUL_TIME else self._fmi_terminate
-
-    @fmi_function("fmi2GetDirectionalDerivative")
-    def fmi2_get_directional_derivative(self, unknown_vrs, known_vrs, seeds):
-        unknowns, knowns = self._fmi_real_names(unknown_vrs), self._fmi_real_names(known_vrs)
-        result = tuple(float(x) for x in self.directional_derivative(unknowns, knowns, list(seeds)))
-        if len(result) != len(unknowns):
-            raise FmiError(f"the model returned {len(result)} values for {len(unknowns)} unknowns")
-        return status.OK, result
-
-    @fmi_function("fmi2SetRealInputDerivatives")
-    def fmi2_set_real_input_derivatives(self, vrs, orders, values):
-        self.set_input_derivatives(self._fmi_real_names(vrs), list(orders), list(values))
-        return status.OK, None
-
-    @fmi_function("fmi2GetRealOutputDerivatives")
-    def fmi2_get_real_output_derivatives(self, vrs, orders):
-        result = tuple(float(x) for x in self.output_derivatives(self._fmi_real_names(vrs), list(orders)))
-        if len(result) != len(vrs):
-            raise FmiError(f"the model returned {len(result)} values for {len(vrs)} outputs")
-        return status.OK, result
-
-    def _fmi_real_names(self, vrs) -> list[str]:
-        names = []
-        for vr in vrs:
-            v, reason = self.variables.lookup("Real", vr)
-            if v is None:
-                raise FmiError(reason)
-            names.append(v.name)
-        return names

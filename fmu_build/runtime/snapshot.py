@@ -3,9 +3,10 @@
 An ``FmuState`` is the Python object behind an fmi2FMUstate handle. Its ``tree`` holds
 only the types ``state_format`` can write, so every state can be serialized:
 
-``{"version": 1, "state": "Step Complete", "time": 0.5, "start_time": 0.0,
-"stop_time": 1.0 | None, "dirty": False, "terminate_requested": False,
-"values": {variable name: value}, "model": <what Slave.save_state returned>}``
+``{"version": 2, "state": "Step Complete", "time": 0.5, "start_time": 0.0,
+"stop_time": 1.0 | None, "tolerance": 1e-6 | None, "dirty": False, "terminate_requested": False,
+"values": {variable name: value}, "set_since_step": {variable name: value},
+"model": <what Slave.save_state returned>}``
 """
 
 from __future__ import annotations
@@ -19,9 +20,9 @@ from .machine import State, fmi_function
 from .status import FmiError
 from .variables import VariableTable, value_problem
 
-TREE_VERSION = 1
-KEYS = {"version", "state", "time", "start_time", "stop_time", "dirty",
-        "terminate_requested", "values", "model"}
+TREE_VERSION = 2
+KEYS = {"version", "state", "time", "start_time", "stop_time", "tolerance", "dirty",
+        "terminate_requested", "values", "set_since_step", "model"}
 # States a saved state may be in (a state is never taken in the Error state).
 RESTORABLE = frozenset(State.ALL) - {State.ERROR}
 
@@ -57,14 +58,18 @@ def tree_problem(tree, table: VariableTable) -> str | None:
     for key in ("time", "start_time"):
         if not _finite(tree[key]):
             return f'"{key}" is {tree[key]!r}, not a finite number'
-    if tree["stop_time"] is not None and not _finite(tree["stop_time"]):
-        return f'"stop_time" is {tree["stop_time"]!r}, not a finite number or None'
+    for key in ("stop_time", "tolerance"):
+        if tree[key] is not None and not _finite(tree[key]):
+            return f'"{key}" is {tree[key]!r}, not a finite number or None'
     if not all(isinstance(tree[k], bool) for k in ("dirty", "terminate_requested")):
         return '"dirty" and "terminate_requested" must be booleans'
     values = tree["values"]
     if not isinstance(values, dict) or set(values) != set(table.by_name):
         return "the state's variables are not this FMU's variables"
-    for name, value in values.items():
+    pending = tree["set_since_step"]
+    if not isinstance(pending, dict) or not set(pending) <= set(table.by_name):
+        return '"set_since_step" names variables this FMU does not have'
+    for name, value in [*values.items(), *pending.items()]:
         problem = value_problem(table.by_name[name], value)
         if problem:
             return f'variable "{name}": {problem}'
@@ -82,9 +87,10 @@ class StateProtocol:
     @fmi_function("fmi2GetFMUstate")
     def fmi2_get_fmu_state(self):
         tree = {"version": TREE_VERSION, "state": self._fmi_state, "time": self._fmi_time,
-                "start_time": self.start_time, "stop_time": self.stop_time, "dirty": self._fmi_dirty,
+                "start_time": self.start_time, "stop_time": self.stop_time,
+                "tolerance": self.tolerance, "dirty": self._fmi_dirty,
                 "terminate_requested": self._fmi_terminate, "values": dict(self.values),
-                "model": copy_tree(self.save_state())}
+                "set_since_step": dict(self.set_since_step), "model": copy_tree(self.save_state())}
         return status.OK, FmuState(self.guid, tree)
 
     @fmi_function("fmi2SetFMUstate")
@@ -94,9 +100,12 @@ class StateProtocol:
         tree = state.tree
         self.restore_state(copy_tree(tree["model"]))
         self.values = dict(tree["values"])
-        self._fmi_time, self.start_time, self.stop_time = tree["time"], tree["start_time"], tree["stop_time"]
+        self.set_since_step = dict(tree["set_since_step"])
+        self._fmi_time, self.start_time = tree["time"], tree["start_time"]
+        self.stop_time, self.tolerance = tree["stop_time"], tree["tolerance"]
         self._fmi_dirty, self._fmi_terminate = tree["dirty"], tree["terminate_requested"]
         self._fmi_state = tree["state"]
+        self._fmi_stale = self._fmi_calculates
         return status.OK, None
 
     @fmi_function("fmi2SerializeFMUstate")

@@ -13,7 +13,7 @@ feedthrough (a Jacobi master delays it by one step; Gauss-Seidel with the mechan
 does not).
 """
 
-from mbdfmu.fmu_build import companion_base as base
+from mbdfmu.fmu_build.runtime import companion as base
 
 
 class PIDController(base.CompanionSlave):

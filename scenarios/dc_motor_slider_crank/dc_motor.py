@@ -14,7 +14,7 @@ exact solution of the linear equation, ``i(t + h) = i_inf + (i - i_inf) exp(-R h
 
 import math
 
-from mbdfmu.fmu_build import companion_base as base
+from mbdfmu.fmu_build.runtime import companion as base
 
 
 class DCMotor(base.CompanionSlave):

@@ -22,7 +22,7 @@ substeps of at most ``max_substep``. The force reads the rate input: direct feed
 """
 
 
-from mbdfmu.fmu_build import companion_base as base
+from mbdfmu.fmu_build.runtime import companion as base
 
 
 def orifice(dp, dp_t):

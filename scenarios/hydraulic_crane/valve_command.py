@@ -4,7 +4,7 @@ A trapezoid: 0 until ``t_open``, a linear ramp to ``opening`` over ``ramp`` seco
 until ``t_close``, a ramp back to 0. The output is the profile at the FMU's time.
 """
 
-from mbdfmu.fmu_build import companion_base as base
+from mbdfmu.fmu_build.runtime import companion as base
 
 
 def trapezoid(t, t_open, t_close, ramp, opening):

@@ -8,7 +8,7 @@ with its exact velocity and acceleration as outputs, at the FMU's time. With
 
 import math
 
-from mbdfmu.fmu_build import companion_base as base
+from mbdfmu.fmu_build.runtime import companion as base
 
 
 def motion(t, start, rate, amplitude, frequency):

@@ -309,7 +309,7 @@ def _add_fmu_commands(sub) -> None:
                  description="Run a scenario of scenarios/ (NAME, NAME:VARIANT, a folder or a "
                  "connections file) with the fmpy master, fmpy's SSP runner or OSP libcosim.")
     p.add_argument("scenario")
-    p.add_argument("--master", choices=["fmpy", "ssp", "libcosim"], default="fmpy")
+    p.add_argument("--master", choices=["fmpy", "ssp", "libcosim", "ecos"], default="fmpy")
     p.add_argument("--algorithm", choices=["jacobi", "gauss-seidel"], default=None,
                    help="default: the scenario's (fmpy), jacobi (ssp, libcosim)")
     p.add_argument("--step", type=float, default=None, help="communication step (s)")

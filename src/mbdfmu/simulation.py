@@ -18,6 +18,7 @@ from .equations.projection import (ASSEMBLY_TOL, assemble, assembly_changes, ini
                                    project_positions, project_velocities)
 from .errors import InputError, SettingError, SolverError
 from .integrators import make_integrator
+from .integrators.base import WorkLimit
 from .integrators.settings import SolverSettings, settings_from_scene
 from .model.reader import load_scene
 from .model.scene import Scene
@@ -151,15 +152,16 @@ class Simulation:
 
     # ------------------------------------------------------------------ stepping
 
-    def advance(self, t_target: float) -> None:
-        """Integrate to exactly ``t_target``; on failure the state stays where it was."""
+    def advance(self, t_target: float, limit: WorkLimit | None = None) -> None:
+        """Integrate to exactly ``t_target``, within ``limit`` (bounded internal steps and
+        CPU time) if given; on failure the state stays where it was."""
         # Only the integrator and the flag change while stepping (inputs do not), so that
         # is all the rollback keeps.
         snapshot, inputs_changed = self.integrator.get_state(), self._inputs_changed
         try:
             if self._inputs_changed:
                 self._reinitialize()
-            self.integrator.advance(t_target)
+            self.integrator.advance(t_target, limit)
         except SolverError:
             self.integrator.set_state(snapshot)
             self._inputs_changed = inputs_changed

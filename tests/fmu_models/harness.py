@@ -47,8 +47,8 @@ class Host:
         directory, md = unzipped
         self.messages: list[tuple[int, str, str]] = []
         self._keep = self._callbacks()
-        self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=directory, modelIdentifier=IDENTIFIER,
-                             instanceName=name)
+        self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=directory, instanceName=name,
+                             modelIdentifier=md.coSimulation.modelIdentifier)
         self.fmu.instantiate(callbacks=self._keep, loggingOn=logging_on)
         self.t = 0.0
 

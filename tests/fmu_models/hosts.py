@@ -21,6 +21,7 @@ import sys
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 path, steps, h = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
+name = sys.argv[4] if len(sys.argv) > 4 else "x"
 md = read_model_description(path)
 vr = {v.name: v.valueReference for v in md.modelVariables}
 fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(path),
@@ -31,7 +32,7 @@ fmu.enterInitializationMode()
 fmu.exitInitializationMode()
 for k in range(steps):
     fmu.doStep(k * h, h)
-print("RESULT", repr(fmu.getReal([vr["x"]])[0]))
+print("RESULT", repr(fmu.getReal([vr[name]])[0]))
 fmu.terminate()
 fmu.freeInstance()
 fmu.freeLibrary()
@@ -47,13 +48,14 @@ from libcosimpy.CosimObserver import CosimObserver
 from libcosimpy.CosimSlave import CosimLocalSlave
 log_output_level(CosimLogLevel.WARNING)
 path, steps, h = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
+name = sys.argv[4] if len(sys.argv) > 4 else "x"
 vr = {v.name: v.valueReference for v in read_model_description(path).modelVariables}
 execution = CosimExecution.from_step_size(step_size=int(round(h * 1e9)))
 index = execution.add_local_slave(CosimLocalSlave(fmu_path=path, instance_name="a"))
 observer = CosimObserver.create_last_value()
 execution.add_observer(observer)
 assert execution.simulate_until(target_time=int(round(steps * h * 1e9)))
-print("RESULT", repr(observer.last_real_values(index, [vr["x"]])[0]))
+print("RESULT", repr(observer.last_real_values(index, [vr[name]])[0]))
 '''
 
 # Findings D9: libcosim, then fmpy, on the same FMU file in one process.
@@ -140,10 +142,12 @@ def compile_host(folder: Path) -> Path:
     return binary
 
 
-def run_python(script: str, fmu: Path, steps: int, h: float, timeout: float = 120):
-    """Run ``script`` (FMPY_RUN or LIBCOSIM_RUN) in a fresh Python process."""
+def run_python(script: str, fmu: Path, steps: int, h: float, timeout: float = 120,
+               variable: str = "x"):
+    """Run ``script`` (FMPY_RUN or LIBCOSIM_RUN) in a fresh Python process; it prints the
+    value of ``variable`` at the end."""
     env = {k: v for k, v in os.environ.items() if k not in ("LD_PRELOAD", "PYTHONPATH")}
-    return subprocess.run([sys.executable, "-c", script, str(fmu), str(steps), repr(h)],
+    return subprocess.run([sys.executable, "-c", script, str(fmu), str(steps), repr(h), variable],
                           capture_output=True, text=True, timeout=timeout, env=env)
 
 
@@ -152,9 +156,41 @@ def result(stdout: str) -> float:
     return float([line for line in stdout.splitlines() if line.startswith("RESULT")][-1].split()[1])
 
 
-def run_checker(fmu: Path, workdir: Path, stop: float, h: float, timeout: float = 120):
-    """The Compliance Checker on ``fmu`` from a clean environment; writes out.csv in workdir."""
+def run_checker(fmu: Path, workdir: Path, stop: float, h: float, timeout: float = 120,
+                **env: str):
+    """The Compliance Checker on ``fmu`` from a clean environment (plus ``env``); writes
+    out.csv in workdir."""
     command = [str(CHECKER), "-k", "cs", "-s", repr(stop), "-h", repr(h), "-n", "0",
                "-o", str(workdir / "out.csv"), "-t", str(workdir), str(fmu)]
     return subprocess.run(command, capture_output=True, text=True, timeout=timeout,
-                          env=clean_env(workdir), cwd=workdir)
+                          env=clean_env(workdir, **env), cwd=workdir)
+
+
+def ecos_cli(folder: Path) -> Path:
+    """Ecos' command-line host copied from the ecospy wheel with its execute bit."""
+    import shutil as _shutil
+
+    import ecospy
+    shipped = Path(ecospy.__file__).parent / "binaries" / "ecos"
+    target = folder / "ecos"
+    if not target.exists():
+        _shutil.copy(shipped, target)
+        target.chmod(0o755)
+    return target
+
+
+def run_ecos_cli(ecos: Path, fmu: Path, workdir: Path, stop: float, h: float, timeout: float = 120):
+    """``ecos simulate`` of one FMU from a clean environment; the CSV is <file stem>.csv."""
+    return subprocess.run([str(ecos), "simulate", "--path", str(fmu), "--stopTime", repr(stop),
+                           "--stepSize", repr(h)], capture_output=True, text=True,
+                          timeout=timeout, cwd=workdir, env=clean_env(workdir))
+
+
+def read_ecos_csv(path: Path) -> dict[str, list[float]]:
+    """Ecos' Real columns (6 decimals): "time" and the variable names without "instance::"
+    and "[REAL]"."""
+    rows = path.read_text().splitlines()
+    header = [n.strip().split("::")[-1].split("[")[0] for n in rows[0].split(",")]
+    real = [i for i, n in enumerate(rows[0].split(",")) if "[REAL]" in n or n.strip() == "time"]
+    columns = list(zip(*(map(str.strip, row.split(",")) for row in rows[1:])))
+    return {header[i]: [float(x) for x in columns[i]] for i in real}

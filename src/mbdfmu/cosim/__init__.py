@@ -10,5 +10,6 @@ Layer: above the simulation and the FMU build, below the CLI.
   variable step on fmpy (``run_fmpy``);
 * ``ssp_runner``: the scenario as an SSP file, run with fmpy's SSP runner (``run_ssp``);
 * ``libcosim_runner``: the scenario in OSP libcosim (``run_libcosim``);
-* ``cosimulate``: one call for all three, CSV and plots (``mbdfmu cosim``).
+* ``ecos_runner``: the scenario's SSP in Ecos (``run_ecos``);
+* ``cosimulate``: one call for all four, CSV and plots (``mbdfmu cosim``).
 """

@@ -60,11 +60,13 @@ _MESSAGES: dict[str, list] = {}
 
 
 def _logger(env, instance, status, category, message):
-    # pythonfmu passes the whole message as the format string: no variadic formatting needed
-    # (fmpy's addLoggerProxy is process-wide and would take over other masters' loggers).
+    # mbdfmu FMUs pass the whole message as the format string, '%' doubled: no variadic
+    # formatting needed (fmpy's addLoggerProxy is process-wide and would take over other
+    # masters' loggers).
     name = instance.decode(errors="replace") if instance else ""
+    text = message.decode(errors="replace").replace("%%", "%")
     _MESSAGES.setdefault(name, []).append(
-        (status, (category or b"").decode(errors="replace"), message.decode(errors="replace")))
+        (status, (category or b"").decode(errors="replace"), text))
 
 
 def _callbacks():

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 from ..errors import MbdfmuError, SettingError
 
-MASTERS = ("fmpy", "ssp", "libcosim")
+MASTERS = ("fmpy", "ssp", "libcosim", "ecos")
 ALGORITHMS = ("jacobi", "gauss-seidel")
 STARTS = ("exchange", "zero")
 
@@ -36,7 +36,7 @@ class Refused(Exception):
 class CosimSettings:
     """A run of a scenario (None: the scenario's own value).
 
-    ``master``: fmpy, ssp (fmpy's SSP runner) or libcosim; ``algorithm``: jacobi or
+    ``master``: fmpy, ssp (fmpy's SSP runner), libcosim or ecos (Ecos, from the SSP); ``algorithm``: jacobi or
     gauss-seidel (default: the scenario's for fmpy, jacobi for the others, which have only
     that); ``step`` and ``t_end`` in s; ``variable_step`` (fmpy master only) with its
     ``rtol``, ``atol``, ``h_min``, ``h_max``; ``start``: connected inputs start at the
@@ -69,9 +69,9 @@ class CosimSettings:
         if self.variable_step and self.master != "fmpy":
             raise SettingError("variable_step", "the variable-step master is the fmpy "
                                "master's (--master fmpy)")
-        if self.master == "libcosim" and self.start != "exchange":
-            raise SettingError("start", 'libcosim always starts by passing outputs to inputs '
-                               '("exchange")')
+        if self.master in ("libcosim", "ecos") and self.start != "exchange":
+            raise SettingError("start", f'{self.master} always starts by passing outputs to '
+                               'inputs ("exchange")')
 
     def algorithm_for(self, scenario) -> str:
         """The algorithm that runs: as asked, else the scenario's (fmpy) or jacobi."""

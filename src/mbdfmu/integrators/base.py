@@ -22,6 +22,7 @@ work, checks the energy balance of conservative scenes after every accepted step
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, fields
 from typing import Callable, NamedTuple
 
@@ -80,6 +81,39 @@ class Counters(Plain):
 Counters.plain_fields = tuple(f.name for f in fields(Counters))
 
 
+class WorkLimit:
+    """Bounds on the work of one ``advance`` call: at most ``max_steps`` internal steps
+    (accepted and rejected) and ``max_cpu`` CPU seconds of the calling thread, checked
+    after every internal step (a fixed-step run longer than ``max_steps`` is refused before
+    its first step). None: no bound. ``names`` are the settings' names in messages (an
+    FMU's parameters). Exceeding either raises ``SolverError``; ``Simulation.advance`` then
+    restores the state it started from."""
+
+    def __init__(self, max_steps: int | None = None, max_cpu: float | None = None,
+                 names: tuple[str, str] = ("max_steps", "max_cpu")):
+        self.max_steps, self.max_cpu, self.names = max_steps, max_cpu, names
+        self.first, self.deadline = 0, math.inf
+
+    def start(self, stats: "Counters") -> None:
+        self.first = stats.nsteps + stats.nrejected
+        self.deadline = time.thread_time() + self.max_cpu if self.max_cpu else math.inf
+
+    def check_planned(self, steps: int, h: float, t: float, t_target: float) -> None:
+        if self.max_steps is not None and steps > self.max_steps:
+            count = steps if steps < 10 ** 9 else f"{float(steps):.3g}"
+            raise SolverError(f"reaching t = {t_target:.9g} s takes {count} steps of "
+                              f"{h:.3g} s, more than {self.names[0]} = {self.max_steps}", t)
+
+    def check(self, stats: "Counters", t: float, t_target: float) -> None:
+        used = stats.nsteps + stats.nrejected - self.first
+        if self.max_steps is not None and used >= self.max_steps and t < t_target:
+            raise SolverError(f"{used} internal steps did not reach t = {t_target:.9g} s "
+                              f"({self.names[0]} = {self.max_steps})", t)
+        if time.thread_time() > self.deadline:
+            raise SolverError(f"{self.max_cpu:g} CPU seconds did not reach t = "
+                              f"{t_target:.9g} s ({self.names[1]} = {self.max_cpu:g})", t)
+
+
 class Integrator:
     """Base class: advances (t, q, q') of the ``Equations`` of a scene in time."""
 
@@ -90,6 +124,7 @@ class Integrator:
     options: tuple[Option, ...] = ()
     option_names: tuple[str, ...] = ()
     state_fields: tuple[str, ...] = ()
+    limit: WorkLimit | None = None      # of the running ``advance`` call
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -190,8 +225,11 @@ class Integrator:
 
     # ------------------------------------------------------------------ public
 
-    def advance(self, t_target: float) -> None:
-        """Integrate to exactly ``t_target`` (>= self.t)."""
+    def advance(self, t_target: float, limit: WorkLimit | None = None) -> None:
+        """Integrate to exactly ``t_target`` (>= self.t), within ``limit`` if given."""
+        self.limit = limit
+        if limit is not None:
+            limit.start(self.stats)
         if not math.isfinite(t_target):
             raise SolverError(f"cannot integrate to t = {t_target}", self.t)
         if t_target < self.t:
@@ -207,6 +245,8 @@ class Integrator:
         """(t0, steps, step) of equal steps no longer than ``self.h`` up to ``t_target``."""
         t0 = self.t
         n = max(1, math.ceil((t_target - t0) / self.h - STEP_COUNT_SLACK))
+        if self.limit is not None:
+            self.limit.check_planned(n, self.h, t0, t_target)
         return t0, n, (t_target - t0) / n
 
     def _advance_fixed(self, t_target: float) -> None:
@@ -219,6 +259,8 @@ class Integrator:
             self.t = t0 + k * h if k < n else t_target
             self.stats.nsteps += 1
             self._after_step()
+            if self.limit is not None:
+                self.limit.check(self.stats, self.t, t_target)
 
     def _advance_adaptive(self, t_target: float) -> None:
         rejections = 0
@@ -246,6 +288,8 @@ class Integrator:
                         f"{self.name}: step size fell to {h_next:.3g} s without meeting "
                         f"rtol={self.rtol:g}, atol={self.atol:g}" + self.singularity_hint(),
                         self.t)
+            if self.limit is not None:
+                self.limit.check(self.stats, self.t, t_target)
 
     def get_state(self) -> dict:
         """Everything needed to continue bit for bit, as plain data (``plain.py``)."""

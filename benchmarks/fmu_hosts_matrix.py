@@ -1,0 +1,228 @@
+"""Cross-check: every shipped scene's FMU in every host, against ``mbdfmu simulate``.
+
+Hosts: fmpy (its command line), OSP libcosim (libcosimpy), Ecos through its Python API
+(ecospy), Ecos' command line (C++, no Python inside) and the FMI Compliance Checker (C, no
+Python inside). The hosts without Python run from a clean environment (no PYTHONPATH, no
+LD_PRELOAD, no virtual environment on PATH). Each run is its own process, so a cell records:
+the FMU loads (instantiates), simulates (every communication point), the process exits
+cleanly (status 0) and the results agree with ``mbdfmu simulate`` at the same points
+(numpy kernel, as in the FMU): the largest difference relative to max(1, |value|) over all
+outputs, 1e-9 required (Ecos' command line writes 6 decimals: 1e-6 there).
+
+    python benchmarks/fmu_hosts_matrix.py [-o DIR] [--scenes a,b] [--write-docs]
+
+writes DIR/fmu_hosts_matrix.csv and prints the markdown table; ``--write-docs`` puts it into
+docs/fmu.md between its ``hosts-matrix`` markers. ``run HOST FMU T H OUT`` is one Python
+host's run (the command of a libcosim or ecospy cell).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT / "tests")]
+
+STEPS = 50
+TOLERANCE = {"ecos CLI": 1e-6}
+COMMANDS = {
+    "fmpy": "fmpy simulate {fmu} --stop-time {T} --output-interval {h} --output-file out.csv",
+    "libcosim": "python benchmarks/fmu_hosts_matrix.py run libcosim {fmu} {T} {h} out.csv",
+    "ecospy": "python benchmarks/fmu_hosts_matrix.py run ecospy {fmu} {T} {h} out.csv",
+    "ecos CLI": "env -i PATH=/usr/bin:/bin ecos simulate --path {fmu} --stopTime {T}+{h}/2 "
+                "--stepSize {h}",
+    "checker": "env -i PATH=/usr/bin:/bin fmuCheck.linux64 -k cs -s {T} -h {h} -n 0 "
+               "-o out.csv {fmu}",
+}
+
+
+def outputs_of(fmu: str) -> list[str]:
+    from fmpy import read_model_description
+    return [v.name for v in read_model_description(fmu).modelVariables if v.causality == "output"]
+
+
+def run_libcosim(fmu: str, t_end: float, h: float) -> dict:
+    from fmpy import read_model_description
+    from libcosimpy.CosimEnums import CosimVariableType
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimObserver import CosimObserver
+    from libcosimpy.CosimSlave import CosimLocalSlave
+    vr = {v.name: v.valueReference for v in read_model_description(fmu).modelVariables}
+    names, n = outputs_of(fmu), round(t_end / h)
+    execution = CosimExecution.from_step_size(step_size=round(h * 1e9))
+    index = execution.add_local_slave(CosimLocalSlave(fmu_path=fmu, instance_name="a"))
+    series = CosimObserver.create_time_series(buffer_size=n + 16)
+    execution.add_observer(series)
+    for name in names:
+        series.start_time_series(index, value_reference=vr[name],
+                                 variable_type=CosimVariableType.REAL)
+    assert execution.step(n + 1)
+    columns = {}
+    for name in names:
+        t, _, values = series.time_series_real_samples(index, vr[name], from_step=0,
+                                                       sample_count=n + 2)
+        columns["time"], columns[name] = np.array(t[:n + 1]) * 1e-9, values[:n + 1]
+    return columns
+
+
+def run_ecospy(fmu: str, t_end: float, h: float) -> dict:
+    from ecospy.EcosSimulation import EcosSimulation
+    from ecospy.EcosSimulationStructure import EcosSimulationStructure
+    structure = EcosSimulationStructure()
+    structure.add_model("a", fmu)
+    simulation = EcosSimulation(structure=structure, step_size=h)
+    simulation.init()
+    names, rows = outputs_of(fmu), []
+    for k in range(round(t_end / h) + 1):
+        if k:
+            simulation.step(1)
+        rows.append([simulation.get_time()] + [simulation.get_real(f"a::{n}") for n in names])
+    simulation.terminate()
+    simulation.free()
+    return dict(zip(["time"] + names, np.array(rows).T))
+
+
+def run_one(host: str, fmu: str, t_end: float, h: float, out: str) -> int:
+    """One Python host's run, written as CSV (time first)."""
+    columns = {"libcosim": run_libcosim, "ecospy": run_ecospy}[host](fmu, t_end, h)
+    with open(out, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(list(columns))
+        writer.writerows(zip(*(map(repr, map(float, c)) for c in columns.values())))
+    return 0
+
+
+def read_columns(path: Path) -> dict[str, np.ndarray]:
+    """A CSV of any host as columns by variable name (Ecos' "a::x[REAL]" becomes "x")."""
+    lines = path.read_text().splitlines()
+    header = [n.strip().strip('"').split("::")[-1].split("[")[0] for n in lines[0].split(",")]
+    rows = [[x.strip() for x in line.split(",")] for line in lines[1:] if line.strip()]
+    out = {}
+    for i, name in enumerate(header):
+        try:
+            out[name] = np.array([float(r[i]) for r in rows])
+        except ValueError:
+            pass            # String columns (solver.method)
+    return out
+
+
+def cell(host: str, fmu: Path, t_end: float, h: float, work: Path, expected) -> dict:
+    """Run one host in a fresh process; what it showed."""
+    from fmu_models import hosts
+    work.mkdir(parents=True, exist_ok=True)
+    if host == "fmpy":
+        command = [str(Path(sys.executable).with_name("fmpy")), "simulate", str(fmu),
+                   "--stop-time", repr(t_end), "--output-interval", repr(h),
+                   "--output-file", str(work / "out.csv")]
+        run = subprocess.run(command, capture_output=True, text=True, timeout=600, cwd=work)
+    elif host in ("libcosim", "ecospy"):
+        run = subprocess.run([sys.executable, __file__, "run", host, str(fmu), repr(t_end), repr(h),
+                              str(work / "out.csv")], capture_output=True, text=True, timeout=600)
+    elif host == "ecos CLI":
+        # it stops a step short of stopTime when the sum of steps rounds below it
+        run = hosts.run_ecos_cli(hosts.ecos_cli(work), fmu, work, t_end + h / 2, h, timeout=600)
+        if (work / f"{fmu.stem}.csv").exists():
+            (work / f"{fmu.stem}.csv").replace(work / "out.csv")
+    else:
+        run = hosts.run_checker(fmu, work, t_end, h, timeout=600)
+    note = (run.stderr or run.stdout).strip().splitlines()[-1:] if run.returncode else []
+    result = {"exit": run.returncode, "rows": 0, "error": math.inf, "note": note}
+    if (work / "out.csv").exists():
+        got = read_columns(work / "out.csv")
+        names = [n for n in expected.names if n in got]
+        t = got.get("time", np.zeros(0))
+        # the expected points the host reached (each within 1e-9 h of one of its rows)
+        covered = [k for k, tk in enumerate(expected.time)
+                   if t.size and np.min(np.abs(t - tk)) <= 1e-9 * h]
+        result["rows"] = len(covered)
+        if names and covered:
+            errors = [np.max(np.abs(np.interp(expected.time[covered], t, got[n])
+                                    - expected[n][covered]))
+                      / max(1.0, float(np.max(np.abs(expected[n])))) for n in names]
+            result["error"] = float(max(errors))
+    if host == "checker":
+        report = run.stdout + run.stderr
+        result["checker"] = "0 Warning(s)" in report and "0 Error(s)" in report
+    return result
+
+
+def mark(host: str, r: dict, points: int) -> str:
+    ok = (r["exit"] == 0 and r["rows"] >= points and r["error"] <= TOLERANCE.get(host, 1e-9)
+          and r.get("checker", True))
+    status = "" if r["exit"] == 0 else f" (exit {r['exit']})"
+    return f"{'✔' if ok else '✘'} {r['error']:.0e}{status}"
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv and argv[0] == "run":
+        return run_one(argv[1], argv[2], float(argv[3]), float(argv[4]), argv[5])
+    import mbdfmu
+    from mbdfmu.fmu_build.scene_fmu import build_fmu
+    from fmu_models import hosts
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("-o", "--out", type=Path, default=None)
+    parser.add_argument("--scenes", default=None, help="comma-separated stems (default: all)")
+    parser.add_argument("--write-docs", action="store_true")
+    args = parser.parse_args(argv)
+    out = args.out or Path(tempfile.mkdtemp(prefix="fmu_matrix_"))
+    stems = args.scenes.split(",") if args.scenes else sorted(
+        p.stem for p in (ROOT / "scenes").glob("*.toml"))
+    host_names = [h for h in COMMANDS if h != "checker" or hosts.CHECKER.exists()]
+    rows = []
+    for stem in stems:
+        scene = mbdfmu.load_scene(ROOT / "scenes" / f"{stem}.toml")
+        h = 10.0 ** math.floor(math.log10(scene.simulation.t_end / 500))
+        t_end = STEPS * h
+        fmu = build_fmu(ROOT / "scenes" / f"{stem}.toml", out / f"{stem}.fmu")
+        expected = mbdfmu.simulate(scene, t_end=t_end, output_interval=h, kernel="numpy")
+        row = {"scene": stem, "T": t_end, "h": h}
+        for host in host_names:
+            r = cell(host, fmu, t_end, h, out / stem / host.replace(" ", "_"), expected)
+            row[host] = mark(host, r, len(expected.time))
+            print(stem, host, r, flush=True)
+        rows.append(row)
+    with open(out / "fmu_hosts_matrix.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    table = markdown(rows, host_names)
+    print(table)
+    if args.write_docs:
+        write_docs(table)
+    return 0
+
+
+def markdown(rows: list[dict], host_names: list[str]) -> str:
+    lines = ["| scene | T (s) | h (s) | " + " | ".join(host_names) + " |",
+             "|---|---|---|" + "---|" * len(host_names)]
+    lines += [f"| {r['scene']} | {r['T']:g} | {r['h']:g} | " + " | ".join(r[h] for h in host_names)
+              + " |" for r in rows]
+    lines += ["", "Each cell: ✔ when the FMU loaded, gave every point, the process exited with "
+              "status 0 (the checker also: 0 warnings, 0 errors) and the largest difference "
+              "from `mbdfmu simulate` (shown) is within 1e-9 (Ecos' command line: 1e-6, its CSV "
+              "has 6 decimals). The command of a cell, with `{fmu}` = `<scene>.fmu` from "
+              "`mbdfmu build scenes/<scene>.toml`:", ""]
+    lines += [f"- {host}: `{COMMANDS[host]}`" for host in host_names]
+    return "\n".join(lines) + "\n"
+
+
+def write_docs(table: str) -> None:
+    doc = ROOT / "docs" / "fmu.md"
+    text = doc.read_text()
+    start, end = "<!-- hosts-matrix: start -->\n", "<!-- hosts-matrix: end -->"
+    before, _, rest = text.partition(start)
+    _, _, after = rest.partition(end)
+    doc.write_text(before + start + table + end + after)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
