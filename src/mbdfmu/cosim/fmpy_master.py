@@ -49,6 +49,7 @@ from .scenario import Scenario, check_variables
 from .settings import CosimError, CosimSettings, Refused
 
 from .extrapolation import Extrapolation
+from .implicit import Implicit
 from .member import ERROR, STATUS, WARNING, Member
 
 
@@ -253,7 +254,7 @@ class GaussSeidel:
             system.step_member(m, t, h)
 
 
-ALGORITHMS = {"jacobi": Jacobi, "gauss-seidel": GaussSeidel}
+ALGORITHMS = {"jacobi": Jacobi, "gauss-seidel": GaussSeidel, "implicit": Implicit}
 
 
 def algorithm_class(name: str):
@@ -284,7 +285,9 @@ def run_fmpy(scenario: Scenario, fmus: dict[str, Path],
     algorithm = algorithm_class(settings.algorithm_for(scenario))(scenario)
     h = float(settings.step or scenario.step)
     t_end = float(settings.t_end or scenario.t_end)
-    system = CoupledSystem(scenario, fmus, record, extrapolation=settings.extrapolation)
+    # (the implicit master's first guess extrapolates with the outputs' first derivatives)
+    order = settings.extrapolation or (1 if algorithm.name == "implicit" else 0)
+    system = CoupledSystem(scenario, fmus, record, extrapolation=order)
     out = RunRecord()
     try:
         system.initialize(0.0, t_end, settings.start)

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from ..errors import MbdfmuError, SettingError
 
 MASTERS = ("fmpy", "ssp", "libcosim", "ecos")
-ALGORITHMS = ("jacobi", "gauss-seidel")
+ALGORITHMS = ("jacobi", "gauss-seidel", "implicit")
 STARTS = ("exchange", "zero")
 
 
@@ -74,6 +74,9 @@ class CosimSettings:
             if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
                                       or not (math.isfinite(value) and value > 0)):
                 raise SettingError(name, f"{name} must be positive and finite, got {value!r}")
+        if self.algorithm == "implicit" and (self.master != "fmpy" or self.variable_step):
+            raise SettingError("algorithm", 'the implicit coupling is the fmpy master\'s, '
+                               "with a fixed step (--master fmpy, no --variable-step)")
         if self.variable_step and self.master != "fmpy":
             raise SettingError("variable_step", "the variable-step master is the fmpy "
                                "master's (--master fmpy)")
