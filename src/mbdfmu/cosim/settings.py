@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from ..errors import MbdfmuError, SettingError
 
 MASTERS = ("fmpy", "ssp", "libcosim", "ecos")
-ALGORITHMS = ("jacobi", "gauss-seidel", "implicit")
+ALGORITHMS = ("jacobi", "gauss-seidel", "implicit", "ecco")
 STARTS = ("exchange", "zero")
 
 
@@ -77,6 +77,8 @@ class CosimSettings:
         if self.algorithm == "implicit" and (self.master != "fmpy" or self.variable_step):
             raise SettingError("algorithm", 'the implicit coupling is the fmpy master\'s, '
                                "with a fixed step (--master fmpy, no --variable-step)")
+        if self.algorithm == "ecco" and self.master != "libcosim":
+            raise SettingError("algorithm", "ECCO is libcosim's algorithm (--master libcosim)")
         if self.variable_step and self.master != "fmpy":
             raise SettingError("variable_step", "the variable-step master is the fmpy "
                                "master's (--master fmpy)")
