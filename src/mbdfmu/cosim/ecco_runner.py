@@ -73,6 +73,32 @@ def energy_residual(times, values: dict, scenario: Scenario) -> np.ndarray:
     return out
 
 
+def _simulate(execution, index, vr, names, t_end, capacity):
+    """Run to ``t_end`` recording ``names`` at every macro step: (times, {name: values})."""
+    from libcosimpy.CosimEnums import CosimVariableType
+    from libcosimpy.CosimExecution import get_last_error_message
+    from libcosimpy.CosimObserver import CosimObserver
+
+    series = CosimObserver.create_time_series(buffer_size=min(capacity, 2_000_000))
+    execution.add_observer(series)
+    for name in names:
+        inst, var = name.split(".", 1)
+        series.start_time_series(index[inst], value_reference=vr[inst][var],
+                                 variable_type=CosimVariableType.REAL)
+    if not execution.simulate_until(target_time=_ns(t_end, "t_end")):
+        raise CosimError(f"libcosim (ECCO) stopped at t = "
+                         f"{execution.status().current_time / NS:g} s: {get_last_error_message()}")
+    columns, times = {}, None
+    for name in names:
+        inst, var = name.split(".", 1)
+        t, _, values = series.time_series_real_samples(index[inst], vr[inst][var], from_step=0,
+                                                       sample_count=capacity)
+        times = np.asarray(t, dtype=np.int64) * (1.0 / NS)
+        columns[name] = np.asarray(values, dtype=float)
+    n = min(len(c) for c in columns.values())
+    return times[:n], {k: v[:n] for k, v in columns.items()}
+
+
 def run_ecco(scenario: Scenario, fmus, step: float | None = None, t_end: float | None = None,
              record: list[str] | None = None, rtol: float | None = None,
              atol: float | None = None) -> Result:
@@ -81,10 +107,8 @@ def run_ecco(scenario: Scenario, fmus, step: float | None = None, t_end: float |
     energy residual."""
     from fmpy import read_model_description
     from libcosimpy.CosimAlgorithm import CosimAlgorithm, EccoParams
-    from libcosimpy.CosimEnums import CosimVariableType
     from libcosimpy.CosimExecution import CosimExecution, get_last_error_message
     from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
-    from libcosimpy.CosimObserver import CosimObserver
 
     if len(scenario.power_bonds) != 2:
         raise CosimError(f"{scenario.name}: ECCO needs a [power_bonds] table (an effort input "
@@ -112,28 +136,10 @@ def run_ecco(scenario: Scenario, fmus, step: float | None = None, t_end: float |
         raise CosimError(f"libcosim refused the power bond: {get_last_error_message()}")
     names = list(dict.fromkeys(list(record if record is not None else scenario.recorded())
                                + bond_variables(scenario)))
-    capacity = int(10 * t_end / (MIN_STEP_FACTOR * h)) + 16
-    series = CosimObserver.create_time_series(buffer_size=min(capacity, 2_000_000))
-    execution.add_observer(series)
-    for name in names:
-        inst, var = name.split(".", 1)
-        series.start_time_series(index[inst], value_reference=vr[inst][var],
-                                 variable_type=CosimVariableType.REAL)
-    if not execution.simulate_until(target_time=_ns(t_end, "t_end")):
-        raise CosimError(f"libcosim (ECCO) stopped at t = "
-                         f"{execution.status().current_time / NS:g} s: {get_last_error_message()}")
-    steps = execution.status().current_time  # noqa: F841 - the run's end, for the record
-    columns, times = {}, None
-    for name in names:
-        inst, var = name.split(".", 1)
-        t, _, values = series.time_series_real_samples(index[inst], vr[inst][var], from_step=0,
-                                                       sample_count=capacity)
-        times = np.asarray(t, dtype=np.int64) * (1.0 / NS)
-        columns[name] = np.asarray(values, dtype=float)
-    n = min(len(c) for c in columns.values())
-    times = times[:n]
-    columns = {k: v[:n] for k, v in columns.items()}
+    times, columns = _simulate(execution, index, vr, names, t_end,
+                               int(10 * t_end / (MIN_STEP_FACTOR * h)) + 16)
     columns[RESIDUAL] = energy_residual(times, columns, scenario)
+    n = len(times)
     del execution
     out_names = names + [RESIDUAL]
     units = {nm: unit[nm.split(".", 1)[0]].get(nm.split(".", 1)[1], "") for nm in names}
