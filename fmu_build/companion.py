@@ -27,7 +27,7 @@ from pathlib import Path
 
 from .. import __version__
 from .common import BuildError, digest, write_checked
-from .model_description import ModelInfo
+from .model_description import Capabilities, ModelInfo
 from .runtime import companion as base
 from .runtime.variables import Variable
 
@@ -60,6 +60,12 @@ class _Host:
 
     def log(self, text: str) -> None:
         pass
+
+    def input_at(self, name: str, t: float) -> float:
+        return self.values[name]
+
+    def taylor_at(self, name: str, t: float) -> list[float]:
+        return [self.values[name]]
 
 
 def _load(source: Path, text: str) -> type[base.CompanionSlave]:
@@ -140,4 +146,7 @@ def build_companion(source, output=None) -> Path:
     model = fmu_text + MODEL_CLASS.format(name=cls.__name__, outputs=outputs)
     info = ModelInfo(description=cls.DESCRIPTION, author=cls.AUTHOR, version=cls.VERSION,
                      generation_tool=f"mbdfmu {__version__} companion (native FMI 2.0 runtime)")
-    return write_checked(output, cls.__name__, table, model, info=info, default_experiment=None)
+    capabilities = Capabilities(can_interpolate_inputs=bool(cls.INTERPOLATES_INPUTS),
+                                max_output_derivative_order=2)
+    return write_checked(output, cls.__name__, table, model, info=info, default_experiment=None,
+                         capabilities=capabilities)

@@ -37,7 +37,7 @@ from ..model.toml_table import load_toml, tomllib
 from ..model.variables import (GLOBAL_OUTPUTS, TABLES, input_layout, inputs, parameters,
                                selected_outputs)
 from .common import BuildError, digest, fill_template, write_checked
-from .model_description import DefaultExperiment, ModelInfo
+from .model_description import Capabilities, DefaultExperiment, ModelInfo
 from .runtime.variables import Variable
 
 HERE = Path(__file__).resolve().parent
@@ -195,5 +195,7 @@ def build_fmu(scene_path, output=None, parameters: dict[str, float] | None = Non
                      generation_tool=f"mbdfmu {__version__} (native FMI 2.0 runtime)")
     resources = {**core_files, "scene.toml": text.encode(),
                  "scene.json": json.dumps(data, indent=1, sort_keys=True).encode()}
+    capabilities = Capabilities(can_interpolate_inputs=True, max_output_derivative_order=2)
     return write_checked(output, scene.name, table, source, info=info,
-                         default_experiment=experiment, extra_resources=resources)
+                         default_experiment=experiment, extra_resources=resources,
+                         capabilities=capabilities)

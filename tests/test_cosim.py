@@ -32,11 +32,11 @@ def build_fmus(scenario, folder):
     return build_sources({i.name: i.source for i in scenario.instances}, folder)
 
 NAMES = ["dc_motor_slider_crank", "hydraulic_crane", "prescribed_motion",
-         "prescribed_motion:derivatives", "cart_pendulum_pid"]
+         "prescribed_motion:derivatives", "cart_pendulum_pid", "quarter_car"]
 # A short run per scenario for the master-equality tests: (step, t_end).
 SHORT = {"dc_motor_slider_crank": (2e-3, 0.04), "hydraulic_crane": (2e-3, 0.06),
          "prescribed_motion": (1e-4, 0.003), "prescribed_motion:derivatives": (1e-4, 0.003),
-         "cart_pendulum_pid": (1e-2, 0.3)}
+         "cart_pendulum_pid": (1e-2, 0.3), "quarter_car": (2e-3, 0.04)}
 
 
 @pytest.fixture(scope="session")

@@ -7,9 +7,13 @@ on the shaft and the current. The rotor's inertia belongs to the mechanism (lump
 crank), so the torque is the electromagnetic torque; no direct feedthrough (the torque is
 a function of the state i only).
 
-Over a communication step the inputs hold (zero-order hold), so the current follows the
-exact solution of the linear equation, ``i(t + h) = i_inf + (i - i_inf) exp(-R h / L)`` with
-``i_inf = (V - ke w) / R``: the FMU adds no integration error, only the coupling's.
+Over a communication step the inputs hold (zero-order hold), or follow the polynomials of
+the derivatives the master gives (``canInterpolateInputs``), and the current follows the
+exact solution of the linear equation ``i' = -a i + b(tau)``, ``a = R / L``,
+``b = (V - ke w) / L`` a polynomial in tau: ``i = p(tau) + (i(t) - p(0)) exp(-a tau)``
+with the polynomial particular solution ``p`` (for inputs held,
+``i(t + h) = i_inf + (i - i_inf) exp(-R h / L)``, ``i_inf = (V - ke w) / R``): the FMU adds
+no integration error, only the coupling's.
 """
 
 import math
@@ -19,6 +23,7 @@ from mbdfmu.fmu_build.runtime import companion as base
 
 class DCMotor(base.CompanionSlave):
     DESCRIPTION = "DC motor armature: voltage and speed in, torque out (exact over each step)"
+    INTERPOLATES_INPUTS = True
     VARIABLES = (
         base.Var("R", "parameter", "Ohm", 0.5, "armature resistance"),
         base.Var("L", "parameter", "H", 2.0e-3, "armature inductance"),
@@ -39,8 +44,18 @@ class DCMotor(base.CompanionSlave):
 
     def step(self, t, h, state):
         p = self.values
-        i_inf = (p["voltage"] - p["ke"] * p["speed"]) / p["R"]
-        return {"i": i_inf + (state["i"] - i_inf) * math.exp(-p["R"] * h / p["L"])}
+        a = p["R"] / p["L"]
+        volts, speed = self.input_taylor("voltage", t), self.input_taylor("speed", t)
+        n = max(len(volts), len(speed))
+        volts, speed = volts + [0.0] * (n - len(volts)), speed + [0.0] * (n - len(speed))
+        # b(tau) = sum beta_k tau^k; the particular solution sum c_k tau^k
+        beta = [(v - p["ke"] * w) / p["L"] / math.factorial(k)
+                for k, (v, w) in enumerate(zip(volts, speed))]
+        c = [0.0] * (n + 1)
+        for k in reversed(range(n)):
+            c[k] = (beta[k] - (k + 1) * c[k + 1]) / a
+        particular = sum(ck * h ** k for k, ck in enumerate(c))
+        return {"i": particular + (state["i"] - c[0]) * math.exp(-a * h)}
 
     def outputs(self, state):
         return {"torque": self.values["kt"] * state["i"], "current": state["i"]}

@@ -17,7 +17,8 @@ The start pressures hold the given start force: ``p_B(0) = pB0``,
 ``p_A(0) = (force0 + pB0 A_B) / A_A``.
 
 Over a communication step the inputs hold, and the length follows its rate:
-``s(t + tau) = s + s' tau``. The pressures are integrated by classical Runge-Kutta in
+``s(t + tau) = s + s' tau``; with input derivatives from the master
+(``canInterpolateInputs``) the length and the rate follow their own polynomials. The pressures are integrated by classical Runge-Kutta in
 substeps of at most ``max_substep``. The force reads the rate input: direct feedthrough.
 """
 
@@ -33,6 +34,7 @@ def orifice(dp, dp_t):
 class HydraulicCylinder(base.CompanionSlave):
     DESCRIPTION = ("Double-acting hydraulic cylinder with a proportional valve: "
                    "length, rate and valve in, force out")
+    INTERPOLATES_INPUTS = True
     VARIABLES = (
         base.Var("A_A", "parameter", "m2", 1.9635e-3, "piston area, cap side (50 mm bore)"),
         base.Var("A_B", "parameter", "m2", 1.3477e-3, "annulus area, rod side (28 mm rod)"),
@@ -64,10 +66,10 @@ class HydraulicCylinder(base.CompanionSlave):
         p = self.values
         return {"pA": (p["force0"] + p["pB0"] * p["A_B"]) / p["A_A"], "pB": p["pB0"]}
 
-    def flows(self, pA, pB):
-        """(Q_A, Q_B) into the chambers through the valve and the leak."""
+    def flows(self, pA, pB, valve):
+        """(Q_A, Q_B) into the chambers through the valve (spool ``valve``) and the leak."""
         p = self.values
-        u = max(-1.0, min(1.0, p["valve"]))
+        u = max(-1.0, min(1.0, valve))
         ps, pt, dpt = p["p_supply"], p["p_tank"], p["dp_t"]
         k = p["Q_nom"] / p["dp_nom"] ** 0.5
         if u >= 0:
@@ -79,16 +81,20 @@ class HydraulicCylinder(base.CompanionSlave):
 
     def step(self, t, h, state):
         p = self.values
-        s0, rate = p["length"], p["rate"]
+        length, rate0 = self.input_taylor("length", t), self.input_taylor("rate", t)
+        held = len(length) == 1 and len(rate0) == 1   # zero-order hold: s follows the rate
 
         def rhs(tau, y):
             pA, pB = y
-            x = s0 + rate * (tau - t) - p["s_min"]
+            if held:
+                x, rate = length[0] + rate0[0] * (tau - t) - p["s_min"], rate0[0]
+            else:
+                x, rate = self.input("length", tau) - p["s_min"], self.input("rate", tau)
             VA = p["V_A0"] + p["A_A"] * x
             VB = p["V_B0"] + p["A_B"] * (p["stroke"] - x)
             if VA <= 0 or VB <= 0:
                 raise base.Discard(f"the piston left its stroke: x = {x:.4g} m")
-            qa, qb = self.flows(pA, pB)
+            qa, qb = self.flows(pA, pB, self.input("valve", tau))
             return [p["beta"] / VA * (qa - p["A_A"] * rate),
                     p["beta"] / VB * (qb + p["A_B"] * rate)]
 
@@ -97,5 +103,6 @@ class HydraulicCylinder(base.CompanionSlave):
 
     def outputs(self, state):
         p = self.values
-        return {"force": state["pA"] * p["A_A"] - state["pB"] * p["A_B"] - p["b"] * p["rate"],
+        return {"force": state["pA"] * p["A_A"] - state["pB"] * p["A_B"]
+                - p["b"] * self.input("rate"),
                 "p_A": state["pA"], "p_B": state["pB"]}

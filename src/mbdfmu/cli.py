@@ -223,7 +223,8 @@ def cmd_cosim(args) -> int:
     with Ticker(args, "cosim"):
         run = cosimulate(args.scenario, CosimSettings(
             master=args.master, algorithm=args.algorithm, step=args.step, t_end=args.t_end,
-            variable_step=args.variable_step, rtol=args.rtol, start=args.start),
+            variable_step=args.variable_step, rtol=args.rtol, start=args.start,
+            extrapolation=args.extrapolation),
             work_dir=out / "fmus")
     r = run.result
     stats = ", ".join(f"{k} {v:g}" for k, v in r.stats.items())
@@ -305,13 +306,20 @@ def _add_fmu_commands(sub) -> None:
                  "plot", ("mbdfmu cosim dc_motor_slider_crank",
                           "mbdfmu cosim hydraulic_crane --master libcosim --step 2e-3",
                           "mbdfmu cosim hydraulic_crane --algorithm jacobi --variable-step",
+                          "mbdfmu cosim dc_motor_slider_crank --extrapolation 2",
+                          "mbdfmu cosim hydraulic_crane --algorithm implicit --step 0.05",
                           "mbdfmu cosim prescribed_motion:derivatives --master ssp"),
                  description="Run a scenario of scenarios/ (NAME, NAME:VARIANT, a folder or a "
                  "connections file) with the fmpy master, fmpy's SSP runner or OSP libcosim.")
     p.add_argument("scenario")
     p.add_argument("--master", choices=["fmpy", "ssp", "libcosim", "ecos"], default="fmpy")
-    p.add_argument("--algorithm", choices=["jacobi", "gauss-seidel"], default=None,
-                   help="default: the scenario's (fmpy), jacobi (ssp, libcosim)")
+    p.add_argument("--algorithm", choices=["jacobi", "gauss-seidel", "implicit", "ecco"],
+                   default=None, help="default: the scenario's (fmpy), jacobi (ssp, libcosim); "
+                   "implicit: interface-Jacobian iteration with rollback (fmpy); ecco: "
+                   "libcosim's energy-conservation-based step control (libcosim)")
+    p.add_argument("--extrapolation", type=int, choices=[0, 1, 2], default=0,
+                   help="inputs follow polynomials of this order over a step (fmpy; 0: "
+                   "zero-order hold)")
     p.add_argument("--step", type=float, default=None, help="communication step (s)")
     p.add_argument("--t-end", type=float, default=None, help="end time (s)")
     p.add_argument("--variable-step", action="store_true",

@@ -23,13 +23,41 @@ from .integrators.settings import SolverSettings, settings_from_scene
 from .model.reader import load_scene
 from .model.scene import Scene
 from .model.variables import InputValues, inputs, outputs
-from .plain import decode, encode
+from .plain import Plain, decode, encode
 from .result import Result
 from .signals import DriverTable, Held, LinearTable, SampledDriver
 
 # After an input jump the state is re-projected to this many times the assembly tolerance.
 REINITIALIZE_TOL_FACTOR = 100
 DRIVER_FIELDS = ("position", "velocity", "acceleration")
+# Time step (s) of the central differences of output_time_derivatives.
+DELTA = 2e-4
+
+
+class TaylorInput(Plain):
+    """Force inputs that follow their Taylor polynomial from ``t0``:
+    ``sum_k coefficients[k] (t - t0)^k / k!`` (an FMU's input with its derivatives)."""
+
+    plain_fields = ("t0", "coefficients")
+
+    def __init__(self, t0: float, value):
+        self.t0 = float(t0)
+        self.coefficients = np.atleast_2d(np.asarray(value, dtype=float)).copy()
+
+    def set_derivative(self, index: int, order: int, value: float) -> None:
+        """The ``order``-th time derivative of component ``index`` at ``t0``."""
+        missing = order + 1 - len(self.coefficients)
+        if missing > 0:
+            self.coefficients = np.vstack([self.coefficients,
+                                           np.zeros((missing, self.coefficients.shape[1]))])
+        self.coefficients[order, index] = float(value)
+
+    def __call__(self, t):
+        tau, term, total = t - self.t0, 1.0, np.zeros(self.coefficients.shape[1])
+        for k, c in enumerate(self.coefficients):
+            total = total + c * term
+            term = term * tau / (k + 1)
+        return total
 
 
 class Simulation:
@@ -130,6 +158,35 @@ class Simulation:
         self._inputs_changed = True
         self._cache = None
 
+    def set_input_derivative(self, name: str, order: int, value: float) -> None:
+        """The ``order``-th time derivative (1 or more) of an input at the current time: the
+        input then follows its Taylor polynomial until set again (``set_input`` holds it).
+
+        A force component takes any order; a driver's position takes 1 (its velocity) and
+        2 (its acceleration), its velocity 1 (the acceleration): the driver's motion over a
+        step is the quadratic ``p + v tau + a tau^2 / 2`` (``signals.SampledDriver``)."""
+        item, field = self._split(name)
+        value = float(value)
+        if not math.isfinite(value):
+            raise InputError(f'derivative {order} of input "{name}" is not finite ({value})')
+        if item in self._drivers:
+            slot = {("position", 1): "velocity", ("position", 2): "acceleration",
+                    ("velocity", 1): "acceleration"}.get((field, order))
+            if slot is None:
+                raise InputError(f'input "{name}": a driver\'s motion is quadratic over a '
+                                 f"step; derivative {order} of its {field} cannot be followed")
+            driver = self._drivers[item]
+            if not isinstance(driver, SampledDriver):
+                driver = self._drivers[item] = SampledDriver(driver(self.t)[0])
+            driver.set(self.t, **{slot: value})
+        else:
+            signal = self._forces[item]
+            if not (isinstance(signal, TaylorInput) and signal.t0 == self.t):
+                signal = self._forces[item] = TaylorInput(self.t, signal(self.t))
+            signal.set_derivative(self.equations.layout.fields[item].index(field), order, value)
+        self._inputs_changed = True
+        self._cache = None
+
     def set_input_signal(self, item: str, signal) -> None:
         """Drive a force item or a driver with a function of time (see ``signals``)."""
         if item in self._drivers:
@@ -202,6 +259,37 @@ class Simulation:
         self._drivers, self._forces = decode(state["drivers"]), decode(state["forces"])
         self._inputs_changed = bool(state["inputs_changed"])
         self._cache = None
+
+
+def output_time_derivatives(sim: Simulation) -> tuple[np.ndarray, np.ndarray]:
+    """The first and second time derivatives of ``sim.output_vector()`` at ``sim.t``, along
+    the motion the equations give from the current state, the inputs following their
+    signals (held, Taylor polynomials, driver motions).
+
+    The states at ``t +- d`` are the motion's Taylor polynomials to third order, the third
+    derivative of q from a central difference of eq. (14); the outputs (reactions and
+    efforts too: eq. 14 solved at those states and inputs) are differenced centrally. Each
+    difference is an even function of ``d``; Richardson's extrapolation from ``d`` =
+    ``DELTA`` and ``DELTA / 2`` removes its O(d^2) term: errors O((omega d)^4) for motions
+    of angular frequency omega, plus round-off (eps / d and eps / d^2 of the outputs)."""
+    eq, t, q, qd = sim.equations, sim.t, sim.q, sim.qd
+    qdd, _ = sim.accelerations()
+    y0 = sim.output_vector()
+
+    def at(d, jerk):
+        qs = q + d * qd + d * d / 2 * qdd + d ** 3 / 6 * jerk
+        qds = qd + d * qdd + d * d / 2 * jerk
+        u = sim.inputs_at(t + d)
+        a, mult = eq.accelerations(t + d, qs, qds, u)
+        return eq.output_values(t + d, qs, qds, a, mult, u), a
+
+    def differences(d):
+        jerk = (at(d, 0 * q)[1] - at(-d, 0 * q)[1]) / (2 * d)
+        plus, minus = at(d, jerk)[0], at(-d, jerk)[0]
+        return (plus - minus) / (2 * d), (plus - 2 * y0 + minus) / (d * d)
+
+    (f1, s1), (f2, s2) = differences(DELTA), differences(DELTA / 2)
+    return (4 * f2 - f1) / 3, (4 * s2 - s1) / 3
 
 
 def apply_input_table(sim: Simulation, table) -> None:

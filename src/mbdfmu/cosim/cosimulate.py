@@ -12,6 +12,7 @@ import numpy as np
 from ..fmu_build.cache import build_fmus
 from ..plotting import figure
 from ..result import Result
+from .ecco_runner import run_ecco
 from .ecos_runner import run_ecos
 from .fmpy_master import run_fmpy
 from .libcosim_runner import run_libcosim
@@ -55,6 +56,9 @@ def cosimulate(scenario: Scenario | str, settings: CosimSettings = CosimSettings
     elif settings.master == "ecos":
         result = run_ecos(scenario, fmus, work_dir / f"{scenario.name}.ssp", step=settings.step,
                           t_end=settings.t_end, algorithm=algorithm)
+    elif algorithm == "ecco":
+        result = run_ecco(scenario, fmus, step=settings.step, t_end=settings.t_end,
+                          rtol=settings.rtol, atol=settings.atol)
     else:
         result = run_libcosim(scenario, fmus, step=settings.step, t_end=settings.t_end,
                               algorithm=algorithm)

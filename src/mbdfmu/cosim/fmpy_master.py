@@ -39,7 +39,6 @@ to rounding.
 
 from __future__ import annotations
 
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -49,93 +48,9 @@ from ..result import Result
 from .scenario import Scenario, check_variables
 from .settings import CosimError, CosimSettings, Refused
 
-# fmpy raises FMICallException with the FMI 2.0 status codes (fmpy.fmi2.fmi2OK, ...).
-OK, WARNING, DISCARD, ERROR, FATAL = 0, 1, 2, 3, 4
-STATUS = {OK: "OK", WARNING: "warning", DISCARD: "discard", ERROR: "error", FATAL: "fatal"}
-
-
-# ----------------------------------------------------------------------------- one instance
-
-_MESSAGES: dict[str, list] = {}
-
-
-def _logger(env, instance, status, category, message):
-    # mbdfmu FMUs pass the whole message as the format string, '%' doubled: no variadic
-    # formatting needed (fmpy's addLoggerProxy is process-wide and would take over other
-    # masters' loggers).
-    name = instance.decode(errors="replace") if instance else ""
-    text = message.decode(errors="replace").replace("%%", "%")
-    _MESSAGES.setdefault(name, []).append(
-        (status, (category or b"").decode(errors="replace"), text))
-
-
-def _callbacks():
-    from fmpy.fmi1 import calloc, free
-    from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                           fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
-
-    cb = fmi2CallbackFunctions()
-    cb.logger = fmi2CallbackLoggerTYPE(_logger)
-    cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-    cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-    return cb
-
-
-_CALLBACKS = None
-_SERIAL = iter(range(10 ** 12))
-
-
-class Member:
-    """One FMU instance driven through fmpy, with its log messages kept."""
-
-    def __init__(self, name: str, path: Path, description=None):
-        global _CALLBACKS
-        from fmpy import extract, read_model_description
-        from fmpy.fmi2 import FMU2Slave
-
-        if _CALLBACKS is None:
-            _CALLBACKS = _callbacks()
-        self.name = name
-        self.md = description or read_model_description(str(path))
-        self.variables = {v.name: v for v in self.md.modelVariables}
-        self.vr = {n: v.valueReference for n, v in self.variables.items()}
-        self.dir = extract(str(path))
-        # The instance name is unique in the process: log messages are sorted by it.
-        self.instance_name = f"{name}#{next(_SERIAL)}"
-        self.messages = _MESSAGES.setdefault(self.instance_name, [])
-        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.dir,
-                             modelIdentifier=self.md.coSimulation.modelIdentifier,
-                             instanceName=self.instance_name)
-        self.fmu.instantiate(callbacks=_CALLBACKS, loggingOn=True)
-
-    def set(self, names: list[str], values) -> None:
-        if names:
-            self.fmu.setReal([self.vr[n] for n in names], [float(v) for v in values])
-
-    def get(self, names: list[str]) -> list[float]:
-        return list(self.fmu.getReal([self.vr[n] for n in names])) if names else []
-
-    def do_step(self, t: float, h: float) -> int:
-        from fmpy.fmi1 import FMICallException
-
-        try:
-            self.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
-        except FMICallException as exc:
-            return exc.status
-        return OK
-
-    def reason(self) -> str:
-        """The last message the instance logged (the reason of a refused step)."""
-        return self.messages[-1][2] if self.messages else "no message logged"
-
-    def close(self) -> None:
-        try:
-            self.fmu.terminate()
-        except Exception:  # noqa: BLE001 - an instance that failed may refuse to terminate
-            pass
-        self.fmu.freeInstance()
-        shutil.rmtree(self.dir, ignore_errors=True)
-        _MESSAGES.pop(self.instance_name, None)
+from .extrapolation import Extrapolation
+from .implicit import Implicit
+from .member import ERROR, STATUS, WARNING, Member
 
 
 # ----------------------------------------------------------------------------- the system
@@ -143,7 +58,8 @@ class Member:
 class CoupledSystem:
     """The scenario's instances and connections, driven step by step by an algorithm."""
 
-    def __init__(self, scenario: Scenario, fmus: dict[str, Path], record: list[str] | None = None):
+    def __init__(self, scenario: Scenario, fmus: dict[str, Path], record: list[str] | None = None,
+                 extrapolation: int = 0):
         from fmpy import read_model_description
 
         descriptions = {i.name: read_model_description(str(fmus[i.name]))
@@ -172,29 +88,52 @@ class CoupledSystem:
         self.out: dict[str, float] = {}     # connected outputs, "instance.variable" -> value
         self.used: dict[str, float] = {}    # the value each input held over the last step
         self.nominal: dict[str, float] = {}  # largest magnitude of each connected output so far
+        self.extrapolation = Extrapolation(self, extrapolation)
+        self.start: dict[str, float] = {}   # connected outputs at the macro step's start
         self.counters = {"steps": 0, "rejected": 0, "doStep": 0, "rollbacks": 0, "jumps": 0,
                          "forced": 0}
 
     # ------------------------------------------------------------------ exchange
 
-    def read_outputs(self, member: str) -> None:
+    def read_outputs(self, member: str, t: float, derivatives: bool = True) -> None:
+        """The connected outputs of ``member`` at time ``t`` (and their derivatives when
+        inputs are extrapolated)."""
         names = self.outputs_of[member]
         for n, v in zip(names, self.members[member].get(names)):
             self.out[f"{member}.{n}"] = v
+        if derivatives:
+            self.extrapolation.read(member, names, t)
 
-    def write_inputs(self, member: str, zero: bool = False) -> None:
+    def begin_step(self) -> None:
+        """Remember the connected outputs (and derivatives) where the macro step starts."""
+        self.start = dict(self.out)
+        self.extrapolation.begin_step()
+
+    def out_at_start(self, source: str) -> float:
+        return self.start.get(source, self.out[source])
+
+    def write_inputs(self, member: str, h: float | None = None, zero: bool = False,
+                     new: dict | None = None) -> None:
+        """Set ``member``'s connected inputs for a step ``h``: the upstream outputs at the
+        step's start (0.0 with ``zero``), held or, with extrapolation, with derivatives
+        (``new``: the values at t + h of sources already stepped, Gauss-Seidel)."""
         pairs = self.inputs_of[member]
-        values = [0.0 if zero else self.out[src] for _, src in pairs]
+        if self.extrapolation.order and h is not None and not zero:
+            values = [self.out_at_start(src) for _, src in pairs]
+        else:
+            values = [0.0 if zero else (new or {}).get(src, self.out[src]) for _, src in pairs]
         self.members[member].set([dst for dst, _ in pairs], values)
         for (dst, _), v in zip(pairs, values):
             self.used[f"{member}.{dst}"] = v
+        if h is not None and not zero:
+            self.extrapolation.set_inputs(member, pairs, h, new)
 
     def step_member(self, member: str, t: float, h: float) -> None:
         self.counters["doStep"] += 1
         status = self.members[member].do_step(t, h)
         if status > WARNING:
             raise Refused(member, status, self.members[member].reason(), STATUS.get(status, status))
-        self.read_outputs(member)
+        self.read_outputs(member, t + h)
 
     def coupling_error(self, rtol: float, atol: float, nominal: dict | None = None) -> float:
         """Largest scaled difference between a held input and the output it stood for;
@@ -224,7 +163,7 @@ class CoupledSystem:
             m.set(list(params), list(params.values()))
         for _ in range(len(members) if start == "exchange" else 0):
             for m in self.members:
-                self.read_outputs(m)
+                self.read_outputs(m, t0, derivatives=False)
             for m in self.members:
                 self.write_inputs(m)
         for m in members:
@@ -233,7 +172,7 @@ class CoupledSystem:
             if failed:
                 raise CosimError(f"initialization failed: {failed[-1]}", t0, m.name)
         for m in self.members:
-            self.read_outputs(m)
+            self.read_outputs(m, t0)
         if start == "zero":
             for m in self.members:
                 self.write_inputs(m, zero=True)
@@ -248,13 +187,14 @@ class CoupledSystem:
 
     def get_states(self):
         return {m: member.fmu.getFMUstate() for m, member in self.members.items()}, \
-            dict(self.out), dict(self.used)
+            dict(self.out), dict(self.used), self.extrapolation.snapshot()
 
     def set_states(self, saved) -> None:
-        states, out, used = saved
+        states, out, used, extrapolation = saved
         for m, member in self.members.items():
             member.fmu.setFMUstate(states[m])
         self.out, self.used = dict(out), dict(used)
+        self.extrapolation.restore(extrapolation)
 
     def free_states(self, saved) -> None:
         for m, member in self.members.items():
@@ -276,16 +216,17 @@ class Jacobi:
         self.scenario = scenario
 
     def step(self, system: CoupledSystem, t: float, h: float, first: bool = False) -> None:
+        system.begin_step()
         if not first:  # the first step of a "zero" start keeps the zeros set at initialization
             for m in system.members:
-                system.write_inputs(m)
+                system.write_inputs(m, h)
         for m in system.members:
             system.counters["doStep"] += 1
             status = system.members[m].do_step(t, h)
             if status > WARNING:
                 raise Refused(m, status, system.members[m].reason(), STATUS.get(status, status))
         for m in system.members:
-            system.read_outputs(m)
+            system.read_outputs(m, t + h)
 
 
 class GaussSeidel:
@@ -297,9 +238,12 @@ class GaussSeidel:
         self.order = list(scenario.order)
 
     def step(self, system: CoupledSystem, t: float, h: float, first: bool = False) -> None:
-        for m in self.order:
+        system.begin_step()
+        for k, m in enumerate(self.order):
             if not first:
-                system.write_inputs(m)
+                stepped = set(self.order[:k])
+                system.write_inputs(m, h, new={s: v for s, v in system.out.items()
+                                               if s.split(".", 1)[0] in stepped})
             else:  # the first step of a "zero" start: upstream outputs are new, others zero
                 pairs = system.inputs_of[m]
                 fresh = [(dst, src) for dst, src in pairs
@@ -310,7 +254,7 @@ class GaussSeidel:
             system.step_member(m, t, h)
 
 
-ALGORITHMS = {"jacobi": Jacobi, "gauss-seidel": GaussSeidel}
+ALGORITHMS = {"jacobi": Jacobi, "gauss-seidel": GaussSeidel, "implicit": Implicit}
 
 
 def algorithm_class(name: str):
@@ -341,7 +285,9 @@ def run_fmpy(scenario: Scenario, fmus: dict[str, Path],
     algorithm = algorithm_class(settings.algorithm_for(scenario))(scenario)
     h = float(settings.step or scenario.step)
     t_end = float(settings.t_end or scenario.t_end)
-    system = CoupledSystem(scenario, fmus, record)
+    # (the implicit master's first guess extrapolates with the outputs' first derivatives)
+    order = settings.extrapolation or (1 if algorithm.name == "implicit" else 0)
+    system = CoupledSystem(scenario, fmus, record, extrapolation=order)
     out = RunRecord()
     try:
         system.initialize(0.0, t_end, settings.start)
@@ -356,7 +302,8 @@ def run_fmpy(scenario: Scenario, fmus: dict[str, Path],
     stats = dict(system.counters)
     if out.steps:
         stats.update(h_min=float(min(out.steps)), h_max=float(max(out.steps)))
-    master = f"fmpy {algorithm.name}" + (" variable-step" if settings.variable_step else "")
+    master = f"fmpy {algorithm.name}" + (" variable-step" if settings.variable_step else "") \
+        + (f" extrapolation {settings.extrapolation}" if settings.extrapolation else "")
     return Result(time=np.array(out.times), names=list(system.record),
                   values=np.array(out.rows, dtype=float).reshape(len(out.times), -1),
                   units=system.units, method=master, stats=stats)

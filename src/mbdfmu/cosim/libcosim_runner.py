@@ -29,13 +29,15 @@ def _ns(seconds: float, what: str) -> int:
     return ns
 
 
-def _build_from_description(scenario: Scenario, fmus, h_ns: int, vr: dict):
-    """An execution with one local slave per instance, its start values and connections."""
+def _build_from_description(scenario: Scenario, fmus, h_ns: int, vr: dict, execution=None):
+    """An execution (by default fixed-step, ``h_ns``) with one local slave per instance,
+    its start values and connections."""
     from libcosimpy import CosimExecution as cx
     from libcosimpy.CosimExecution import get_last_error_message
     from libcosimpy.CosimSlave import CosimLocalSlave
 
-    execution = cx.CosimExecution.from_step_size(step_size=h_ns)
+    if execution is None:
+        execution = cx.CosimExecution.from_step_size(step_size=h_ns)
     index = {}
     for inst in scenario.instances:
         slave = CosimLocalSlave(fmu_path=str(fmus[inst.name]), instance_name=inst.name)

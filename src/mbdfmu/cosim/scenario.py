@@ -26,6 +26,10 @@ to = "mechanism.drive.torque"    # <instance>.<input>
 "motor.R" = 0.5
 "motor.voltage" = 12.0           # an input nobody drives holds this value
 
+[power_bonds]                    # for ECCO: each side's effort input and flow output
+mechanism = ["drive.torque", "crank.omega"]
+motor = ["speed", "torque"]
+
 [variable_step]                  # the error-controlled master (all optional)
 rtol = 1e-2                      # allowed change of a coupled variable over one step
 atol = 1e-6
@@ -74,7 +78,8 @@ CONNECTIONS_FILE = "connections.toml"
 ALGORITHMS = ("jacobi", "gauss-seidel")
 IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 TOP_KEYS = {"name", "description", "t_end", "step", "algorithm", "order", "record", "plot",
-            "compare", "reference", "instances", "connections", "parameters", "variable_step"}
+            "compare", "reference", "instances", "connections", "parameters", "variable_step",
+            "power_bonds"}
 VARIABLE_STEP_KEYS = {"rtol", "atol", "h_min", "h_max", "h_initial", "nominal"}
 
 
@@ -138,6 +143,8 @@ class Scenario:
     compare: tuple[str, ...] = ()
     reference: Path | None = None
     variable_step: VariableStepSettings = field(default_factory=VariableStepSettings)
+    # instance -> (effort input, flow output) of the scenario's power bond (ECCO)
+    power_bonds: dict = field(default_factory=dict)
 
     @property
     def folder(self) -> Path:

@@ -140,6 +140,29 @@ def _read_variable_step(raw, connections_raw, problems: Problems) -> VariableSte
                                 **{k: v for k, v in values.items() if v is not None})
 
 
+def _read_power_bonds(raw, names, connections, problems: Problems) -> dict:
+    """``{instance: [effort input, flow output]}`` of two instances whose effort and flow
+    are connected to each other's flow and effort."""
+    if not isinstance(raw, dict) or not all(
+            isinstance(v, list) and len(v) == 2 and all(isinstance(x, str) for x in v)
+            for v in raw.values()):
+        problems.add("[power_bonds]", "must map each of two instances to [effort input, "
+                     "flow output]")
+        return {}
+    if not raw:
+        return {}
+    unknown = [k for k in raw if k not in names]
+    if unknown or len(raw) != 2:
+        problems.add("[power_bonds]", f"needs two of the instances {names}, got {list(raw)}")
+        return {}
+    (a, (ea, fa)), (b, (eb, fb)) = raw.items()
+    linked = {(c.source, c.target) for c in connections}
+    for src, dst in ((f"{b}.{fb}", f"{a}.{ea}"), (f"{a}.{fa}", f"{b}.{eb}")):
+        if (src, dst) not in linked:
+            problems.add("[power_bonds]", f'"{src}" -> "{dst}" is not a connection')
+    return {k: tuple(v) for k, v in raw.items()}
+
+
 def load_scenario(name_or_path: str | Path) -> Scenario:
     """Read and check a connections file (see the module docstring for the format); raises
     one ``ScenarioError`` listing every problem."""
@@ -171,6 +194,7 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
             problems.add("", f'reference "{data["reference"]}": no such file next to {path.name}')
     variable_step = _read_variable_step(data.get("variable_step", {}),
                                         data.get("connections", []), problems)
+    power_bonds = _read_power_bonds(data.get("power_bonds", {}), names, connections, problems)
     name = data.get("name", path.parent.name)
     if not isinstance(name, str) or not name:
         problems.add("", f"name must be a non-empty string, got {name!r}")
@@ -179,4 +203,5 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
                     instances=tuple(instances), connections=tuple(connections),
                     parameters=parameters, t_end=t_end, step=step, algorithm=algorithm,
                     order=tuple(order), variable_step=variable_step, reference=reference,
+                    power_bonds=power_bonds,
                     **lists)

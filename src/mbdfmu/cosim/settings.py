@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from ..errors import MbdfmuError, SettingError
 
 MASTERS = ("fmpy", "ssp", "libcosim", "ecos")
-ALGORITHMS = ("jacobi", "gauss-seidel")
+ALGORITHMS = ("jacobi", "gauss-seidel", "implicit", "ecco")
 STARTS = ("exchange", "zero")
 
 
@@ -41,7 +41,8 @@ class CosimSettings:
     that); ``step`` and ``t_end`` in s; ``variable_step`` (fmpy master only) with its
     ``rtol``, ``atol``, ``h_min``, ``h_max``; ``start``: connected inputs start at the
     upstream outputs ("exchange", as libcosim does) or at 0.0 ("zero", as fmpy's SSP
-    runner does).
+    runner does); ``extrapolation`` (fmpy master): the order of the polynomial each input
+    follows over a step, 0 (zero-order hold), 1 or 2 (``extrapolation.py``).
     """
 
     master: str = "fmpy"
@@ -54,8 +55,15 @@ class CosimSettings:
     h_min: float | None = None
     h_max: float | None = None
     start: str = "exchange"
+    extrapolation: int = 0
 
     def __post_init__(self):
+        if self.extrapolation not in (0, 1, 2) or isinstance(self.extrapolation, bool):
+            raise SettingError("extrapolation", "extrapolation must be 0 (zero-order hold), 1 "
+                               f"or 2 (the inputs' polynomial order), got {self.extrapolation!r}")
+        if self.extrapolation and self.master != "fmpy":
+            raise SettingError("extrapolation", "input extrapolation is the fmpy master's "
+                               "(--master fmpy)")
         for name, value, choices in (("master", self.master, MASTERS),
                                      ("algorithm", self.algorithm, ALGORITHMS),
                                      ("start", self.start, STARTS)):
@@ -66,6 +74,11 @@ class CosimSettings:
             if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
                                       or not (math.isfinite(value) and value > 0)):
                 raise SettingError(name, f"{name} must be positive and finite, got {value!r}")
+        if self.algorithm == "implicit" and (self.master != "fmpy" or self.variable_step):
+            raise SettingError("algorithm", 'the implicit coupling is the fmpy master\'s, '
+                               "with a fixed step (--master fmpy, no --variable-step)")
+        if self.algorithm == "ecco" and self.master != "libcosim":
+            raise SettingError("algorithm", "ECCO is libcosim's algorithm (--master libcosim)")
         if self.variable_step and self.master != "fmpy":
             raise SettingError("variable_step", "the variable-step master is the fmpy "
                                "master's (--master fmpy)")

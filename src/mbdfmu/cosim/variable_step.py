@@ -39,6 +39,8 @@ def run_variable_step(system, algorithm, scenario, settings, h, t_end, out) -> N
     h_max = settings.h_max or vs.h_max or 10 * h
     h = min(vs.h_initial or h, h_max)
     t, rejections, rejected_err, rejected_step = 0.0, 0, math.inf, math.inf
+    # the error estimate is O(h^(p+1)) for inputs extrapolated at order p
+    exponent = 1.0 / (system.extrapolation.order + 1)
     while t < t_end * (1 - 1e-12):
         # A step that would leave less than a tenth of itself before t_end is stretched to
         # t_end (no sliver of a last step).
@@ -64,7 +66,8 @@ def run_variable_step(system, algorithm, scenario, settings, h, t_end, out) -> N
                 system.counters["rejected"] += 1
                 system.counters["rollbacks"] += 1
                 rejections += 1
-                factor = MIN_FACTOR if not math.isfinite(err) else max(MIN_FACTOR, SAFETY / err)
+                factor = MIN_FACTOR if not math.isfinite(err) else \
+                    max(MIN_FACTOR, (SAFETY / err) ** exponent)
                 h = step * factor
                 if h < h_min:
                     if step <= h_min * (1 + 1e-9) or rejections > MAX_REJECTIONS_IN_A_ROW:
@@ -84,4 +87,5 @@ def run_variable_step(system, algorithm, scenario, settings, h, t_end, out) -> N
         out.times.append(t)
         out.rows.append(system.sample())
         out.steps.append(step)
-        h = min(h_max, step * (MAX_FACTOR if err == 0 else min(MAX_FACTOR, SAFETY / err)))
+        h = min(h_max, step * (MAX_FACTOR if err == 0
+                               else min(MAX_FACTOR, (SAFETY / err) ** exponent)))

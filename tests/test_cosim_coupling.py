@@ -1,0 +1,225 @@
+"""Coupling beyond zero-order hold: input and output derivatives of the FMUs, the fmpy
+master's extrapolation (orders 1 and 2), the implicit coupling, the two-mass oscillator's
+stability against its closed-form analysis, and ECCO in libcosim.
+
+References: closed forms (a slider pushed by a polynomial force), the scenarios'
+monolithic references, finite differences of the FMUs' own outputs in time, and the
+two-mass oscillator's amplification matrix (scenarios/two_mass_oscillator/stability.py,
+numpy and scipy only).
+"""
+from __future__ import annotations
+
+import importlib.util
+import math
+
+import numpy as np
+import pytest
+
+fmpy = pytest.importorskip("fmpy")
+
+from mbdfmu.cosim.fmpy_master import run_fmpy  # noqa: E402
+from mbdfmu.cosim.scenario import SCENARIOS, ScenarioError, reference_function  # noqa: E402
+from mbdfmu.cosim.scenario_reader import load_scenario  # noqa: E402
+from mbdfmu.cosim.settings import CosimError, CosimSettings  # noqa: E402
+from mbdfmu.errors import SettingError  # noqa: E402
+from mbdfmu.fmu_build.cache import build_fmus as build_sources  # noqa: E402
+from mbdfmu.fmu_build.scene_fmu import build_fmu  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    root = tmp_path_factory.mktemp("coupling_fmus")
+    cache: dict[str, tuple] = {}
+
+    def get(name: str):
+        if name not in cache:
+            scenario = load_scenario(name)
+            fmus = build_sources({i.name: i.source for i in scenario.instances},
+                                 root / scenario.folder.name)
+            cache[name] = (scenario, fmus)
+        return cache[name]
+    return get
+
+
+def _slave(path, name="a"):
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    md = read_model_description(str(path))
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)),
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    return fmu, {v.name: v.valueReference for v in md.modelVariables}, md
+
+
+def _error(scenario, result, names=None) -> float:
+    ref = reference_function(scenario)(result.time)
+    return max(float(np.abs(result[n] - ref[n]).max() / np.ptp(ref[n]))
+               for n in (names or scenario.compare))
+
+
+def _orders(errors):
+    return [math.log2(a / b) for a, b in zip(errors, errors[1:])]
+
+
+# ----------------------------------------------------------------------------- the FMUs
+
+def test_a_force_with_derivatives_follows_its_polynomial_to_the_closed_form(tmp_path):
+    """slider_force: a 2 kg slider on a frictionless guide. With F = 1 + 20 t + 100 t^2
+    given at t = 0 as a value and two derivatives, one step of 0.1 s lands on the closed
+    form x = (t^2/2 + 20 t^3/6 + 200 t^4/24) / m; held, it would be t^2 / (2 m)."""
+    path = build_fmu("slider_force", tmp_path / "S.fmu")
+    fmu, vr, md = _slave(path)
+    assert md.coSimulation.canInterpolateInputs
+    assert md.coSimulation.maxOutputDerivativeOrder == 2
+    fmu.setReal([vr["push.fx"]], [1.0])
+    fmu.setRealInputDerivatives([vr["push.fx"]] * 2, [1, 2], [20.0, 200.0])
+    fmu.doStep(0.0, 0.1)
+    t, m = 0.1, 2.0
+    x = (t * t / 2 + 20 * t ** 3 / 6 + 200 * t ** 4 / 24) / m
+    assert fmu.getReal([vr["slider.x"]])[0] == pytest.approx(x, rel=1e-9)
+    # the input keeps following its polynomial until set again: v' = F(t) / m
+    assert fmu.getRealOutputDerivatives([vr["slider.vx"]], [1])[0] == \
+        pytest.approx((1 + 20 * t + 100 * t * t) / m, rel=1e-8)
+    fmu.terminate()
+    fmu.freeInstance()
+
+
+def test_output_derivatives_match_finite_differences_of_the_fmu_in_time(tmp_path):
+    """pendulum_torque with a ramped torque: every output's first and second derivatives
+    at the communication point against one-sided differences of the FMU's own outputs
+    after steps of k * 1 ms from a saved state (errors O(h^4) and O(h^3))."""
+    path = build_fmu("pendulum_torque", tmp_path / "P.fmu")
+    fmu, vr, md = _slave(path)
+    outs = [v.name for v in md.modelVariables if v.causality == "output"]
+    refs = [vr[n] for n in outs]
+    fmu.setReal([vr["drive.torque"]], [1.0])
+    fmu.setRealInputDerivatives([vr["drive.torque"]] * 2, [1, 2], [20.0, 200.0])
+    fmu.doStep(0.0, 0.1)
+    d1 = np.array(fmu.getRealOutputDerivatives(refs, [1] * len(refs)))
+    d2 = np.array(fmu.getRealOutputDerivatives(refs, [2] * len(refs)))
+    h, state = 1e-3, fmu.getFMUstate()
+    y = [np.array(fmu.getReal(refs))]
+    for k in range(1, 5):
+        fmu.setFMUstate(state)
+        fmu.doStep(0.1, k * h)
+        y.append(np.array(fmu.getReal(refs)))
+    fd1 = (-25 * y[0] + 48 * y[1] - 36 * y[2] + 16 * y[3] - 3 * y[4]) / (12 * h)
+    fd2 = (35 * y[0] - 104 * y[1] + 114 * y[2] - 56 * y[3] + 11 * y[4]) / (12 * h * h)
+    assert np.abs(d1 - fd1).max() < 1e-6 * np.abs(fd1).max()
+    assert np.abs(d2 - fd2).max() < 1e-4 * np.abs(fd2).max()
+    with pytest.raises(fmpy.fmi1.FMICallException):   # orders 1 and 2 only
+        fmu.getRealOutputDerivatives(refs[:1], [3])
+    fmu.freeFMUstate(state)
+    fmu.freeInstance()
+
+
+# ----------------------------------------------------------------------------- extrapolation
+
+def test_extrapolation_raises_the_coupling_order_to_two_and_three(built):
+    """DC motor + slider-crank, Jacobi: zero-order hold is first order; inputs that follow
+    the sources' first (second) output derivatives over the step give order 2 (3)."""
+    scenario, fmus = built("dc_motor_slider_crank")
+    measured = {}
+    for p in (0, 1, 2):
+        errors = [_error(scenario, run_fmpy(scenario, fmus, CosimSettings(
+            algorithm="jacobi", step=h, t_end=0.12, extrapolation=p)),
+            ["mechanism.crank.omega"]) for h in (4e-3, 2e-3, 1e-3)]
+        measured[p] = _orders(errors)
+    assert all(0.9 < q < 1.25 for q in measured[0]), measured
+    assert all(1.85 < q < 2.3 for q in measured[1]), measured
+    assert all(2.7 < q < 3.3 for q in measured[2]), measured
+
+
+def test_a_bad_extrapolation_setting_is_refused():
+    with pytest.raises(SettingError, match="extrapolation must be 0"):
+        CosimSettings(extrapolation=3)
+    with pytest.raises(SettingError, match="fmpy master"):
+        CosimSettings(master="libcosim", extrapolation=1)
+    with pytest.raises(SettingError, match="libcosim"):
+        CosimSettings(algorithm="ecco")
+
+
+# ----------------------------------------------------------------------------- implicit
+
+def test_the_implicit_coupling_keeps_the_crane_at_50_ms_where_jacobi_fails(built):
+    scenario, fmus = built("hydraulic_crane")
+    with pytest.raises(CosimError, match="doStep returned discard"):
+        run_fmpy(scenario, fmus, CosimSettings(algorithm="jacobi", step=5e-2, t_end=1.0))
+    r = run_fmpy(scenario, fmus, CosimSettings(algorithm="implicit", step=5e-2, t_end=1.0))
+    assert r.time[-1] == pytest.approx(1.0)
+    assert _error(scenario, r, ["mechanism.boom.phi", "mechanism.load.phi"]) < 0.03
+    assert r.stats["iterations"] >= r.stats["steps"]
+
+
+# ----------------------------------------------------------------------------- two masses
+
+def _stability():
+    spec = importlib.util.spec_from_file_location(
+        "two_mass_stability", SCENARIOS / "two_mass_oscillator" / "stability.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("name, algorithm, p", [("two_mass_oscillator", "jacobi", 0),
+                                                ("two_mass_oscillator:dd", "gauss-seidel", 1)])
+def test_two_mass_stability_limits_agree_with_the_closed_form(name, algorithm, p, built):
+    """Runs at 0.9 and 1.1 times the closed-form limit: the amplitude's growth per step,
+    measured over 300 steps, matches the amplification matrix's spectral radius, below 1
+    and above 1."""
+    st = _stability()
+    scenario, fmus = built(name)
+    masses, connections = st.from_scenario(scenario)
+    limit = st.largest_stable_step(masses, connections, algorithm, p, points=60)
+    for factor in (0.9, 1.1):
+        h, n = factor * limit, 450
+        r = run_fmpy(scenario, fmus, CosimSettings(algorithm=algorithm, step=h, t_end=n * h,
+                                                   extrapolation=p))
+        amplitude = np.abs(np.column_stack([r["mass1.x"], r["mass2.x"]])).max(axis=1)
+        w = n // 6
+        measured = (amplitude[-w:].max() / amplitude[w:2 * w].max()) ** (1.0 / (n - 2 * w))
+        rho = st.spectral_radius(masses, connections, h, algorithm, p)
+        assert (measured - 1) * (rho - 1) > 0, (factor, measured, rho)
+        # (the growth measured over 300 steps is still approaching the dominant mode's)
+        assert abs(measured - rho) < 1.5e-3, (factor, measured, rho)
+
+
+@pytest.mark.parametrize("name, p, order", [("two_mass_oscillator", 1, 2.0),
+                                            ("two_mass_oscillator:dd", 2, 3.0)])
+def test_the_two_mass_scenarios_converge_to_their_monolithic_reference(name, p, order, built):
+    """(Force-displacement at p = 2 is of order 2 only: the coupling force is direct
+    feedthrough of the position input, so its derivatives carry the previous step's
+    extrapolation error; docs/cosimulation.md.)"""
+    scenario, fmus = built(name)
+    errors = [_error(scenario, run_fmpy(scenario, fmus, CosimSettings(
+        algorithm="jacobi", step=h, t_end=1.0, extrapolation=p))) for h in (2e-3, 1e-3)]
+    assert abs(_orders(errors)[0] - order) < 0.25, errors
+
+
+# ----------------------------------------------------------------------------- ECCO
+
+def test_ecco_runs_the_quarter_car_in_libcosim(built):
+    pytest.importorskip("libcosimpy")
+    from mbdfmu.cosim.ecco_runner import RESIDUAL, run_ecco
+
+    scenario, fmus = built("quarter_car")
+    r = run_ecco(scenario, fmus, step=2e-3, t_end=0.3, rtol=1e-2, atol=1e-2)
+    assert r.time[-1] == pytest.approx(0.3, abs=3e-3)
+    assert len(set(np.round(np.diff(r.time), 9))) > 3          # the step varies
+    assert _error(scenario, r) < 0.05
+    assert np.all(np.isfinite(r[RESIDUAL]))
+
+
+def test_a_power_bond_must_follow_the_connections(tmp_path):
+    import shutil
+
+    folder = shutil.copytree(SCENARIOS / "quarter_car", tmp_path / "quarter_car")
+    file = folder / "connections.toml"
+    file.write_text(file.read_text().replace('wheel = ["v_other", "coupling_force"]',
+                                             'wheel = ["x_other", "coupling_force"]'))
+    with pytest.raises(ScenarioError, match='"chassis.chassis.vy" -> "wheel.x_other" is not'):
+        load_scenario(file)
