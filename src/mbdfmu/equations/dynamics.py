@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model.scene import Scene
+from ..model.scene import RotationalSpringDamper, Scene
 from ..model.variables import TABLES, InputValues, input_layout
 from .constraints import ConstraintSet
 from .forces import AppliedForces
 from .planar import poses, rotate
-from .sparsity import RANK_TOLERANCE, schur_solve
+from .singular import nullspace_accelerations
+from .sparsity import RANK_TOLERANCE, schur_solve_checked
 
 
 class Equations:
@@ -75,6 +76,25 @@ class Equations:
         J = self.pattern.dense_with_ground(data) if extended else self.pattern.jacobian(data, sparse)
         return (Psi, J) if qd is None else (Psi, J, nu, gamma)
 
+    def periodic_angles(self) -> np.ndarray:
+        """A mask over q of the body angles that enter every equation only through their
+        sine and cosine (not through an angle row of the constraints, e.g. a rotational
+        driver or a coupler, nor a rotational spring): shifting one by 2 pi changes nothing,
+        so an integrator may keep them wrapped."""
+        mask = np.zeros(self.n, dtype=bool)
+        mask[2::3] = True
+        a = self.constraint_set.angle
+        used = set(a.bi.tolist()) | set(a.bj.tolist()) if a.n else set()
+        index = {b.name: k for k, b in enumerate(self.scene.bodies)}
+        for f in self.scene.forces:
+            if isinstance(f, RotationalSpringDamper):
+                joint = self.scene.joint(f.joint)
+                used |= {index[b] for b in (joint.body_i, joint.body_j) if b in index}
+        for b in used:
+            if b < self.nb:
+                mask[3 * b + 2] = False
+        return mask
+
     def constraint_hessian(self, q: np.ndarray, mu: np.ndarray) -> np.ndarray:
         return self.constraint_set.hessian(q, mu)
 
@@ -99,9 +119,11 @@ class Equations:
 
         By the Schur complement of the diagonal mass matrix (eq. 15),
         ``(Psi_q M^-1 Psi_q^T) lam = Psi_q M^-1 F - gamma``, ``q'' = M^-1 (F - Psi_q^T lam)``;
-        at singular configurations or with redundant constraints the minimum-norm lam.
-        With ``baumgarte = (alpha, beta)`` the right-hand side is Baumgarte's stabilised
-        ``gamma - 2 alpha (Psi_q q' - nu) - beta^2 Psi``.
+        where that is ill-conditioned (near singular configurations, with redundant
+        constraints) the null-space solution of ``singular.nullspace_accelerations``, with
+        the minimum-norm lam. With ``baumgarte = (alpha, beta)`` the right-hand side is
+        Baumgarte's stabilised ``gamma - 2 alpha (Psi_q q' - nu) - beta^2 Psi`` (solved
+        with the minimum-norm lam wherever S is ill-conditioned).
         """
         u = self._u(u)
         F = self.applied(t, q, qd, u)
@@ -115,7 +137,10 @@ class Equations:
         if baumgarte is not None:
             alpha, beta = baumgarte
             gamma = gamma - 2.0 * alpha * (J @ qd - nu) - beta * beta * Psi
-        lam = schur_solve(J, self.minv, J @ (self.minv * F) - gamma)
+        lam, ok = schur_solve_checked(J, self.minv, J @ (self.minv * F) - gamma)
+        if not ok and baumgarte is None:
+            dense = J.toarray() if hasattr(J, "toarray") else J
+            return nullspace_accelerations(dense, self.minv, F, gamma)
         return self.minv * (F - J.T @ lam), lam
 
     def _accelerations_compiled(self, t, q, qd, F, u):

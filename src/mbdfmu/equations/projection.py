@@ -24,6 +24,9 @@ ASSEMBLY_MAX_ITER = 60
 PROJECTION_MAX_ITER = 8
 # Residual (relative to the mechanism's length scale) at which positions count as assembled.
 ASSEMBLY_TOL = 1e-12
+# A constraint residual this small (relative to the mechanism's size) is rounding: the
+# Newton increment it gives measures the conditioning, not the distance to the constraints.
+ROUNDOFF_RESIDUAL = 1e-14
 # A velocity changed by more than this (relative to max(1, |v|)) is reported as changed.
 VELOCITY_CHANGE_TOL = 1e-9
 # Each coordinate's scene key, component (None: a scalar) and unit: positions, velocities.
@@ -36,20 +39,34 @@ def project_positions(system: Equations, t: float, q: np.ndarray, *, tol: float,
                       u: InputValues | None = None) -> tuple[np.ndarray, int]:
     """Closest q (mass-weighted) with Psi(q, t) = 0; returns (q, iterations).
 
-    Raises SolverError when Newton does not converge to ``tol`` (max-norm of Psi).
+    Converged when Psi and the last Newton increment are both below ``tol`` (max-norms):
+    near a singular configuration |Psi| <= tol alone leaves q off by up to tol / sigma
+    (sigma the smallest singular value of Psi_q) along the direction that loses rank,
+    towards the other branch. An increment made of the rounding of Psi (a residual at
+    ROUNDOFF_RESIDUAL of the mechanism's size) cannot shrink further and also ends the
+    iteration. Raises SolverError when Newton does not get there in ``max_iter``.
     """
     q = q.copy()
+    if system.m == 0:
+        return q, 0
+    err = np.inf
     for it in range(max_iter + 1):
         Psi, J = system.constraints(t, q, u=u, sparse=True)
         if not np.all(np.isfinite(Psi)):
             raise SolverError("non-finite constraint residual while projecting positions", t)
-        err = np.max(np.abs(Psi)) if Psi.size else 0.0
-        if err <= tol:
-            return q, it
-        if it == max_iter:
+        err = float(np.max(np.abs(Psi)))
+        if err > tol and it == max_iter:
             break
-        q -= system.minv * (J.T @ schur_solve(J, system.minv, Psi))
+        dq = system.minv * (J.T @ schur_solve(J, system.minv, Psi))
+        q -= dq
+        if err <= tol and (float(np.max(np.abs(dq))) <= tol
+                           or err <= ROUNDOFF_RESIDUAL * system.length_scale):
+            return q, it + 1
     worst = int(np.argmax(np.abs(Psi)))
+    if err <= tol:
+        raise SolverError(f"position projection did not converge: its Newton increment is still "
+                          f"{float(np.max(np.abs(dq))):.3g} after {max_iter} iterations (a "
+                          "singular configuration)", t)
     raise SolverError(f"position projection did not converge: {system.row_labels[worst]} "
                       f"violated by {err:.3g} after {max_iter} iterations", t)
 

@@ -52,16 +52,21 @@ def solve_spd(S: np.ndarray, b: np.ndarray) -> np.ndarray:
 
     Cholesky when S is well conditioned; otherwise the minimum-norm least-squares solution.
     """
+    return solve_spd_checked(S, b)[0]
+
+
+def solve_spd_checked(S: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, bool]:
+    """``solve_spd``, and whether Cholesky was used (False: the minimum-norm path)."""
     # LAPACK directly: the scipy wrappers cost more than the factorisation at these sizes.
     factor, info = _potrf(S, lower=False, clean=False)
     if info == 0 and _well_conditioned(np.diag(factor)):
         x, info = _potrs(factor, b, lower=False)
         if info == 0:
-            return x
+            return x, True
     if not np.all(np.isfinite(S)) or not np.all(np.isfinite(b)):
         raise SolverError("non-finite values in the constraint equations")
     x, *_ = scipy.linalg.lstsq(S, b, cond=RANK_TOLERANCE, check_finite=False)
-    return x
+    return x, False
 
 
 def spd_solver(S: np.ndarray):
@@ -78,10 +83,15 @@ def spd_solver(S: np.ndarray):
 
 def schur_solve(J, minv: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Solve ``(J M^-1 J^T) x = b`` for a dense or sparse J (see the module's rules)."""
+    return schur_solve_checked(J, minv, b)[0]
+
+
+def schur_solve_checked(J, minv: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, bool]:
+    """``schur_solve``, and whether S was well conditioned (False: minimum-norm solution)."""
     if isinstance(J, SparseJacobian):
-        return J.pattern.schur_solve(J.data, b)
+        return J.pattern.schur_solve_checked(J.data, b)
     JMi = J * minv
-    return solve_spd(JMi @ J.T, b)
+    return solve_spd_checked(JMi @ J.T, b)
 
 
 class JacobianPattern:
@@ -200,16 +210,20 @@ class JacobianPattern:
         """Solve (J M^-1 J^T) x = b by banded Cholesky; minimum-norm when S is near singular.
 
         M is the mass matrix the pattern was planned with (a scene's is fixed)."""
+        return self.schur_solve_checked(values, b)[0]
+
+    def schur_solve_checked(self, values: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, bool]:
+        """``schur_solve``, and whether Cholesky was used (False: the minimum-norm path)."""
         band = self.schur_band(values)
         bp = b[self.perm]
         factor, info = _pbtrf(band, lower=1)
         if info == 0 and _well_conditioned(factor[0]):
             xp, info = _pbtrs(factor, bp, lower=1)
             if info == 0:
-                return self._unpermute(xp)
+                return self._unpermute(xp), True
         if not np.all(np.isfinite(values)) or not np.all(np.isfinite(b)):
             raise SolverError("non-finite values in the constraint equations")
-        return self._unpermute(self._min_norm(band, bp))
+        return self._unpermute(self._min_norm(band, bp)), False
 
     def _min_norm(self, band: np.ndarray, bp: np.ndarray) -> np.ndarray:
         """Minimum-norm least-squares solution by iterated Tikhonov regularisation.
