@@ -76,10 +76,23 @@ def test_defaults_come_from_one_place_and_reach_the_integrator():
     assert (settings.method, settings.rtol, settings.atol) == ("auto", 1e-6, 1e-8)
     for name, cls in METHODS.items():
         sim = mbdfmu.Simulation(mbdfmu.load_scene("pendulum"), method=name)
-        assert (sim.integrator.rtol, sim.integrator.atol) == (1e-6, 1e-8)
+        # a fixed-step method's step states the accuracy wanted: it keeps a loose one
+        expected = (1e-6, 1e-8) if cls.adaptive else (1e-3, 1e-5)
+        assert (sim.integrator.rtol, sim.integrator.atol) == expected, name
         if cls.adaptive:
             assert sim.integrator.max_step == math.inf
         else:
             assert sim.integrator.h == cls.default_step
     sim = mbdfmu.Simulation(mbdfmu.load_scene("pendulum"), method="rk4p", step=2e-3)
     assert sim.integrator.h == 2e-3
+
+
+def test_a_tight_rtol_is_not_capped_by_the_default_atol():
+    # atol not given follows rtol down (at most rtol / 100); a given atol is kept
+    sim = mbdfmu.Simulation(mbdfmu.load_scene("pendulum"), method="dop853p", rtol=1e-10)
+    assert (sim.integrator.rtol, sim.integrator.atol) == (1e-10, 1e-12)
+    sim = mbdfmu.Simulation(mbdfmu.load_scene("pendulum"), method="dop853p", rtol=1e-10,
+                            atol=1e-9)
+    assert sim.integrator.atol == 1e-9
+    sim = mbdfmu.Simulation(mbdfmu.load_scene("pendulum"), method="rk4p", rtol=1e-7)
+    assert (sim.integrator.rtol, sim.integrator.atol) == (1e-7, 1e-9)

@@ -97,7 +97,7 @@ class Simulation:
 
     @property
     def t(self) -> float:
-        return self.integrator.t
+        return self.integrator.output_state[0]
 
     @property
     def method_name(self) -> str:
@@ -112,11 +112,11 @@ class Simulation:
 
     @property
     def q(self) -> np.ndarray:
-        return self.integrator.q
+        return self.integrator.output_state[1]
 
     @property
     def qd(self) -> np.ndarray:
-        return self.integrator.qd
+        return self.integrator.output_state[2]
 
     # ------------------------------------------------------------------ inputs
 
@@ -204,21 +204,35 @@ class Simulation:
         u = self.inputs_at(self.t)
         q, _ = project_positions(self.equations, self.t, self.q, tol=tol, u=u)
         qd = project_velocities(self.equations, self.t, q, self.qd, u)
-        self.integrator.reset_state(q, qd)
+        self.integrator.reset_state(q, qd, self.t)
         self._inputs_changed = False
+
+    def inputs_known_ahead(self) -> bool:
+        """Whether the inputs beyond the current time are known now: the scene has none, or
+        each is a function of time given beforehand (``set_input_signal``). Inputs set by
+        value (``set_input``, an FMU's master) hold only until set again."""
+        signals = list(self._drivers.values()) + list(self._forces.values())
+        return not any(isinstance(s, (SampledDriver, Held, TaylorInput)) for s in signals)
 
     # ------------------------------------------------------------------ stepping
 
-    def advance(self, t_target: float, limit: WorkLimit | None = None) -> None:
+    def advance(self, t_target: float, limit: WorkLimit | None = None, *,
+                dense: bool | None = None) -> None:
         """Integrate to exactly ``t_target``, within ``limit`` (bounded internal steps and
-        CPU time) if given; on failure the state stays where it was."""
+        CPU time) if given; on failure the state stays where it was.
+
+        ``dense``: whether an adaptive method may step past ``t_target`` and give the state
+        there from its dense output (its step sequence then does not depend on the output
+        times); None: when the inputs beyond it are known (``inputs_known_ahead``)."""
         # Only the integrator and the flag change while stepping (inputs do not), so that
         # is all the rollback keeps.
         snapshot, inputs_changed = self.integrator.get_state(), self._inputs_changed
         try:
             if self._inputs_changed:
                 self._reinitialize()
-            self.integrator.advance(t_target, limit)
+            if dense is None:
+                dense = self.inputs_known_ahead()
+            self.integrator.advance(t_target, limit, dense=dense)
         except SolverError:
             self.integrator.set_state(snapshot)
             self._inputs_changed = inputs_changed
@@ -367,7 +381,7 @@ def simulate(scene: Scene | str | Path, t_end: float | None = None, method=None,
     times = output_times(t_end, sim.settings.output_interval_for(t_end))
     rows, qs, qds, qdds, lams = [], [], [], [], []
     for t in times:
-        sim.advance(t)
+        sim.advance(t, dense=True)     # the inputs of the whole run are given here
         qdd, lam = sim.accelerations()
         rows.append(sim.output_vector())
         qs.append(sim.q.copy()), qds.append(sim.qd.copy()), qdds.append(qdd), lams.append(lam)

@@ -49,7 +49,7 @@ import numpy as np
 
 from ..equations.sparsity import spd_solver
 from .base import Option, number_in
-from .newton import ImplicitMethod, IterationMatrix, newton_iterate, newton_tolerance
+from .newton import ImplicitMethod, IterationMatrix, newton_iterate, newton_tolerances
 
 # How much the penalty outweighs the largest mass (per unit of constraint gradient): large,
 # so that the iteration converges fast where the Jacobian nearly loses rank (1e8: a singular
@@ -106,7 +106,7 @@ class ALI3P(ImplicitMethod):
         eq = self.equations
         K = np.diag(eq.mass) + (0.25 * h * h) * eq.constraint_hessian(q, lam)
         if eq.forces_depend_on_state():
-            dFdq, dFdv = eq.force_jacobians(t, q, qd, self.inputs(t))
+            dFdq, dFdv = eq.force_jacobians(t, self._unwrapped(q), qd, self.inputs(t))
             K = K - (0.5 * h * dFdv + 0.25 * h * h * dFdq)
         return self.saddle_matrix(K, J, -np.eye(eq.m) / P)
 
@@ -114,31 +114,32 @@ class ALI3P(ImplicitMethod):
         eq, n = self.equations, self.equations.n
         t1 = t + h
         P = 0.25 * h * h * self.alpha(h)
-        q_n, v_n, a_n = self.q, self.qd, self.qdd
+        q_n, v_n, a_n = self.qw, self.qd, self.qdd
 
-        def rates(q):
-            """q' and q'' of the trapezoidal rule for the positions q at t1."""
-            dq = q - q_n
+        def rates(dq):
+            """q' and q'' of the trapezoidal rule for the step's position increment dq."""
             return (2.0 / h) * dq - v_n, (4.0 / (h * h)) * dq - (4.0 / h) * v_n - a_n
 
-        x = {"q": q_n + h * v_n + 0.5 * h * h * a_n, "lam": self.lam.copy()}   # Taylor predictor
+        # Newton's unknown is the step's increment (module ``newton``); Taylor predictor
+        x = {"dq": h * v_n + 0.5 * h * h * a_n, "lam": self.lam.copy()}
 
         def evaluate():
-            x["qd"], qdd = rates(x["q"])
+            x["q"] = q_n + x["dq"]
+            x["qd"], qdd = rates(x["dq"])
             Psi, x["J"] = self.constraints(t1, x["q"])
-            F = self.forces(t1, x["q"], x["qd"])
+            F = self.forces(t1, self._unwrapped(x["q"]), x["qd"])
             return (0.25 * h * h) * (eq.mass * qdd + x["J"].T @ x["lam"] - F), Psi
 
         def apply(dx):
-            x["q"] = x["q"] + dx[:n]
+            x["dq"] = x["dq"] + dx[:n]
             x["lam"] = x["lam"] + (4.0 / (h * h)) * dx[n:]
 
-        newton_iterate(evaluate, lambda: self._augmented_matrix(t1, x["q"], x["qd"], x["J"],
-                                                               x["lam"], h, P),
-                       apply, self.matrix, h, newton_tolerance(self.atol, h, eq.length_scale),
-                       eq.mass, self.stats)
-        q, lam = x["q"], x["lam"]
-        qd, qdd = rates(q)
+        tols = newton_tolerances(self.atol, h, eq.length_scale, q_n, 0.25 * h * h, a_n)
+        newton_iterate(evaluate, lambda: (self._augmented_matrix(t1, x["q"], x["qd"], x["J"],
+                                                                x["lam"], h, P), x["J"]),
+                       apply, self.matrix, h, tols, eq.mass, eq.length_scale, self.stats)
+        q, lam = q_n + x["dq"], x["lam"]
+        qd, qdd = rates(x["dq"])
         # mass-orthogonal projections of q' and q'' (Bayo and Ledesma 1996)
         u = self.inputs(t1)
         _, J, nu, _ = eq.constraints(t1, q, qd, u)
@@ -148,4 +149,5 @@ class ALI3P(ImplicitMethod):
         qdd = project(qdd, gamma)
         self.stats.nprojections += 1
         self.check_finite(t1, q, qd, qdd)
-        self.q, self.qd, self.qdd, self.lam = q, qd, qdd, lam
+        self.qd, self.qdd, self.lam = qd, qdd, lam
+        self._set_positions(q)

@@ -9,21 +9,26 @@ A method is a subclass of ``Integrator`` that
    changes nothing (the base class then retries with ``h_next``); the base class moves
    ``self.t``. A step it cannot take at all raises ``SolverError``;
 3. lists in ``state_fields`` any private attribute that must be saved with the state;
-4. may override ``restart()``, called when (q, q') or the inputs change from outside.
+4. may override ``restart()``, called when (q, q') or the inputs change from outside;
+5. adaptive methods with ``dense_output`` implement ``_output_at(t)``: the state at a time
+   inside the last step (then ``advance(t, dense=True)`` steps past output times instead
+   of landing on them), and may shorten a step in ``_plan_step``.
 
 The equations are pure functions of (t, q, q', u); the integrator gets the inputs as a
 function ``inputs(t) -> InputValues`` from whoever runs it (``Simulation``) and passes them
 on through ``accelerations``, ``constraints`` and ``forces`` below. The public
-``advance(t_target)`` does the bookkeeping: it lands exactly on ``t_target``, counts the
-work, checks the energy balance of conservative scenes after every accepted step
-(``energy_audit.py``) and raises ``SolverError`` (with time and reason) on any failure.
+``advance(t_target)`` does the bookkeeping: it reaches ``t_target``, counts the work, checks
+the energy balance of conservative scenes after every accepted step (``energy_audit.py``),
+keeps a fixed-step run's stated accuracy (``stated_accuracy.py``) and raises ``SolverError``
+(with time and reason) on any failure.
+
+Adaptive methods step with ``adaptive.AdaptiveStepping``, which keeps their step sequence
+independent of the output times.
 """
 
 from __future__ import annotations
 
 import math
-import time
-from dataclasses import dataclass, fields
 from typing import Callable, NamedTuple
 
 import numpy as np
@@ -33,11 +38,9 @@ from ..errors import SettingError, SolverError
 from ..model.variables import InputValues
 from ..plain import Plain, decode, encode
 from .energy_audit import ENERGY_TOL_FACTOR, EnergyAudit
+from .stated_accuracy import SPOT_CHECK_EVERY, ErrorEstimate, allowed_error
+from .work import Counters, WorkLimit  # noqa: F401  (WorkLimit: the public place is here)
 
-# The smallest step, relative to the time, before an adaptive method gives up.
-MIN_STEP_RELATIVE = 1e-13
-# Steps an adaptive method may reject in a row before giving up.
-MAX_REJECTIONS_IN_A_ROW = 60
 # A constraint violation beyond this fraction of the mechanism's size means divergence.
 DIVERGENCE_FRACTION = 0.5
 # Failure messages mention a singular configuration when the smallest singular value of
@@ -46,6 +49,15 @@ SINGULAR_HINT = 1e-2
 # Fixed steps per communication interval are counted as ceil(interval / h - this), so that
 # an interval that is a whole number of steps up to round-off is not given one step more.
 STEP_COUNT_SLACK = 1e-9
+
+
+class OutputPoint(Plain):
+    """The state at an output time inside an adaptive method's last step."""
+
+    plain_fields = ("t", "q", "qd")
+
+    def __init__(self, t: float, q: np.ndarray, qd: np.ndarray):
+        self.t, self.q, self.qd = float(t), q, qd
 
 
 class Option(NamedTuple):
@@ -64,62 +76,13 @@ def number_in(low: float, high: float, *, low_open: bool = False) -> Callable:
     return valid
 
 
-@dataclass
-class Counters(Plain):
-    """Work done, as scipy counts it: steps, rejections, q'' evaluations, projections,
-    Newton iterations, iteration-matrix evaluations and factorisations (implicit methods)."""
-
-    nsteps: int = 0
-    nrejected: int = 0
-    naccel: int = 0
-    nprojections: int = 0
-    nnewton: int = 0
-    njev: int = 0
-    nlu: int = 0
-
-
-Counters.plain_fields = tuple(f.name for f in fields(Counters))
-
-
-class WorkLimit:
-    """Bounds on the work of one ``advance`` call: at most ``max_steps`` internal steps
-    (accepted and rejected) and ``max_cpu`` CPU seconds of the calling thread, checked
-    after every internal step (a fixed-step run longer than ``max_steps`` is refused before
-    its first step). None: no bound. ``names`` are the settings' names in messages (an
-    FMU's parameters). Exceeding either raises ``SolverError``; ``Simulation.advance`` then
-    restores the state it started from."""
-
-    def __init__(self, max_steps: int | None = None, max_cpu: float | None = None,
-                 names: tuple[str, str] = ("max_steps", "max_cpu")):
-        self.max_steps, self.max_cpu, self.names = max_steps, max_cpu, names
-        self.first, self.deadline = 0, math.inf
-
-    def start(self, stats: "Counters") -> None:
-        self.first = stats.nsteps + stats.nrejected
-        self.deadline = time.thread_time() + self.max_cpu if self.max_cpu else math.inf
-
-    def check_planned(self, steps: int, h: float, t: float, t_target: float) -> None:
-        if self.max_steps is not None and steps > self.max_steps:
-            count = steps if steps < 10 ** 9 else f"{float(steps):.3g}"
-            raise SolverError(f"reaching t = {t_target:.9g} s takes {count} steps of "
-                              f"{h:.3g} s, more than {self.names[0]} = {self.max_steps}", t)
-
-    def check(self, stats: "Counters", t: float, t_target: float) -> None:
-        used = stats.nsteps + stats.nrejected - self.first
-        if self.max_steps is not None and used >= self.max_steps and t < t_target:
-            raise SolverError(f"{used} internal steps did not reach t = {t_target:.9g} s "
-                              f"({self.names[0]} = {self.max_steps})", t)
-        if time.thread_time() > self.deadline:
-            raise SolverError(f"{self.max_cpu:g} CPU seconds did not reach t = "
-                              f"{t_target:.9g} s ({self.names[1]} = {self.max_cpu:g})", t)
-
-
 class Integrator:
     """Base class: advances (t, q, q') of the ``Equations`` of a scene in time."""
 
     name = ""
     summary = ""
     adaptive = False
+    dense_output = False     # gives states inside its last step (``_output_at``)
     default_step: float = 1e-3
     options: tuple[Option, ...] = ()
     option_names: tuple[str, ...] = ()
@@ -144,6 +107,8 @@ class Integrator:
         else:
             self.h = float(step)
         self.stats = Counters()
+        self.out: OutputPoint | None = None    # the state at the last output time, if not (t, q, q')
+        self.accuracy = None if self.adaptive else ErrorEstimate()
         self.restart()
         self.audit = self._start_audit()
 
@@ -168,6 +133,17 @@ class Integrator:
     def restart(self) -> None:
         """Forget anything derived from the current (q, q') (called after outside changes)."""
 
+    def _plan_step(self, h: float, landing: bool, proposal: float) -> float:
+        """The step to try from self.t (adaptive methods): h, the controller's
+        ``proposal`` or less to end on an output time (``landing``), or a shorter one; or,
+        only to cross a singular configuration, a longer landing step (no longer than the
+        proposal; the output then comes from dense output)."""
+        return h
+
+    def _output_at(self, t: float) -> OutputPoint:
+        """The state at a time inside the last step (methods with ``dense_output``)."""
+        raise NotImplementedError
+
     def accelerations(self, t: float, q: np.ndarray, qd: np.ndarray):
         """q'' and lam from eq. (14) with the inputs at t, counted."""
         self.stats.naccel += 1
@@ -181,15 +157,15 @@ class Integrator:
         return self.equations.forces(t, q, qd, self.inputs(t))
 
     def _start_audit(self) -> EnergyAudit | None:
-        """The energy check of this run (None for scenes whose energy is not conserved)."""
-        if self.adaptive:
-            rtol, atol, factor = self.rtol, self.atol, ENERGY_TOL_FACTOR
-            what = f"rtol = {self.rtol:g}, atol = {self.atol:g}"
-        else:
-            rtol, atol, factor = 0.0, 0.0, 0.0
-            what = "a fixed-step method's divergence check"
-        return EnergyAudit.start(self.equations, self.q, self.qd, method=self.name, rtol=rtol,
-                                 atol=atol, factor=factor, what=what)
+        """The energy check of this run (None for scenes whose energy is not conserved):
+        within ENERGY_TOL_FACTOR of what the tolerances allow (an adaptive method's, or a
+        fixed-step method's stated accuracy)."""
+        what = f"rtol = {self.rtol:g}, atol = {self.atol:g}"
+        if not self.adaptive:
+            what = f"the stated accuracy of this fixed step ({self.h:g} s), {what},"
+        return EnergyAudit.start(self.equations, self.q, self.qd, method=self.name,
+                                 rtol=self.rtol, atol=self.atol, factor=ENERGY_TOL_FACTOR,
+                                 what=what, fixed_step=not self.adaptive)
 
     def _after_step(self) -> None:
         """Checks on an accepted step (self.t already moved)."""
@@ -215,29 +191,52 @@ class Integrator:
                 raise SolverError(f"{self.name}: the state became non-finite (the method diverged)", t)
 
     def check_drift(self, t: float, q: np.ndarray) -> None:
-        """For methods without projection: a violation beyond the mechanism's size is divergence."""
+        """For methods without projection: a violation beyond the mechanism's size is
+        divergence; beyond what the stated accuracy allows (the exact solution keeps Psi = 0,
+        so the violation is a lower bound of the error), the step is too large for it."""
         Psi, _ = self.constraints(t, q)
         err = float(np.max(np.abs(Psi))) if Psi.size else 0.0
         limit = DIVERGENCE_FRACTION * self.equations.length_scale
         if not err <= limit:
             raise SolverError(f"{self.name}: constraint violation {err:.3g} exceeds {limit:.3g} "
                               "(half the mechanism's size): the solution has diverged", t)
+        allowed = allowed_error(self)
+        if not err <= allowed:
+            raise SolverError(
+                f"{self.name}: constraint violation {err:.3g} exceeds {allowed:.3g}, what the "
+                f"stated accuracy rtol = {self.rtol:g}, atol = {self.atol:g} allows: the step "
+                f"{self.h:g} s is too large for it; use a smaller step or a projected method", t)
 
     # ------------------------------------------------------------------ public
 
-    def advance(self, t_target: float, limit: WorkLimit | None = None) -> None:
-        """Integrate to exactly ``t_target`` (>= self.t), within ``limit`` if given."""
+    @property
+    def output_state(self) -> tuple[float, np.ndarray, np.ndarray]:
+        """(t, q, q') at the last output time: the end of the last step, or a state inside
+        it (dense output)."""
+        if self.out is None:
+            return self.t, self.q, self.qd
+        return self.out.t, self.out.q, self.out.qd
+
+    def advance(self, t_target: float, limit: WorkLimit | None = None, *,
+                dense: bool = False) -> None:
+        """Integrate to ``t_target`` (>= the last output time), within ``limit`` if given.
+        ``dense``: the inputs over the coming steps are known, so a method with dense
+        output may step past ``t_target`` (``output_state`` is then the state there).
+        The run goes on from its steps' ends, past the last output time too: a caller that
+        changes the inputs at an output time restarts from it (``reset_state``)."""
         self.limit = limit
         if limit is not None:
             limit.start(self.stats)
+        t_now = self.output_state[0]
         if not math.isfinite(t_target):
-            raise SolverError(f"cannot integrate to t = {t_target}", self.t)
-        if t_target < self.t:
-            raise SolverError(f"cannot integrate backwards to t = {t_target}", self.t)
-        if t_target == self.t:
+            raise SolverError(f"cannot integrate to t = {t_target}", t_now)
+        if t_target < t_now:
+            raise SolverError(f"cannot integrate backwards to t = {t_target}", t_now)
+        dense = dense and self.dense_output
+        if t_target == t_now:
             return
         if self.adaptive:
-            self._advance_adaptive(t_target)
+            self._advance_adaptive(t_target, dense)
         else:
             self._advance_fixed(t_target)
 
@@ -250,62 +249,49 @@ class Integrator:
         return t0, n, (t_target - t0) / n
 
     def _advance_fixed(self, t_target: float) -> None:
-        # Times are t0 + k h, never accumulated.
+        """Equal steps (times t0 + k h, never accumulated) in runs between the step-doubling
+        checks of the stated accuracy (``stated_accuracy.py``)."""
         t0, n, h = self.fixed_grid(t_target)
-        for k in range(1, n + 1):
+        k = 0
+        while k < n:
+            if self.accuracy.due():
+                self.accuracy.spot_check(self, h)
+            run = min(n - k, max(1, SPOT_CHECK_EVERY - self.accuracy.unchecked))
+            k = self._fixed_run(t0, h, k, k + run, n, t_target)
+            self.accuracy.charge(self)
+
+    def _fixed_run(self, t0: float, h: float, k: int, stop: int, n: int,
+                   t_target: float) -> int:
+        """Steps k + 1 .. stop of the grid t0 + j h (n steps to t_target); returns stop."""
+        for j in range(k + 1, stop + 1):
             accepted, _ = self._step_impl(h)
             if not accepted:
                 raise SolverError(f"{self.name}: a fixed step of {h:.3g} s failed", self.t)
-            self.t = t0 + k * h if k < n else t_target
+            self.t = t0 + j * h if j < n else t_target
             self.stats.nsteps += 1
             self._after_step()
             if self.limit is not None:
                 self.limit.check(self.stats, self.t, t_target)
-
-    def _advance_adaptive(self, t_target: float) -> None:
-        rejections = 0
-        while self.t < t_target:
-            h_min = MIN_STEP_RELATIVE * max(1.0, abs(self.t))
-            h = min(self.h, self.max_step)
-            clipped = self.t + 1.01 * h >= t_target
-            if clipped:
-                h = t_target - self.t
-            proposal = self.h
-            accepted, h_next = self._step_impl(h)
-            if accepted:
-                rejections = 0
-                self.stats.nsteps += 1
-                self.t = t_target if clipped else self.t + h
-                # A step cut short to land on t_target says nothing about the next one.
-                self.h = max(h_next, proposal) if clipped else h_next
-                self._after_step()
-            else:
-                rejections += 1
-                self.stats.nrejected += 1
-                self.h = h_next
-                if h_next < h_min or rejections > MAX_REJECTIONS_IN_A_ROW:
-                    raise SolverError(
-                        f"{self.name}: step size fell to {h_next:.3g} s without meeting "
-                        f"rtol={self.rtol:g}, atol={self.atol:g}" + self.singularity_hint(),
-                        self.t)
-            if self.limit is not None:
-                self.limit.check(self.stats, self.t, t_target)
+        return stop
 
     def get_state(self) -> dict:
         """Everything needed to continue bit for bit, as plain data (``plain.py``)."""
-        names = ("t", "q", "qd", "h", "stats", "audit") + self.state_fields
+        names = ("t", "q", "qd", "h", "stats", "audit", "out", "accuracy") + self.state_fields
         return {k: encode(getattr(self, k)) for k in names}
 
     def set_state(self, state: dict) -> None:
         for k, v in state.items():
             setattr(self, k, decode(v))
 
-    def reset_state(self, q: np.ndarray, qd: np.ndarray) -> None:
-        """Replace (q, q') at the current time (after an input jump) and restart."""
+    def reset_state(self, q: np.ndarray, qd: np.ndarray, t: float | None = None) -> None:
+        """Replace (q, q') at the current time (after an input jump), or at the output
+        time ``t``, and restart."""
+        if t is not None:
+            self.t = float(t)
+        self.out = None
         self.q, self.qd = np.array(q, dtype=float), np.array(qd, dtype=float)
         h = self.h
         self.restart()
         self.audit = self._start_audit()
         if self.adaptive and h is not None:
             self.h = h
-

@@ -13,9 +13,11 @@ against a budget relative to the energy in motion, ``scale = max(max T, max |V -
   or a singular crossing taken on the wrong branch, shows up here, and the run stops with
   that reason instead of returning an answer that is wrong by far more than the
   tolerances. It is a gross-error detector, not a global error bound;
-* fixed-step methods (no error control): ``ENERGY_DIVERGENCE_FRACTION * scale``: only
-  divergence, since a fixed step is the user's statement of the accuracy wanted (and a
-  numerically damped method such as generalized-alpha removes energy by design).
+* fixed-step methods (no error control) the same, with their stated accuracy
+  (``stated_accuracy.py``) as the tolerances: a loose one by default, so a numerically
+  damped method such as generalized-alpha, which removes energy by design, is not stopped
+  for damping what its step does not resolve; never more than
+  ``ENERGY_DIVERGENCE_FRACTION * scale`` (divergence).
 
 Adaptive methods also use the energy as an error estimate of each step: a step whose own
 energy change exceeds ENERGY_STEP_FACTOR of what the tolerances allow is rejected and retried
@@ -57,6 +59,7 @@ class EnergyAudit(Plain):
     atol: float
     factor: float          # ... times this bound |E - E0| (0: divergence check only)
     what: str              # how the budget was set, for the message
+    fixed_step: bool       # a fixed-step method's (the message's advice differs)
     e0: float
     v0: float
     kinetic_max: float = 0.0
@@ -69,13 +72,13 @@ class EnergyAudit(Plain):
 
     @classmethod
     def start(cls, equations, q, qd, *, method: str, rtol: float, atol: float, factor: float,
-              what: str):
+              what: str, fixed_step: bool = False):
         """An audit of ``equations`` from (q, q'), or None when its energy is not conserved."""
         if equations.nonconservative_reason() is not None:
             return None
         e0 = equations.total_energy(q, qd)
         t0 = equations.kinetic_energy(qd)
-        audit = cls(method, rtol, atol, factor, what, e0, e0 - t0)
+        audit = cls(method, rtol, atol, factor, what, fixed_step, e0, e0 - t0)
         audit.kinetic_max, audit.magnitude, audit.last_energy = t0, abs(e0), e0
         return audit
 
@@ -119,12 +122,16 @@ class EnergyAudit(Plain):
         self.worst = max(self.worst, ratio)
         if ratio <= 1.0:
             return None
+        if allowance >= ENERGY_DIVERGENCE_FRACTION * scale:
+            advice = "the solution has diverged; use a smaller step"
+        elif self.fixed_step:
+            advice = ("the step is too large for that accuracy; use a smaller step (the error "
+                      "falls like a power of it), a larger rtol, or another method")
+        else:
+            advice = ("the step-size control did not resolve a fast transient or a singular "
+                      "crossing; use a smaller rtol or another method")
         return (f"{self.method}: energy balance broken by {error:.3g} J ({error / scale:.2g} of "
-                f"the {scale:.3g} J in motion; {self.what} allow {allowance:.2g} J): "
-                + ("the step-size control did not resolve a fast transient or a singular "
-                   "crossing; use a smaller rtol or another method"
-                   if allowance < ENERGY_DIVERGENCE_FRACTION * scale else
-                   "the solution has diverged; use a smaller step"))
+                f"the {scale:.3g} J in motion; {self.what} allow {allowance:.2g} J): {advice}")
 
 
 EnergyAudit.plain_fields = tuple(f.name for f in fields(EnergyAudit))

@@ -46,7 +46,7 @@ import numpy as np
 
 from ..equations.projection import project_velocities
 from .base import Option, number_in
-from .newton import ImplicitMethod, IterationMatrix, newton_iterate, newton_tolerance
+from .newton import ImplicitMethod, IterationMatrix, newton_iterate, newton_tolerances
 
 # Numerical damping: spectral radius at infinite frequency (1: none, 0: the most).
 RHO_INF = 0.8
@@ -69,7 +69,7 @@ class GeneralizedAlpha(ImplicitMethod):
     default_step = 1e-3
     options = (Option("rho_inf", "a number in [0, 1]", number_in(0.0, 1.0)),
                Option("jacobian", '"full" or "mass"', lambda v: v in ("full", "mass")))
-    state_fields = ("a", "qdd", "lam", "matrix")
+    state_fields = ImplicitMethod.state_fields + ("a",)
 
     def __init__(self, equations, t0, q0, qd0, *, rho_inf: float = RHO_INF,
                  jacobian: str = "full", **common):
@@ -86,41 +86,45 @@ class GeneralizedAlpha(ImplicitMethod):
         eq = self.equations
         K = np.diag(eq.mass)
         if self.jacobian == "full":
-            dFdq, dFdv = eq.force_jacobians(t, q, qd, self.inputs(t))
+            dFdq, dFdv = eq.force_jacobians(t, self._unwrapped(q), qd, self.inputs(t))
             K = K + D * (eq.constraint_hessian(q, lam) - dFdq) - G * dFdv
         return self.saddle_matrix(K, J)
 
     def _try_step(self, t, h):
-        """One step from (t, self.q, ...) to t + h; updates the state or raises NewtonFailure."""
+        """One step from (t, self.q, ...) to t + h; updates the state or raises NewtonFailure.
+        Newton's unknown is the position increment dq of the step (module ``newton``)."""
         eq, n = self.equations, self.equations.n
         am, af, beta, gamma = self.coefficients
         t1 = t + h
         D = h * h * beta * (1.0 - af) / (1.0 - am)
         G = h * gamma * (1.0 - af) / (1.0 - am)
-        q_n, v_n, a_n, qdd_n = self.q, self.qd, self.a, self.qdd
+        q_n, v_n, a_n, qdd_n = self.qw, self.qd, self.a, self.qdd
         # predictor: Newmark with q''_{n+1} = q''_n (a_{n+1} then follows)
         a = (af * qdd_n - am * a_n + (1.0 - af) * qdd_n) / (1.0 - am)
-        x = {"q": q_n + h * v_n + h * h * ((0.5 - beta) * a_n + beta * a),
+        x = {"dq": h * v_n + h * h * ((0.5 - beta) * a_n + beta * a),
              "qd": v_n + h * ((1.0 - gamma) * a_n + gamma * a),
              "qdd": qdd_n.copy(), "lam": self.lam.copy()}
 
         def evaluate():
+            x["q"] = q_n + x["dq"]
             Psi, x["J"] = self.constraints(t1, x["q"])
-            F = self.forces(t1, x["q"], x["qd"])
+            F = self.forces(t1, self._unwrapped(x["q"]), x["qd"])
             return D * (eq.mass * x["qdd"] + x["J"].T @ x["lam"] - F), Psi
 
         def apply(dx):
-            x["q"] = x["q"] + dx[:n]
+            x["dq"] = x["dq"] + dx[:n]
             x["qd"] = x["qd"] + (G / D) * dx[:n]
             x["qdd"] = x["qdd"] + dx[:n] / D
             x["lam"] = x["lam"] + dx[n:] / D
 
-        newton_iterate(evaluate, lambda: self._iteration_matrix(t1, x["q"], x["qd"], x["J"],
-                                                               x["lam"], D, G),
-                       apply, self.matrix, h, newton_tolerance(self.atol, h, eq.length_scale),
-                       eq.mass, self.stats)
+        tols = newton_tolerances(self.atol, h, eq.length_scale, q_n, D, qdd_n)
+        newton_iterate(evaluate, lambda: (self._iteration_matrix(t1, x["q"], x["qd"], x["J"],
+                                                                x["lam"], D, G), x["J"]),
+                       apply, self.matrix, h, tols, eq.mass, eq.length_scale, self.stats)
         self.a = (af * qdd_n - am * a_n + (1.0 - af) * x["qdd"]) / (1.0 - am)
-        self.q, self.qdd, self.lam = x["q"], x["qdd"], x["lam"]
-        self.qd = project_velocities(eq, t1, x["q"], x["qd"], self.inputs(t1))
+        q = q_n + x["dq"]
+        self.qdd, self.lam = x["qdd"], x["lam"]
+        self.qd = project_velocities(eq, t1, q, x["qd"], self.inputs(t1))
+        self._set_positions(q)
         self.stats.nprojections += 1
         self.check_finite(t1, self.q, self.qd)

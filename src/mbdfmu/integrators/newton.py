@@ -8,25 +8,54 @@ when it does not (a modified Newton method, Hairer and Wanner, Solving ODEs II, 
 A step whose iteration fails is retried internally as two half steps, recursively (scipy's
 way with Radau/BDF); only when that also fails does the run stop, with a ``SolverError``
 that names the time and the reason.
+
+How far Newton is iterated. A position error dq that Newton leaves becomes a velocity error
+of about 2 dq / h and an acceleration error of dq / (beta h^2) that every later step
+inherits, and with a kept matrix it has the same sign step after step: over the T / h
+steps of a run it adds up like T^2 dq / h^2. So the error left must shrink like h^2, which
+at the usual steps is below the rounding of the coordinates: the iteration goes on until
+its increments are rounding noise (``NewtonTolerances``), i.e. they fall below the noise
+level of the iteration matrix, or stop shrinking with a fresh matrix while below
+``stagnation``. Rounding is also why the methods keep their angles wrapped and iterate on
+the step's increment (``ImplicitMethod``): the noise is eps times the size of the
+coordinates, and a crank that has turned ten times has angles twenty times the size of its
+mechanism. Near a singular configuration (``singularity_indicator`` of the matrix's Psi_q
+below NEAR_SINGULAR_INDICATOR) the iteration contracts slowly along the direction that
+loses rank, and the noise grows like 1 / indicator^2: there the tolerance is a looser one
+that still shrinks like h^2 below T_NEAR (``near_singular``).
 """
 
 from __future__ import annotations
 
+import math
+from typing import NamedTuple
+
 import numpy as np
 import scipy.linalg
 
+from ..equations.singular import singularity_indicator
 from ..errors import SolverError
 from ..plain import Plain
 from .base import Integrator
 
 _getrf, _getrs = scipy.linalg.lapack.dgetrf, scipy.linalg.lapack.dgetrs
 
-# Newton has converged when the increment dq and the constraint residual Psi (max-norms, m or
-# rad) fall below h atol / 2: the position error it leaves becomes a velocity error of about
-# 2 |dq| / h through the integration formulas (and a systematic one, since every step starts
-# from the same side), so atol bounds that velocity error. Never less than this times the
-# mechanism's size (round-off).
+# The rounding of a coordinate, relative to its size.
+ROUNDOFF = 4.0 * np.finfo(float).eps
+# Newton's tolerances never use an atol looser than this (a fixed-step run's stated
+# accuracy may be loose; the iteration is not), and never fall below this times the
+# mechanism's size.
+NEWTON_ATOL_MAX = 1e-8
 NEWTON_TOL_FLOOR = 1e-13
+# Time scale of a run (s) over which the errors left by Newton add up (module docstring).
+T_REF = 1.0
+# Increments of rounding noise: the noise level grows near a singular configuration like
+# 1 / indicator^2, but is never taken above NOISE_MAX times the mechanism's size.
+NOISE_MAX = 1e-6
+# Below this singularity indicator of the matrix's Psi_q, the near-singular tolerance.
+NEAR_SINGULAR_INDICATOR = 0.1
+# Below this step the near-singular tolerance shrinks like h^2.
+T_NEAR = 2e-3
 # Iterations allowed per attempt (with a fresh matrix, Newton converges in 2-4).
 NEWTON_MAX_ITER = 12
 # Contraction rate ||dq_k|| / ||dq_k-1|| above which a kept matrix is re-evaluated, and
@@ -39,66 +68,52 @@ MAX_HALVINGS = 8
 SINGULAR_PIVOT = 1e-13
 
 
-def newton_tolerance(atol: float, h: float, length_scale: float) -> float:
-    """Convergence threshold of a Newton iteration on positions (m, rad) with step h."""
-    return max(0.5 * h * atol, NEWTON_TOL_FLOOR * length_scale)
+class NewtonTolerances(NamedTuple):
+    """A step's tolerances (positions in m or rad; ``residual`` as a displacement):
+    ``tol`` what a converged iterate is within, ``stagnation`` below which increments that
+    stop shrinking with a fresh matrix are noise, ``near_singular`` the tolerance near a
+    singular configuration, ``size`` the coordinates' size (for the noise level)."""
+
+    tol: float
+    residual: float
+    stagnation: float
+    near_singular: float
+    size: float
 
 
-def converged(increment: float, residual: np.ndarray, Psi: np.ndarray, tol: float) -> bool:
-    """Positions hold the constraints to tol, and either the last increment or the dynamic
-    residual (as a displacement: residual / M) is below tol.
-
-    The residual test matters near singular configurations, where the increments along the
-    direction that loses rank shrink only slowly although the equations already hold.
-    """
-    if Psi.size and float(np.max(np.abs(Psi))) > tol:
-        return False
-    return increment <= tol or float(np.max(np.abs(residual))) <= tol
-
-
-def increment_converged(size: float, previous: float | None, tol: float) -> bool:
-    """After an increment of max-norm ``size``: is the remaining error below tol?
-
-    Estimated as theta / (1 - theta) * size with the observed contraction theta =
-    size / previous (Hairer and Wanner II, eq. IV.8.10); after a first increment, that
-    increment must be ten times below tol.
-    """
-    if previous is None:
-        return size <= 0.1 * tol
-    theta = size / previous if previous > 0 else 0.0
-    return theta < 1.0 and theta / (1.0 - theta) * size <= tol
-
-
-def check_rate(matrix, size: float, previous: float | None) -> float | None:
-    """Watch the contraction: re-evaluate a kept matrix that converges slowly (returns None
-    to restart the rate), fail when a fresh one diverges. Returns the new 'previous'."""
-    if previous is not None and size > NEWTON_SLOW_RATE * previous:
-        if not matrix.fresh:
-            matrix.lu = None
-            return None
-        if size > NEWTON_DIVERGING_RATE * previous:
-            raise NewtonFailure(f"Newton diverges (increment {size:.3g} after {previous:.3g})")
-    return size
-
-
-class NewtonFailure(Exception):
-    """A step's Newton iteration that did not converge: retried with a smaller step."""
+def newton_tolerances(atol: float, h: float, length_scale: float, q: np.ndarray,
+                      D: float, accelerations: np.ndarray) -> NewtonTolerances:
+    """The tolerances of a step of size h from positions q with accelerations of the size of
+    ``accelerations``; D converts an acceleration residual to a displacement (the dynamic
+    rows' scaling). See the module docstring."""
+    atol = min(atol, NEWTON_ATOL_MAX)
+    size = max(length_scale, float(np.max(np.abs(q), initial=0.0)))
+    stagnation = max(0.5 * h * atol, NEWTON_TOL_FLOOR * length_scale)
+    return NewtonTolerances(
+        tol=min(0.5 * atol * (h / T_REF) ** 2, 0.01 * ROUNDOFF * size),
+        residual=D * max(atol / T_REF ** 2,
+                         ROUNDOFF * float(np.max(np.abs(accelerations), initial=1.0))),
+        stagnation=stagnation,
+        near_singular=max(stagnation * min(1.0, h / T_NEAR), ROUNDOFF * size),
+        size=size)
 
 
 class IterationMatrix(Plain):
-    """An LU factorisation kept between Newton iterations and steps, with its step size."""
+    """An LU factorisation kept between Newton iterations and steps, with its step size and
+    the singularity indicator of the Psi_q it was evaluated with."""
 
-    plain_fields = ("lu", "h", "fresh")
+    plain_fields = ("lu", "h", "fresh", "indicator")
 
     def __init__(self):
         self.lu = None
         self.h = None
         self.fresh = False   # evaluated at the current step's iterate
+        self.indicator = 1.0
 
     def valid_for(self, h: float) -> bool:
         return self.lu is not None and self.h == h
 
-    def factor(self, S: np.ndarray, h: float, stats) -> None:
+    def factor(self, S: np.ndarray, J: np.ndarray, h: float, stats) -> None:
         stats.njev += 1
         stats.nlu += 1
         if not np.all(np.isfinite(S)):
@@ -110,6 +125,16 @@ class IterationMatrix(Plain):
             raise NewtonFailure("the iteration matrix is singular (redundant constraints or a "
                                 "singular configuration)")
         self.lu, self.h, self.fresh = (lu, piv), h, True
+        self.indicator = singularity_indicator(J) if J.shape[0] else math.inf
+
+    def near_singular(self) -> bool:
+        return self.indicator < NEAR_SINGULAR_INDICATOR
+
+    def noise(self, tolerances: NewtonTolerances, length_scale: float) -> float:
+        """The rounding noise of the increments this matrix gives, within the stagnation
+        tolerance and NOISE_MAX."""
+        noise = ROUNDOFF * tolerances.size / max(self.indicator ** 2, 1e-300)
+        return max(tolerances.stagnation, min(noise, NOISE_MAX * length_scale))
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         # LAPACK directly: scipy's wrapper costs more than the solve at these sizes.
@@ -117,14 +142,60 @@ class IterationMatrix(Plain):
         return x
 
 
+class NewtonFailure(Exception):
+    """A step's Newton iteration that did not converge: retried with a smaller step."""
+
+
+def _converged(tols: NewtonTolerances, matrix: IterationMatrix, size: float,
+               residual: np.ndarray, Psi: np.ndarray) -> bool:
+    """Before an increment: Psi within the tolerance, and the last increment or the dynamic
+    residual (as a displacement) too; near a singular configuration the looser one."""
+    if matrix.near_singular():
+        tol = residual_tol = tols.near_singular
+    else:
+        tol, residual_tol = tols.tol, tols.residual
+    if Psi.size and float(np.max(np.abs(Psi))) > tol:
+        return False
+    return size <= tol or float(np.max(np.abs(residual))) <= residual_tol
+
+
+def _increment_converged(tols, matrix, size, previous, length_scale) -> bool:
+    """After an increment of max-norm ``size``: is the remaining error below the tolerance?
+    Estimated as theta / (1 - theta) size with the contraction theta = size / previous
+    (Hairer and Wanner II, eq. IV.8.10); a first increment must be ten times below it.
+    Increments of rounding noise that stop shrinking with a fresh matrix: converged."""
+    tol = tols.near_singular if matrix.near_singular() else tols.tol
+    if previous is None:
+        return size <= 0.1 * tol
+    theta = size / previous if previous > 0 else 0.0
+    if matrix.fresh and size <= matrix.noise(tols, length_scale) and \
+            NEWTON_SLOW_RATE < theta <= NEWTON_DIVERGING_RATE:
+        return True
+    return theta < 1.0 and theta / (1.0 - theta) * size <= tol
+
+
+def _check_rate(matrix, tols, size, previous):
+    """Watch the contraction: re-evaluate a kept matrix that converges slowly (returns None
+    to restart the rate), fail when a fresh one diverges (increments of rounding noise that
+    grow are not divergence). Returns the new 'previous'."""
+    if previous is not None and size > NEWTON_SLOW_RATE * previous:
+        if not matrix.fresh:
+            matrix.lu = None
+            return None
+        if size > NEWTON_DIVERGING_RATE * previous and size > tols.stagnation:
+            raise NewtonFailure(f"Newton diverges (increment {size:.3g} after {previous:.3g})")
+    return size
+
+
 def newton_iterate(evaluate, build_matrix, apply, matrix: IterationMatrix, h: float,
-                   tol: float, mass: np.ndarray, stats) -> None:
-    """Newton's method on a step's equations until they hold to ``tol``.
+                   tols: NewtonTolerances, mass: np.ndarray, length_scale: float, stats) -> None:
+    """Newton's method on a step's equations until they hold to the rounding noise.
 
     ``evaluate()`` returns the residual at the current iterate as (dynamic (n,), Psi (m,)),
     the dynamic rows already scaled to a displacement times the mass; ``build_matrix()``
-    the iteration matrix there (called only when the kept one is dropped); ``apply(dx)``
-    moves the iterate by the increment dx = -S^-1 (dynamic, Psi). Raises NewtonFailure.
+    the iteration matrix there and Psi_q (called only when the kept one is dropped);
+    ``apply(dx)`` moves the iterate by the increment dx = -S^-1 (dynamic, Psi). Raises
+    NewtonFailure.
     """
     if not matrix.valid_for(h):
         matrix.lu = None
@@ -136,21 +207,24 @@ def newton_iterate(evaluate, build_matrix, apply, matrix: IterationMatrix, h: fl
         dynamic, Psi = evaluate()
         if not np.all(np.isfinite(dynamic)):
             raise NewtonFailure("non-finite residual")
-        if converged(size, dynamic / mass, Psi, tol):
+        if _converged(tols, matrix, size, dynamic / mass, Psi):
             return
         if matrix.lu is None:
-            matrix.factor(build_matrix(), h, stats)
+            matrix.factor(*build_matrix(), h, stats)
         dx = -matrix.solve(np.concatenate((dynamic, Psi)))
         size = float(np.max(np.abs(dx[:n])))
         if not np.isfinite(size):
             raise NewtonFailure("non-finite Newton increment")
         apply(dx)
-        if increment_converged(size, previous, tol):
+        if _increment_converged(tols, matrix, size, previous, length_scale):
             return
-        previous = check_rate(matrix, size, previous)
+        previous = _check_rate(matrix, tols, size, previous)
+    residual = float(np.max(np.abs(Psi), initial=0.0))
+    if size <= tols.stagnation and residual <= tols.stagnation:
+        return      # rounding noise above the tolerance near a singular configuration
     raise NewtonFailure(f"Newton did not converge in {NEWTON_MAX_ITER} iterations (last "
-                        f"increment {size:.3g}, constraint residual "
-                        f"{np.max(np.abs(Psi), initial=0.0):.3g}, tolerance {tol:.3g})")
+                        f"increment {size:.3g}, constraint residual {residual:.3g}, "
+                        f"tolerance {tols.tol:.3g})")
 
 
 def advance_with_halving(try_step, t: float, h: float, name: str, depth: int = 0) -> int:
@@ -170,16 +244,39 @@ def advance_with_halving(try_step, t: float, h: float, name: str, depth: int = 0
     return rejected + advance_with_halving(try_step, t + h / 2, h / 2, name, depth + 1)
 
 
+def wrap_angles(q: np.ndarray, periodic: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(q with the ``periodic`` angles in [-pi, pi), the 2 pi multiples taken off)."""
+    turns = np.where(periodic, np.floor((q + math.pi) / (2.0 * math.pi)), 0.0)
+    return q - 2.0 * math.pi * turns, turns
+
+
 class ImplicitMethod(Integrator):
     """Base of the implicit index-3 methods: q'' and lam carried from step to step, one
     Newton iteration matrix kept across steps, a failed step halved (``_try_step(t, h)``
-    does one step or raises NewtonFailure)."""
+    does one step or raises NewtonFailure).
 
-    state_fields = ("qdd", "lam", "matrix")
+    The steps work on ``qw``, the positions with the angles that enter the equations only
+    through sine and cosine (``Equations.periodic_angles``) wrapped into [-pi, pi)
+    (``turns`` holds the 2 pi multiples taken off), so that their rounding is that of the
+    mechanism's size; ``q`` (outputs) is qw + 2 pi turns, never read back by the steps."""
+
+    state_fields = ("qdd", "lam", "matrix", "qw", "turns")
 
     def restart(self):
         self.qdd, self.lam = self.accelerations(self.t, self.q, self.qd)
+        self.periodic = self.equations.periodic_angles()
+        self.qw, self.turns = wrap_angles(self.q, self.periodic)
         self.matrix = IterationMatrix()
+
+    def _set_positions(self, qw: np.ndarray) -> None:
+        """The step's new wrapped positions: wrapped again, and q for the outputs."""
+        again, turns = wrap_angles(qw, self.periodic)
+        self.qw, self.turns = again, self.turns + turns
+        self.q = self.qw + 2.0 * math.pi * self.turns
+
+    def _unwrapped(self, qw: np.ndarray) -> np.ndarray:
+        """Positions near qw with the angles of q (for forces, which may use the angles)."""
+        return qw + 2.0 * math.pi * self.turns
 
     def _step_impl(self, h):
         self.stats.nrejected += advance_with_halving(self._try_step, self.t, h, self.name)

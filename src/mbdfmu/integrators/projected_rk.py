@@ -3,8 +3,25 @@
 The state y = (q, q') follows y' = (q', q''(t, q, q')) with q'' from eq. (14) (the index-1
 form). After every accepted step, q is projected onto Psi(q, t) = 0 and q' onto
 Psi_q q' = nu, each with the smallest mass-weighted change (``equations.projection``), which
-removes the drift of the index-1 form without changing its order. The Butcher tableaux are
-scipy's (``scipy.integrate.RK45`` and ``DOP853``): a method here is a tableau plus a name.
+removes the drift of the index-1 form without changing its order. The Butcher tableaux and
+interpolants are scipy's (``scipy.integrate.RK45`` and ``DOP853``): a method here is a
+tableau, its error estimate, its dense output and a name.
+
+Step control (Hairer, Norsett and Wanner, Solving ODEs I, sec. II.4) with two additions:
+
+* it aims at ``local_tolerance`` times rtol and atol per step, so that the error at the
+  end of a run, which adds up the errors of its steps, is of the order of rtol (the
+  tolerances a user gives are meant for the result, not for one step);
+* a step's energy change is a second error estimate (``energy_audit.py``); an energy error
+  that does not fall when the step is retried smaller comes from the projection, not the
+  step size (the conditioning next to a singular configuration): accepted while it stays
+  within what the whole run may drift, and otherwise the run stops, since a jump that
+  large is a projection onto another branch (the velocity projected onto the other
+  branch's tangent loses energy), never to be accepted.
+
+Singular configurations: ``singular_zone.py`` plans the steps across them; near one the
+error estimate counts only its part along the constraints (``_tangent``). Outputs between
+steps come from dense output (``dense_output.py``), projected like the steps' ends.
 """
 
 from __future__ import annotations
@@ -15,19 +32,29 @@ import numpy as np
 from scipy.integrate import DOP853, RK45
 
 from ..equations.projection import project_positions, project_velocities
+from ..equations.sparsity import schur_solve
 from ..errors import SolverError
-from .base import Integrator
+from . import dense_output, singular_zone
+from .adaptive import AdaptiveStepping
+from .base import Integrator, OutputPoint
+from .energy_audit import ENERGY_STEP_FACTOR, ENERGY_TOL_FACTOR
 
 SAFETY = 0.9       # Multiply the optimal step by this, to be likely accepted.
 MIN_FACTOR = 0.2   # Minimum allowed decrease of the step after a rejection.
 MAX_FACTOR = 10.0  # Maximum allowed increase of the step after an acceptance.
 # Projection tolerance, relative to atol and to the mechanism's size, with a floor near
-# rounding so that Newton always converges.
+# rounding so that Newton always converges; atol above PROJECTION_ATOL_MAX (a loose
+# fixed-step accuracy) does not loosen it: a loose projection near a singular configuration
+# would put the state on the other branch.
 PROJECTION_TOL_FACTOR = 1e-2
 PROJECTION_TOL_FLOOR = 1e-13
-# A step rejected for its energy change is retried smaller only while that divides the
-# energy error by at least 1 / ENERGY_MIN_GAIN.
+PROJECTION_ATOL_MAX = 1e-8
+# A step rejected for its energy change is retried smaller while that divides the energy
+# error by at least 1 / ENERGY_MIN_GAIN; when it does not, the energy error is not the
+# step size's: accepted while it is within what the whole run may drift (the energy
+# audit's allowance; in units of ``EnergyAudit.step_error``), else the run stops.
 ENERGY_MIN_GAIN = 0.5
+ENERGY_JUMP_LIMIT = ENERGY_TOL_FACTOR / ENERGY_STEP_FACTOR
 
 
 def rk_stages(rhs, t: float, y: np.ndarray, h: float, A: np.ndarray, C: np.ndarray,
@@ -45,11 +72,19 @@ def rk_stages(rhs, t: float, y: np.ndarray, h: float, A: np.ndarray, C: np.ndarr
     return K
 
 
-class ProjectedRK(Integrator):
+def projection_tol(integrator) -> float:
+    """Max-norm of Psi (m or rad) the position projections of a method reach."""
+    return (max(PROJECTION_TOL_FACTOR * min(integrator.atol, PROJECTION_ATOL_MAX),
+                PROJECTION_TOL_FLOOR) * integrator.equations.length_scale)
+
+
+class ProjectedRK(AdaptiveStepping, Integrator):
     """Base of the embedded pairs: subclasses give the tableau (A, B, C, error weights)."""
 
     adaptive = True
-    state_fields = ("f", "energy_rejected")
+    dense_output = True
+    local_tolerance = 1e-2   # the step control's target, times rtol and atol, per step
+    state_fields = ("f", "energy_rejected", "dense", "zone")
     A: np.ndarray
     B: np.ndarray
     C: np.ndarray
@@ -59,6 +94,9 @@ class ProjectedRK(Integrator):
     def restart(self):
         self.f = self._rhs(self.t, self.q, self.qd)
         self.energy_rejected = None  # energy error of the last step rejected for it
+        self.dense = None            # the last step, for outputs inside it
+        self.zone = singular_zone.SingularZone()
+        self.zone.indicator = singular_zone.indicator(self, self.t, self.q)
         if self.h is None:
             self.h = self._initial_step()
 
@@ -66,76 +104,144 @@ class ProjectedRK(Integrator):
         qdd, _ = self.accelerations(t, q, qd)
         return np.concatenate((qd, qdd))
 
+    def _rhs_y(self, t, y):
+        n = self.q.size
+        return self._rhs(t, y[:n], y[n:])
+
     def _scale(self, y, y_new):
-        return self.atol + self.rtol * np.maximum(np.abs(y), np.abs(y_new))
+        return self.local_tolerance * (self.atol + self.rtol * np.maximum(np.abs(y), np.abs(y_new)))
 
     def _initial_step(self) -> float:
         """Hairer, Norsett and Wanner's starting step (Solving ODEs I, II.4)."""
         y = np.concatenate((self.q, self.qd))
-        scale = self.atol + self.rtol * np.abs(y)
+        scale = self._scale(y, y)
         d0 = np.sqrt(np.mean((y / scale) ** 2))
         d1 = np.sqrt(np.mean((self.f / scale) ** 2))
         h0 = 1e-6 if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
         h0 = min(h0, self.max_step)
-        n = self.q.size
-        f1 = self._rhs(self.t + h0, *np.split(y + h0 * self.f, [n]))
+        f1 = self._rhs_y(self.t + h0, y + h0 * self.f)
         d2 = np.sqrt(np.mean(((f1 - self.f) / scale) ** 2)) / h0
         h1 = (max(1e-6, h0 * 1e-3) if d1 <= 1e-15 and d2 <= 1e-15
               else (0.01 / max(d1, d2)) ** (1.0 / (self.order + 1)))
         return min(100 * h0, h1, self.max_step)
 
-    def _error_norm(self, K, h, scale):
+    def _error_norm(self, K, h, scale, tangent=None):
         raise NotImplementedError
 
-    def _rhs_y(self, t, y):
-        n = self.q.size
-        return self._rhs(t, y[:n], y[n:])
+    def _tangent(self, t, q):
+        """x -> its part along the constraints at (t, q) in the mass metric,
+        x - M^-1 J^T (J M^-1 J^T)^+ J x, for the (dq, dq') halves of an error estimate: what
+        the projection after the step keeps."""
+        n, minv = self.q.size, self.equations.minv
+        _, J = self.constraints(t, q, sparse=True)
 
-    def _projection_tol(self) -> float:
-        """Max-norm of Psi the position projection reaches (m or rad)."""
-        return (max(PROJECTION_TOL_FACTOR * self.atol, PROJECTION_TOL_FLOOR)
-                * self.equations.length_scale)
+        def tangent(v):
+            out = np.empty_like(v)
+            for half in (slice(0, n), slice(n, 2 * n)):
+                out[half] = v[half] - minv * (J.T @ schur_solve(J, minv, J @ v[half]))
+            return out
+        return tangent
 
     def _project(self, t_new, y_new):
         """Mass-weighted projection of y_new = (q, q') onto the constraints at t_new;
         SolverError when Newton does not converge."""
         n = self.q.size
         u = self.inputs(t_new)
-        q, _ = project_positions(self.equations, t_new, y_new[:n], tol=self._projection_tol(),
+        q, _ = project_positions(self.equations, t_new, y_new[:n], tol=projection_tol(self),
                                  u=u)
         qd = project_velocities(self.equations, t_new, q, y_new[n:], u)
         self.stats.nprojections += 1
         return q, qd
 
+    def _plan_step(self, h, landing, proposal):
+        return singular_zone.plan(self, self.zone, h, landing, proposal)
+
     def _step_impl(self, h):
+        t0, c0 = self.t, self.zone.indicator
+        ok, h_next, state = self._attempt(h, c0)
+        if not ok:
+            return False, h_next
+        q, qd, f, c1, dense = state
+        retry = singular_zone.after_step(self.zone, t0, h, c0, c1)
+        if retry is not None:
+            return False, retry
+        self.q, self.qd, self.f, self.dense = q, qd, f, dense
+        self.zone.indicator = c1
+        return True, h_next
+
+    def _attempt(self, h, c0):
+        """One step of size h from the current state: (accepted, h_next, state)."""
         t, n = self.t, self.q.size
         y = np.concatenate((self.q, self.qd))
         K = rk_stages(self._rhs_y, t, y, h, self.A, self.C, self.f, self.n_stages)
         y_new = y + h * (K[:-1].T @ self.B)
-        K[-1] = self._rhs(t + h, y_new[:n], y_new[n:])
+        K[-1] = self._rhs_y(t + h, y_new)
         if not (np.all(np.isfinite(y_new)) and np.all(np.isfinite(K[-1]))):
-            return False, h * MIN_FACTOR
-        err = self._error_norm(K, h, self._scale(y, y_new))
-        if not err < 1.0:
-            return False, h * max(MIN_FACTOR, SAFETY * err ** (-1.0 / (self.order + 1)))
+            return False, h * MIN_FACTOR, None
         t_new = t + h
+        c1 = singular_zone.indicator(self, t_new, y_new[:n])
+        near = min(c0, c1) < singular_zone.NEAR_ZONE
+        err = self._error_norm(K, h, self._scale(y, y_new),
+                               self._tangent(t_new, y_new[:n]) if near else None)
+        if not err < 1.0:
+            return False, h * max(MIN_FACTOR, SAFETY * err ** (-1.0 / (self.order + 1))), None
         try:
             q, qd = self._project(t_new, y_new)
         except SolverError:
-            return False, h * 0.5  # a projection that fails is an error too large
-        if self.audit is not None:
-            # the step's energy change as a second error estimate (energy_audit.py); not
-            # insisted on when a smaller step did not reduce it (a jump that does not come from
-            # the step size, e.g. a projection at a singular configuration)
-            energy_err = self.audit.step_error(self.equations, t_new, q, qd)
-            last, self.energy_rejected = self.energy_rejected, None
-            if not energy_err <= 1.0 and (last is None or energy_err < ENERGY_MIN_GAIN * last):
-                self.energy_rejected = energy_err
-                return False, h * max(MIN_FACTOR, SAFETY * energy_err ** (-1.0 / (self.order + 1)))
-        self.q, self.qd = q, qd
-        self.f = self._rhs(t_new, q, qd)
+            return False, h * 0.5, None   # a projection that fails is an error too large
+        rejected = self._energy_rejects(t_new, q, qd, h)
+        if rejected is not None:
+            return False, rejected, None
+        f = self._rhs(t_new, q, qd)
         factor = MAX_FACTOR if err == 0 else min(MAX_FACTOR, SAFETY * err ** (-1.0 / (self.order + 1)))
-        return True, h * factor
+        dense = dense_output.DenseStep(t, h, y, y_new, K)
+        return True, h * factor, (q, qd, f, c1, dense)
+
+    def _energy_rejects(self, t_new, q, qd, h) -> float | None:
+        """The step's energy change as a second error estimate: None to accept, else the
+        step to retry with (see the module docstring)."""
+        if self.audit is None:
+            return None
+        energy_err = self.audit.step_error(self.equations, t_new, q, qd)
+        last, self.energy_rejected = self.energy_rejected, None
+        if energy_err <= 1.0:
+            return None
+        if last is None or energy_err < ENERGY_MIN_GAIN * last:
+            self.energy_rejected = energy_err
+            return h * max(MIN_FACTOR, SAFETY * energy_err ** (-1.0 / (self.order + 1)))
+        if energy_err <= ENERGY_JUMP_LIMIT:
+            return None
+        jump = abs(self.equations.total_energy(q, qd) - self.audit.last_energy)
+        raise SolverError(
+            f"{self.name}: the energy jumps by {jump:.3g} J in a step however small "
+            f"({energy_err:.3g} times what rtol = {self.rtol:g}, atol = {self.atol:g} allow a "
+            "step): the projection put the state on another branch" + self.singularity_hint(),
+            self.t)
+
+    def _output_at(self, t: float) -> OutputPoint:
+        """The state at t inside the last step: its interpolant, projected (the
+        interpolant itself where the projection does not converge, next to a singular
+        configuration)."""
+        if t >= self.t:
+            return None
+        step = self.dense
+        if step is None or not step.contains(t):
+            raise SolverError(f"{self.name}: no step holds the output time {t:.9g} s", self.t)
+        if step.coefficients is None:
+            step.coefficients = self._interpolant(step)
+        y = self._interpolated(step, (t - step.t_old) / step.h)
+        try:
+            q, qd = self._project(t, y)
+        except SolverError:
+            n = self.q.size
+            q, qd = y[:n], y[n:]
+        return OutputPoint(t, q, qd)
+
+    def _interpolant(self, step):
+        raise NotImplementedError
+
+    def _interpolated(self, step, x):
+        raise NotImplementedError
 
 
 class RK45P(ProjectedRK):
@@ -143,10 +249,19 @@ class RK45P(ProjectedRK):
 
     name = "rk45p"
     summary = "index-1, Dormand-Prince 5(4), adaptive, mass-weighted coordinate projection"
-    A, B, C, E, n_stages, order = RK45.A, RK45.B, RK45.C, RK45.E, RK45.n_stages, 4
+    A, B, C, E, P, n_stages, order = RK45.A, RK45.B, RK45.C, RK45.E, RK45.P, RK45.n_stages, 4
 
-    def _error_norm(self, K, h, scale):
-        return float(np.sqrt(np.mean((h * (K.T @ self.E) / scale) ** 2)))
+    def _error_norm(self, K, h, scale, tangent=None):
+        e = h * (K.T @ self.E)
+        if tangent is not None:
+            e = tangent(e)
+        return float(np.sqrt(np.mean((e / scale) ** 2)))
+
+    def _interpolant(self, step):
+        return dense_output.rk45_interpolant(step, self.P)
+
+    def _interpolated(self, step, x):
+        return dense_output.rk45_value(step, x)
 
 
 class DOP853P(ProjectedRK):
@@ -157,10 +272,19 @@ class DOP853P(ProjectedRK):
     A, B, C, n_stages, order = DOP853.A, DOP853.B, DOP853.C, DOP853.n_stages, 7
     E3, E5 = DOP853.E3, DOP853.E5
 
-    def _error_norm(self, K, h, scale):
+    def _error_norm(self, K, h, scale, tangent=None):
         # Hairer's combined 5th/3rd order estimate, as in scipy's DOP853.
-        err5 = np.linalg.norm((K.T @ self.E5) / scale) ** 2
-        err3 = np.linalg.norm((K.T @ self.E3) / scale) ** 2
+        e5, e3 = K.T @ self.E5, K.T @ self.E3
+        if tangent is not None:
+            e5, e3 = tangent(e5), tangent(e3)
+        err5 = np.linalg.norm(e5 / scale) ** 2
+        err3 = np.linalg.norm(e3 / scale) ** 2
         if err5 == 0.0 and err3 == 0.0:
             return 0.0
         return float(abs(h) * err5 / math.sqrt((err5 + 0.01 * err3) * scale.size))
+
+    def _interpolant(self, step):
+        return dense_output.dop853_interpolant(step, self._rhs_y)
+
+    def _interpolated(self, step, x):
+        return dense_output.dop853_value(step, x)

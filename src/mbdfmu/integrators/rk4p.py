@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..equations.projection import PROJECTION_MAX_ITER
+from ..equations.projection import PROJECTION_MAX_ITER, ROUNDOFF_RESIDUAL
 from ..equations.sparsity import RANK_TOLERANCE
 from ..errors import SolverError
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
-from .projected_rk import ProjectedRK, rk_stages
+from .projected_rk import ProjectedRK, projection_tol, rk_stages
 
 # The classic tableau (Kutta 1901; Hairer, Norsett, Wanner I, Table II.1.1).
 RK4_A = np.array([[0.0, 0.0, 0.0, 0.0],
@@ -45,6 +45,7 @@ class RK4P(ProjectedRK):
     name = "rk4p"
     summary = "index-1, classic Runge-Kutta 4, fixed step, mass-weighted coordinate projection"
     adaptive = False
+    dense_output = False
     default_step = 1e-3
 
     def _step_impl(self, h):
@@ -68,15 +69,13 @@ class RK4P(ProjectedRK):
         eq = self.equations
         return eq.kernel == "numba" and eq.m > 0 and eq.applied.is_constant
 
-    def _advance_fixed(self, t_target: float) -> None:
-        """The base class's loop, with runs of steps compiled in one call when possible."""
+    def _fixed_run(self, t0, h, k, stop, n, t_target):
+        """The base class's run of steps, compiled in one call when possible."""
         if not self.compiled_steps:
-            return super()._advance_fixed(t_target)
+            return super()._fixed_run(t0, h, k, stop, n, t_target)
         from .rk4p_compiled import StepStatus   # numba only when the compiled path runs
-        t0, n, h = self.fixed_grid(t_target)
-        k = 0
-        while k < n:
-            done, status = self._compiled_steps(t0, h, k, n)
+        while k < stop:
+            done, status = self._compiled_steps(t0, h, k, stop)
             k += done
             self.t = t0 + k * h if k < n else t_target
             self.stats.nsteps += done
@@ -86,11 +85,10 @@ class RK4P(ProjectedRK):
             elif status in (StepStatus.SINGULAR, StepStatus.PROJECTION):
                 # minimum-norm solves, or a failed projection whose message names the
                 # constraint: this step on the general path
-                self._step_impl(h)
-                k += 1
-                self.t = t0 + k * h if k < n else t_target
-                self.stats.nsteps += 1
-                self._after_step()
+                k = super()._fixed_run(t0, h, k, k + 1, n, t_target)
+            if self.limit is not None:
+                self.limit.check(self.stats, self.t, t_target)
+        return stop
 
     def _stage_motions(self, times: np.ndarray, h: float) -> np.ndarray:
         """c, c', c'' of every row at t, t + h/2 and t + h for each step start t, read-only
@@ -119,8 +117,9 @@ class RK4P(ProjectedRK):
         c = eq.constraint_set
         q, qd, qdd, done, status = rk4p_steps(
             self.q, self.qd, self.f[size:], h, self._stage_motions(t0 + h * np.arange(k, n), h),
-            eq.applied.constant, eq.minv, RANK_TOLERANCE, self._projection_tol(),
-            PROJECTION_MAX_ITER, c.primitives, c.plan, eq.mass, state,
+            eq.applied.constant, eq.minv, RANK_TOLERANCE, projection_tol(self),
+            ROUNDOFF_RESIDUAL * eq.length_scale, PROJECTION_MAX_ITER, c.primitives, c.plan,
+            eq.mass, state,
             ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF)
         status = StepStatus(status)
         if audit is not None:

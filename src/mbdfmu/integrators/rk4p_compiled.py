@@ -40,17 +40,44 @@ class AuditField(IntEnum):
     CHECKS = 6
     WORST = 7
     LAST_ENERGY = 8
+    RTOL = 9
+    ATOL = 10
+    FACTOR = 11
+    TOLERANCE_JOULES = 12
 
 
 AUDIT_ATTRIBUTES = {f: f.name.lower() for f in AuditField if f != AuditField.ACTIVE}
 
 
+@jit_inline
+def _project_positions(qe, qn, c, minv, rank_tol, tol, roundoff, max_iter, p, plan):
+    """Newton, dq = -M^-1 J^T (J M^-1 J^T)^-1 Psi, stopping as ``rk4p_step`` says; returns
+    (q, DONE / SINGULAR / PROJECTION). ``qe`` is the extended work array."""
+    n = qn.shape[0]
+    for it in range(max_iter + 1):
+        qe[:n] = qn
+        psi, values, _ = terms(qe, qe, c, p, plan)
+        err = np.max(np.abs(psi))
+        if err > tol and it == max_iter:
+            break
+        x, ok = schur_solve(values, plan, psi, rank_tol)
+        if not ok:
+            return qn, StepStatus.SINGULAR
+        dq = minv * jac_t_mul(values, plan.rows, plan.cols, x, n)
+        qn = qn - dq
+        if err <= tol and (np.max(np.abs(dq)) <= tol or err <= roundoff):
+            return qn, StepStatus.DONE
+    return qn, StepStatus.PROJECTION
+
+
 @jit
-def rk4p_step(q, qd, f, h, motion, F, minv, rank_tol, tol, max_iter, p, plan):
+def rk4p_step(q, qd, f, h, motion, F, minv, rank_tol, tol, roundoff, max_iter, p, plan):
     """One step of ``rk4p`` for a mechanism with constant applied forces F.
 
     q, qd, f (= q'' at the start): (n,). ``motion`` (3, 3, m): c, c', c'' of every row at
-    t, t + h/2 and t + h. Returns (q, q', q'' at t + h, status) with status DONE,
+    t, t + h/2 and t + h. The position projection stops as
+    ``projection.project_positions`` does (Psi and the Newton increment below ``tol``, or
+    Psi below ``roundoff``). Returns (q, q', q'' at t + h, status) with status DONE,
     SINGULAR or PROJECTION.
     """
     n = q.shape[0]
@@ -74,20 +101,12 @@ def rk4p_step(q, qd, f, h, motion, F, minv, rank_tol, tol, max_iter, p, plan):
         acc_v += w * k_v
     qn = q + h / 6.0 * acc_q
     vn = qd + h / 6.0 * acc_v
-    # position projection: Newton, dq = -M^-1 J^T (J M^-1 J^T)^-1 Psi
-    done = False
-    for _ in range(max_iter + 1):
-        qe[:n] = qn
-        psi, values, _ = terms(qe, qe, motion[2, 0], p, plan)
-        if np.max(np.abs(psi)) <= tol:
-            done = True
-            break
-        x, ok = schur_solve(values, plan, psi, rank_tol)
-        if not ok:
-            return q, qd, f, StepStatus.SINGULAR
-        qn = qn - minv * jac_t_mul(values, plan.rows, plan.cols, x, n)
-    if not done:
-        return q, qd, f, StepStatus.PROJECTION
+    qn, status = _project_positions(qe, qn, motion[2, 0], minv, rank_tol, tol, roundoff,
+                                    max_iter, p, plan)
+    if status != StepStatus.DONE:
+        return q, qd, f, status
+    qe[:n] = qn
+    _, values, _ = terms(qe, qe, motion[2, 0], p, plan)
     # velocity projection onto J q' = nu
     x, ok = schur_solve(values, plan, jac_mul(values, plan.rows, plan.cols, vn, m)
                         - motion[2, 1], rank_tol)
@@ -103,8 +122,8 @@ def rk4p_step(q, qd, f, h, motion, F, minv, rank_tol, tol, max_iter, p, plan):
 
 @jit_inline
 def _energy_check(q, qd, F, mass, audit, divergence_fraction, roundoff):
-    """``EnergyAudit.check`` with factor 0 for energies 1/2 q'M q' - F.q; updates ``audit``
-    in place and returns False when the balance is broken."""
+    """``EnergyAudit.check`` for energies 1/2 q'M q' - F.q; updates ``audit`` in place and
+    returns False when the balance is broken."""
     kinetic = 0.5 * np.sum(mass * qd * qd)
     energy = kinetic - np.sum(F * q)
     audit[AuditField.KINETIC_MAX] = max(audit[AuditField.KINETIC_MAX], kinetic)
@@ -112,29 +131,36 @@ def _energy_check(q, qd, F, mass, audit, divergence_fraction, roundoff):
                                             abs(energy - kinetic - audit[AuditField.V0]))
     audit[AuditField.MAGNITUDE] = max(audit[AuditField.MAGNITUDE], abs(energy), kinetic)
     audit[AuditField.LAST_ENERGY] = energy
+    scale = max(audit[AuditField.KINETIC_MAX], audit[AuditField.POTENTIAL_SWING])
+    allowance = divergence_fraction * scale
+    if audit[AuditField.FACTOR] != 0.0:
+        rtol, atol = audit[AuditField.RTOL], audit[AuditField.ATOL]
+        joules = (np.sum(np.abs(F) * (atol + rtol * np.abs(q)))
+                  + np.sum(np.abs(mass * qd) * (atol + rtol * np.abs(qd))))
+        audit[AuditField.TOLERANCE_JOULES] = max(audit[AuditField.TOLERANCE_JOULES], joules)
+        allowance = min(audit[AuditField.FACTOR] * audit[AuditField.TOLERANCE_JOULES],
+                        allowance)
     audit[AuditField.CHECKS] += 1.0
     error = abs(energy - audit[AuditField.E0])
     if error <= roundoff * audit[AuditField.MAGNITUDE] * audit[AuditField.CHECKS]:
         return True
-    allowance = divergence_fraction * max(audit[AuditField.KINETIC_MAX],
-                                          audit[AuditField.POTENTIAL_SWING])
     ratio = error / allowance if allowance > 0.0 else np.inf
     audit[AuditField.WORST] = max(audit[AuditField.WORST], ratio)
     return ratio <= 1.0
 
 
 @jit
-def rk4p_steps(q, qd, f, h, motions, F, minv, rank_tol, tol, max_iter, p, plan, mass, audit,
-               divergence_fraction, roundoff):
-    """``rk4p_step`` for every row of ``motions`` (s, 3, 3, m), with the energy check of a
-    fixed-step method after each step when ``audit[ACTIVE]``.
+def rk4p_steps(q, qd, f, h, motions, F, minv, rank_tol, tol, residual_roundoff, max_iter, p,
+               plan, mass, audit, divergence_fraction, roundoff):
+    """``rk4p_step`` for every row of ``motions`` (s, 3, 3, m), with the energy check
+    after each step when ``audit[ACTIVE]``.
 
     Returns (q, q', q'', steps done, status): DONE; SINGULAR or PROJECTION at the next
     step; ENERGY or NOT_FINITE after the last step done.
     """
     for k in range(motions.shape[0]):
         qn, vn, fn, status = rk4p_step(q, qd, f, h, motions[k], F, minv, rank_tol, tol,
-                                       max_iter, p, plan)
+                                       residual_roundoff, max_iter, p, plan)
         if status != StepStatus.DONE:
             return q, qd, f, k, status
         q, qd, f = qn, vn, fn

@@ -20,6 +20,14 @@ from .registry import METHOD_NAMES, method_class
 DEFAULT_METHOD = "auto"
 DEFAULT_RTOL = 1e-6
 DEFAULT_ATOL = 1e-8
+# atol, when not given, is at most this times rtol: a tighter rtol than the default is not
+# capped by the default atol (positions of metre-sized mechanisms are O(1)).
+ATOL_PER_RTOL = 1e-2
+# The accuracy a fixed-step method states and keeps (or stops: stated_accuracy.py) when
+# rtol and atol are not given: loose, since its step is the user's statement of the
+# accuracy wanted; the checks then catch gross errors only.
+FIXED_STEP_RTOL = 1e-3
+FIXED_STEP_ATOL = 1e-5
 # Output points of a run when neither the call nor the scene gives an output interval.
 DEFAULT_OUTPUT_POINTS = 500
 FIELDS = ("method", "step", "rtol", "atol", "options", "output_interval")
@@ -39,9 +47,10 @@ def _positive(value: Any, name: str, where: str, unit: str = "") -> float:
 class SolverSettings:
     """How a run integrates: ``method`` (a name of ``METHOD_NAMES`` or an ``Integrator``
     class), ``step`` (s; the fixed step, or the largest step of adaptive methods; None:
-    the method's default), ``rtol``, ``atol`` (adaptive methods and Newton tolerances),
-    ``options`` (the method's own settings) and ``output_interval`` (s; None: the run's
-    length over ``DEFAULT_OUTPUT_POINTS``)."""
+    the method's default), ``rtol``, ``atol`` (adaptive methods' tolerances, fixed-step
+    methods' stated accuracy; see ``tolerances_for``), ``options`` (the method's own
+    settings) and ``output_interval`` (s; None: the run's length over
+    ``DEFAULT_OUTPUT_POINTS``). ``given`` lists the fields set explicitly."""
 
     method: Any = DEFAULT_METHOD
     step: float | None = None
@@ -49,6 +58,7 @@ class SolverSettings:
     atol: float = DEFAULT_ATOL
     options: dict = field(default_factory=dict)
     output_interval: float | None = None
+    given: frozenset = frozenset()
 
     def updated(self, where: str = "", names: dict[str, str] | None = None,
                 **values) -> SolverSettings:
@@ -62,7 +72,7 @@ class SolverSettings:
                                    where)
             if value is not None:
                 changes[key] = _check(key, value, names.get(key, key), where)
-        out = replace(self, **changes)
+        out = replace(self, given=self.given | frozenset(changes), **changes)
         if "method" in changes or "options" in changes:
             out.method_class.check_options(out.options, names.get("options", "options"), where)
         return out
@@ -81,6 +91,20 @@ class SolverSettings:
         if self.step is not None:
             return self.step
         return math.inf if cls.adaptive else cls.default_step
+
+    def tolerances_for(self, cls) -> tuple[float, float]:
+        """(rtol, atol) a method runs with. Adaptive methods: rtol, and atol as given, else
+        min(DEFAULT_ATOL, ATOL_PER_RTOL rtol). Fixed-step methods (their stated accuracy):
+        the values given, else FIXED_STEP_RTOL and min(FIXED_STEP_ATOL, ATOL_PER_RTOL rtol)."""
+        given = self.given
+        if cls.adaptive:
+            rtol, atol = self.rtol, DEFAULT_ATOL
+        else:
+            rtol = self.rtol if "rtol" in given else FIXED_STEP_RTOL
+            atol = FIXED_STEP_ATOL
+        if "atol" in given:
+            return rtol, self.atol
+        return rtol, min(atol, ATOL_PER_RTOL * rtol)
 
     def output_interval_for(self, t_end: float) -> float:
         return self.output_interval or t_end / DEFAULT_OUTPUT_POINTS

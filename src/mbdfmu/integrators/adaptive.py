@@ -1,0 +1,74 @@
+"""The step loop of adaptive methods, which keeps their accuracy independent of the outputs.
+
+An adaptive method's accuracy must not depend on where the outputs (an FMU's
+communication points) fall. With ``dense=True`` (the inputs over the coming steps are
+known) it steps past an output time and gives the state there from its dense output
+(``Integrator.output_state``); the steps go on from their own ends, so outputs do not
+change the run at all. Otherwise it lands on the output time with a step cut short, or two
+equal steps instead of a tiny last one, and then goes on with the step size its
+controller proposed before the cut (the cut says nothing about the next step), as
+SUNDIALS' ``tstop`` and the "tstops" of DifferentialEquations.jl do.
+"""
+
+from __future__ import annotations
+
+from ..errors import SolverError
+
+# The smallest step, relative to the time, before an adaptive method gives up.
+MIN_STEP_RELATIVE = 1e-13
+# Steps an adaptive method may reject in a row before giving up.
+MAX_REJECTIONS_IN_A_ROW = 60
+# Landing on an output time: a step up to this factor longer than proposed lands on it ...
+LAND_STRETCH = 1.01
+# ... and when less than this factor of the proposed step would be left after a full step,
+# the rest is taken as two equal steps (no tiny last step).
+LAND_SPLIT = 1.5
+
+
+class AdaptiveStepping:
+    """The ``_advance_adaptive`` of ``Integrator.advance`` for adaptive methods (a mixin:
+    ``_step_impl`` returns (accepted, h_next) from the step controller)."""
+
+    def _landing(self, h: float, t_target: float) -> tuple[float, bool]:
+        """The step towards an output time to land on, and whether it lands there."""
+        remaining = t_target - self.t
+        if LAND_STRETCH * h >= remaining:
+            return remaining, True
+        if remaining < LAND_SPLIT * h:
+            return 0.5 * remaining, False
+        return h, False
+
+    def _advance_adaptive(self, t_target: float, dense: bool) -> None:
+        if dense and self.t >= t_target:
+            self.out = self._output_at(t_target)
+            return
+        self.out = None
+        rejections = 0
+        while self.t < t_target:
+            h_min = MIN_STEP_RELATIVE * max(1.0, abs(self.t))
+            proposal = min(self.h, self.max_step)
+            h, lands = (proposal, False) if dense else self._landing(proposal, t_target)
+            planned = self._plan_step(h, lands, proposal)
+            lands = lands and planned == h
+            h = planned
+            accepted, h_next = self._step_impl(h)
+            if accepted:
+                rejections = 0
+                self.stats.nsteps += 1
+                self.t = t_target if lands else self.t + h
+                # a step cut short (to land, or by the plan) says nothing about the next one
+                self.h = proposal if (h < proposal and h_next >= h) else h_next
+                self._after_step()
+            else:
+                rejections += 1
+                self.stats.nrejected += 1
+                self.h = h_next
+                if h_next < h_min or rejections > MAX_REJECTIONS_IN_A_ROW:
+                    raise SolverError(
+                        f"{self.name}: step size fell to {h_next:.3g} s without meeting "
+                        f"rtol={self.rtol:g}, atol={self.atol:g}" + self.singularity_hint(),
+                        self.t)
+            if self.limit is not None:
+                self.limit.check(self.stats, self.t, t_target)
+        if self.t > t_target:
+            self.out = self._output_at(t_target)   # from dense output
