@@ -26,7 +26,7 @@ from .joints import JOINT_ROWS, RowBuilder, driver_row
 from .planar import dot, poses, rot90, rotate, velocities
 from .sparsity import JacobianPattern
 
-KERNELS = ("numpy", "numba")
+KERNELS = ("numpy", "numba", "c")
 
 
 def numba_installed() -> bool:
@@ -35,7 +35,9 @@ def numba_installed() -> bool:
 
 
 def choose_kernel(kernel: str | None) -> str:
-    """The constraint kernel: as asked, else ``$MBDFMU_KERNEL``, else numba when installed."""
+    """The constraint kernel: as asked, else ``$MBDFMU_KERNEL``, else numba when installed.
+    "c" is the C kernel (``ckernel``): eq. (14), projections, whole steps and outputs in C,
+    the constraint values themselves on the numpy path."""
     kernel = kernel or os.environ.get("MBDFMU_KERNEL") or "auto"
     if kernel == "auto":
         return "numba" if numba_installed() else "numpy"
@@ -43,6 +45,9 @@ def choose_kernel(kernel: str | None) -> str:
         raise InputError(f"unknown kernel {kernel!r}: choose one of {', '.join(KERNELS)} or auto")
     if kernel == "numba" and not numba_installed():
         raise InputError('kernel "numba" needs numba: pip install "mbdfmu[jit]"')
+    if kernel == "c" and not importlib.import_module(".ckernel", __package__).available():
+        raise InputError('kernel "c" needs its compiled library: a C compiler (gcc), or '
+                         "MBDFMU_C_KERNEL naming a compiled copy")
     return kernel
 
 

@@ -1,0 +1,152 @@
+"""Steps of ``rk4p`` and of the projected embedded pairs in the C kernel (kernel "c").
+
+The arithmetic of a step (stages, error norm, projections, the next q'') runs in one C
+call (``equations.ckernel``); what a step decides stays here, line for line as in
+``RK4P._advance_fixed`` / ``ProjectedRK._step_impl`` (acceptance, step factors, the energy
+audit, counters). Input signals are evaluated in Python at every time a step needs them
+(once per run when they cannot change: no drivers, no force inputs). Whatever the kernel
+hands back (a singular Schur complement, a failed projection, a non-finite state, a
+spring of zero length) is redone by the Python step, which then does and says what it
+always does.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..equations import ckernel
+from ..equations.projection import PROJECTION_MAX_ITER
+from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
+
+# The energy check's running state as kernel.c reads it (rk4p_compiled.AuditField's order).
+AUDIT_FIELDS = ("active", "e0", "v0", "kinetic_max", "potential_swing", "magnitude", "checks",
+                "worst", "last_energy")
+# Steps per C call of an rk4p run: the work limits are checked between calls.
+RUN_LENGTH = 64
+_TABLEAUS: dict[type, tuple] = {}
+
+
+def stage_inputs(integrator, times) -> tuple[np.ndarray, np.ndarray]:
+    """(c, c', c'') of every row (k, 3m) and the force inputs (k, nf) at each of ``times``,
+    from the integrator's input signals."""
+    eq = integrator.equations
+    times = np.asarray(times, dtype=float).ravel()
+    if not eq.scene.drivers and not eq.layout.size:
+        block = np.concatenate(eq.motion_values(0.0))
+        return np.tile(block, (times.size, 1)), np.zeros((times.size, 0))
+    inputs = [integrator.inputs(t) for t in times]
+    motions = np.array([np.concatenate(eq.motion_values(t, u)) for t, u in zip(times, inputs)])
+    forces = np.array([u.forces for u in inputs]).reshape(times.size, -1)
+    return motions, forces
+
+
+def _audit_state(audit) -> np.ndarray:
+    state = np.zeros(len(AUDIT_FIELDS))
+    if audit is not None:
+        state[0] = 1.0
+        for k, name in enumerate(AUDIT_FIELDS[1:], 1):
+            state[k] = getattr(audit, name)
+    return state
+
+
+def _audit_back(audit, state) -> None:
+    for k, name in enumerate(AUDIT_FIELDS[1:], 1):
+        setattr(audit, name, int(state[k]) if name == "checks" else float(state[k]))
+
+
+def advance_rk4p(rk, t_target: float) -> None:
+    """``RK4P._advance_fixed`` with runs of steps in C (same grid, checks and counts)."""
+    eq = rk.equations
+    t0, n, h = rk.fixed_grid(t_target)
+    # the kernel checks energies 1/2 q'M q' - F.q only: other conservative scenes step one
+    # at a time with the Python audit after each step
+    in_c = rk.audit is None or eq.applied.is_constant
+    k = 0
+    while k < n:
+        count = min(RUN_LENGTH, n - k) if in_c else 1
+        done, status = _rk4p_run(rk, t0, h, k, count)
+        k += done
+        rk.t = t0 + k * h if k < n else t_target
+        rk.stats.nsteps += done
+        if status == ckernel.ENERGY:
+            rk._after_step()                         # says why
+        elif status != ckernel.OK:                   # this step on the Python path
+            rk._step_impl(h)
+            k += 1
+            rk.t = t0 + k * h if k < n else t_target
+            rk.stats.nsteps += 1
+            rk._after_step()
+        elif not in_c:
+            rk._after_step()
+        if rk.limit is not None:
+            rk.limit.check(rk.stats, rk.t, t_target)
+
+
+def _rk4p_run(rk, t0: float, h: float, k: int, count: int) -> tuple[int, int]:
+    """Steps k .. k + count - 1 of the grid t0 + j h in one C call: (steps done, status)."""
+    eq = rk.equations
+    starts = t0 + h * np.arange(k, k + count)
+    motions, forces = stage_inputs(rk, (starts[:, None] + np.array([0.0, 0.5 * h, h])).ravel())
+    motions = motions.reshape(count, 3, 3 * eq.m)
+    forces = forces.reshape(count, 3, eq.layout.size)
+    audit = _audit_state(rk.audit if eq.applied.is_constant else None)
+    n = rk.q.size
+    q, qd, qdd, done, status = eq.ckernel.rk4p_steps(
+        rk.q, rk.qd, rk.f[n:], h, motions, forces, rk._projection_tol(), PROJECTION_MAX_ITER,
+        audit, ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF)
+    if rk.audit is not None and eq.applied.is_constant:
+        _audit_back(rk.audit, audit)
+        if status == ckernel.ENERGY:      # _after_step checks this state again: count it once
+            rk.audit.checks -= 1
+    rk.q, rk.qd, rk.f = q, qd, np.concatenate((qd, qdd))
+    rk.stats.naccel += 4 * done
+    rk.stats.nprojections += done
+    return done, status
+
+
+def tableau(rk) -> tuple:
+    """(A (ns, ns), B, E, E3 or None) of an embedded pair, contiguous, once per class."""
+    cls = type(rk)
+    if cls not in _TABLEAUS:
+        ns = rk.n_stages
+        A = np.zeros((ns, ns))
+        A[:, :rk.A.shape[1]] = rk.A[:ns]
+        E, E3 = (rk.E5, rk.E3) if hasattr(rk, "E5") else (rk.E, None)
+        _TABLEAUS[cls] = tuple(None if x is None else np.ascontiguousarray(x, dtype=float)
+                               for x in (A, rk.B, E, E3))
+    return _TABLEAUS[cls]
+
+
+def prk_step(rk, h: float, safety: float, min_factor: float, max_factor: float,
+             energy_min_gain: float):
+    """``ProjectedRK._step_impl`` with the step's arithmetic in C: (accepted, next step),
+    or None when the Python step must do it. The factors are projected_rk.py's."""
+    t, n = rk.t, rk.q.size
+    times = np.append(t + rk.C[1:rk.n_stages] * h, t + h)
+    motions, forces = stage_inputs(rk, times)
+    motions = np.vstack((motions[:1], motions))        # row s: stage s (row 0 unused)
+    forces = np.ascontiguousarray(np.vstack((forces[:1], forces)))
+    status, err, y_new, f_new = rk.equations.ckernel.prk_trial(
+        tableau(rk), h, np.concatenate((rk.q, rk.qd)), rk.f, motions, forces, rk.rtol,
+        rk.atol, rk._projection_tol(), PROJECTION_MAX_ITER)
+    if status in (ckernel.SINGULAR, ckernel.SPRING):
+        return None
+    rk.stats.naccel += rk.n_stages
+    exponent = -1.0 / (rk.order + 1)
+    if status == ckernel.NOT_FINITE:
+        return False, h * min_factor
+    if status == ckernel.ERROR_NORM:
+        return False, h * max(min_factor, safety * err ** exponent)
+    if status == ckernel.PROJECTION:
+        return False, h * 0.5
+    rk.stats.nprojections += 1
+    q, qd = y_new[:n], y_new[n:]
+    if rk.audit is not None:
+        energy_err = rk.audit.step_error(rk.equations, t + h, q, qd)
+        last, rk.energy_rejected = rk.energy_rejected, None
+        if not energy_err <= 1.0 and (last is None or energy_err < energy_min_gain * last):
+            rk.energy_rejected = energy_err
+            return False, h * max(min_factor, safety * energy_err ** exponent)
+    rk.q, rk.qd, rk.f = q, qd, f_new
+    rk.stats.naccel += 1
+    return True, h * (max_factor if err == 0 else min(max_factor, safety * err ** exponent))
