@@ -18,7 +18,8 @@ from .equations.projection import (ASSEMBLY_TOL, assemble, assembly_changes, ini
                                    project_positions, project_velocities)
 from .errors import InputError, SettingError, SolverError
 from .integrators import make_integrator
-from .integrators.base import WorkLimit
+from .integrators.base import Counters, WorkLimit
+from .integrators.energy_audit import EnergyAudit
 from .integrators.settings import SolverSettings, settings_from_scene
 from .model.reader import load_scene
 from .model.scene import Scene
@@ -86,6 +87,7 @@ class Simulation:
                          zip(layout.drivers, layout.driver_initial)}
         self._forces = {name: Held(np.zeros(len(f))) for name, f in layout.fields.items()}
         self._inputs_changed = False
+        self._held = None                # the inputs while all are held (inputs_at)
         q0, qd0 = assemble(self.equations, t0, self.inputs_at(t0))
         # what assembly changed of the scene's initial values, for the user to see
         self.warnings = assembly_changes(self.equations, initial_estimates(self.equations),
@@ -125,11 +127,16 @@ class Simulation:
         layout = self.equations.layout
         if not self._drivers and not self._forces:
             return self.equations.no_inputs
+        if self._held is not None:       # every input held: the same values at any t
+            return self._held
         motions = np.array([self._drivers[n](t) for n in layout.drivers], dtype=float)
         forces = [np.atleast_1d(np.asarray(self._forces[n](t), dtype=float))
                   for n in layout.forces]
-        return InputValues(motions.reshape(-1, 3),
-                           np.concatenate(forces) if forces else np.zeros(0))
+        values = InputValues(motions.reshape(-1, 3),
+                             np.concatenate(forces) if forces else np.zeros(0))
+        if not self._drivers and all(type(f) is Held for f in self._forces.values()):
+            self._held = values
+        return values
 
     def _split(self, name: str) -> tuple[str, str]:
         if name not in self.input_names:
@@ -156,7 +163,7 @@ class Simulation:
             values[fields.index(field)] = value
             self._forces[item] = Held(values)
         self._inputs_changed = True
-        self._cache = None
+        self._cache = self._held = None
 
     def set_input_derivative(self, name: str, order: int, value: float) -> None:
         """The ``order``-th time derivative (1 or more) of an input at the current time: the
@@ -185,7 +192,7 @@ class Simulation:
                 signal = self._forces[item] = TaylorInput(self.t, signal(self.t))
             signal.set_derivative(self.equations.layout.fields[item].index(field), order, value)
         self._inputs_changed = True
-        self._cache = None
+        self._cache = self._held = None
 
     def set_input_signal(self, item: str, signal) -> None:
         """Drive a force item or a driver with a function of time (see ``signals``)."""
@@ -196,7 +203,7 @@ class Simulation:
         else:
             raise InputError(f'"{item}" is not an input-driven driver or force of this scene')
         self._inputs_changed = True
-        self._cache = None
+        self._cache = self._held = None
 
     def _reinitialize(self) -> None:
         """After inputs change: the state is made consistent with the new driver positions."""
@@ -214,7 +221,7 @@ class Simulation:
         CPU time) if given; on failure the state stays where it was."""
         # Only the integrator and the flag change while stepping (inputs do not), so that
         # is all the rollback keeps.
-        snapshot, inputs_changed = self.integrator.get_state(), self._inputs_changed
+        snapshot, inputs_changed = rollback_point(self.integrator), self._inputs_changed
         try:
             if self._inputs_changed:
                 self._reinitialize()
@@ -239,6 +246,13 @@ class Simulation:
         return self._cache
 
     def output_vector(self) -> np.ndarray:
+        kernel = self.equations.ckernel
+        if kernel is not None and not self._inputs_changed:   # one call, q'' kept from the step
+            u = self.inputs_at(self.t)
+            values = kernel.state_outputs(self.q, self.qd, self.equations.motion_values(self.t, u),
+                                          u.forces)
+            if values is not None:
+                return values
         qdd, lam = self.accelerations()
         return self.equations.output_values(self.t, self.q, self.qd, qdd, lam,
                                             self.inputs_at(self.t))
@@ -258,7 +272,26 @@ class Simulation:
         self.integrator.set_state(state["integrator"])
         self._drivers, self._forces = decode(state["drivers"]), decode(state["forces"])
         self._inputs_changed = bool(state["inputs_changed"])
-        self._cache = None
+        self._cache = self._held = None
+
+
+def rollback_point(integrator) -> dict:
+    """What ``integrator.get_state()`` gives, for a rollback within the process, cheaper:
+    arrays copied, the counters and the energy audit (flat: numbers and strings) copied
+    shallowly, anything else encoded; ``set_state`` restores it."""
+    state = {}
+    for name in ("t", "q", "qd", "h", "stats", "audit") + integrator.state_fields:
+        value = getattr(integrator, name)
+        if isinstance(value, np.ndarray):
+            value = value.copy()
+        elif isinstance(value, (Counters, EnergyAudit)):
+            flat = value
+            value = object.__new__(type(flat))
+            value.__dict__.update(flat.__dict__)
+        elif not (value is None or isinstance(value, (bool, int, float, str))):
+            value = encode(value)
+        state[name] = value
+    return state
 
 
 def output_time_derivatives(sim: Simulation) -> tuple[np.ndarray, np.ndarray]:

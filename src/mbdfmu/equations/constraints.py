@@ -100,6 +100,7 @@ class ConstraintSet:
                                      if d.is_input], dtype=int)
         self._motion_rows = [(r, d.motion) for r, d in zip(self.driver_rows, scene.drivers)
                              if not d.is_input]
+        self._last_motion = None
         self._plan_pattern(minv)
 
     def _plan_pattern(self, minv: np.ndarray) -> None:
@@ -143,9 +144,25 @@ class ConstraintSet:
 
     # ------------------------------------------------------------------ evaluation
 
+    def motion_block(self, times, us) -> np.ndarray:
+        """``motion_values`` at several times at once, (k, 3, m): the same numbers, for the
+        steps of the C kernel; ``us`` the inputs at each time (None: no input drivers)."""
+        out = np.zeros((len(times), 3, self.m))
+        out[:, 0, :] = self.offsets
+        for row, motion in self._motion_rows:
+            out[:, :, row] = [motion.evaluate(t) for t in times]
+        if self._input_rows.size:
+            out[:, :, self._input_rows] = np.array([u.motions.T for u in us])
+        return out
+
     def motion_values(self, t: float, u: InputValues):
         """(c, c', c'') of every row at time t (formulation.md, eq. 7): the drivers' motions,
-        those of input-driven drivers from ``u``. Read-only arrays (one compiled signature)."""
+        those of input-driven drivers from ``u``. Read-only arrays (one compiled signature);
+        the last result is kept and returned again for the same t and input motions."""
+        last = self._last_motion
+        if last is not None and last[0] == t and (
+                not self._input_rows.size or np.array_equal(last[1], u.motions)):
+            return last[2]
         c = self.offsets.copy()
         cd, cdd = np.zeros(self.m), np.zeros(self.m)
         for row, motion in self._motion_rows:
@@ -154,6 +171,7 @@ class ConstraintSet:
             c[self._input_rows], cd[self._input_rows], cdd[self._input_rows] = u.motions.T
         for a in (c, cd, cdd):
             a.flags.writeable = False
+        self._last_motion = (t, u.motions.copy() if self._input_rows.size else None, (c, cd, cdd))
         return c, cd, cdd
 
     def values(self, t: float, q: np.ndarray, qd: np.ndarray | None, u: InputValues):

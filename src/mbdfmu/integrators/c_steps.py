@@ -26,27 +26,30 @@ RUN_LENGTH = 64
 _TABLEAUS: dict[type, tuple] = {}
 
 
-def stage_inputs(integrator, times) -> tuple[np.ndarray, np.ndarray]:
-    """(c, c', c'') of every row (k, 3m) and the force inputs (k, nf) at each of ``times``,
-    from the integrator's input signals."""
+def stage_inputs(integrator, times) -> None:
+    """(c, c', c'') of every row and the force inputs at each of ``times``, from the
+    integrator's input signals, into the kernel's ``buf.motions`` and ``buf.ufs``."""
     eq = integrator.equations
-    times = np.asarray(times, dtype=float).ravel()
-    if not eq.scene.drivers and not eq.layout.size:
-        block = np.concatenate(eq.motion_values(0.0))
-        return np.tile(block, (times.size, 1)), np.zeros((times.size, 0))
-    inputs = [integrator.inputs(t) for t in times]
-    motions = np.array([np.concatenate(eq.motion_values(t, u)) for t, u in zip(times, inputs)])
-    forces = np.array([u.forces for u in inputs]).reshape(times.size, -1)
-    return motions, forces
+    kernel, k = eq.ckernel, len(times)
+    motions, forces = kernel.buf.motions, kernel.buf.ufs
+    if not eq.scene.drivers:
+        motions[:k] = np.concatenate(eq.motion_values(0.0))    # offsets only: constant
+        if kernel.nf:
+            inputs = [integrator.inputs(t) for t in times]
+            forces[:k] = inputs[0].forces if all(u is inputs[0] for u in inputs) else \
+                [u.forces for u in inputs]
+        return
+    inputs = [integrator.inputs(t) for t in times] if eq.layout.drivers or kernel.nf else None
+    motions[:k] = eq.constraint_set.motion_block(times, inputs).reshape(k, -1)
+    if kernel.nf:
+        forces[:k] = [u.forces for u in inputs]
 
 
-def _audit_state(audit) -> np.ndarray:
-    state = np.zeros(len(AUDIT_FIELDS))
-    if audit is not None:
-        state[0] = 1.0
-        for k, name in enumerate(AUDIT_FIELDS[1:], 1):
-            state[k] = getattr(audit, name)
-    return state
+NO_AUDIT = np.zeros(len(AUDIT_FIELDS))      # inactive: no energy check in the kernel
+
+
+def _audit_state(audit) -> list:
+    return [1.0] + [getattr(audit, name) for name in AUDIT_FIELDS[1:]]
 
 
 def _audit_back(audit, state) -> None:
@@ -85,17 +88,20 @@ def advance_rk4p(rk, t_target: float) -> None:
 def _rk4p_run(rk, t0: float, h: float, k: int, count: int) -> tuple[int, int]:
     """Steps k .. k + count - 1 of the grid t0 + j h in one C call: (steps done, status)."""
     eq = rk.equations
-    starts = t0 + h * np.arange(k, k + count)
-    motions, forces = stage_inputs(rk, (starts[:, None] + np.array([0.0, 0.5 * h, h])).ravel())
-    motions = motions.reshape(count, 3, 3 * eq.m)
-    forces = forces.reshape(count, 3, eq.layout.size)
-    audit = _audit_state(rk.audit if eq.applied.is_constant else None)
+    if count == 1:
+        start = t0 + h * k
+        stage_inputs(rk, (start, start + 0.5 * h, start + h))
+    else:
+        starts = t0 + h * np.arange(k, k + count)
+        stage_inputs(rk, (starts[:, None] + np.array([0.0, 0.5 * h, h])).ravel())
+    constant = eq.applied.is_constant
+    audit = _audit_state(rk.audit) if constant and rk.audit is not None else NO_AUDIT
     n = rk.q.size
     q, qd, qdd, done, status = eq.ckernel.rk4p_steps(
-        rk.q, rk.qd, rk.f[n:], h, motions, forces, rk._projection_tol(), PROJECTION_MAX_ITER,
+        rk.q, rk.qd, rk.f[n:], h, count, rk._projection_tol(), PROJECTION_MAX_ITER,
         audit, ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF)
-    if rk.audit is not None and eq.applied.is_constant:
-        _audit_back(rk.audit, audit)
+    if rk.audit is not None and constant:
+        _audit_back(rk.audit, eq.ckernel.buf.audit)
         if status == ckernel.ENERGY:      # _after_step checks this state again: count it once
             rk.audit.checks -= 1
     rk.q, rk.qd, rk.f = q, qd, np.concatenate((qd, qdd))
@@ -105,16 +111,15 @@ def _rk4p_run(rk, t0: float, h: float, k: int, count: int) -> tuple[int, int]:
 
 
 def tableau(rk) -> tuple:
-    """(A (ns, ns), B, E, E3 or None) of an embedded pair, contiguous, once per class."""
+    """(ns, A (ns, ns), B, E, E3 or None) of an embedded pair as the kernel takes them."""
     cls = type(rk)
     if cls not in _TABLEAUS:
         ns = rk.n_stages
         A = np.zeros((ns, ns))
         A[:, :rk.A.shape[1]] = rk.A[:ns]
         E, E3 = (rk.E5, rk.E3) if hasattr(rk, "E5") else (rk.E, None)
-        _TABLEAUS[cls] = tuple(None if x is None else np.ascontiguousarray(x, dtype=float)
-                               for x in (A, rk.B, E, E3))
-    return _TABLEAUS[cls]
+        _TABLEAUS[cls] = (A, rk.B, E, E3)
+    return rk.equations.ckernel.tableau(cls, *_TABLEAUS[cls])
 
 
 def prk_step(rk, h: float, safety: float, min_factor: float, max_factor: float,
@@ -122,13 +127,11 @@ def prk_step(rk, h: float, safety: float, min_factor: float, max_factor: float,
     """``ProjectedRK._step_impl`` with the step's arithmetic in C: (accepted, next step),
     or None when the Python step must do it. The factors are projected_rk.py's."""
     t, n = rk.t, rk.q.size
-    times = np.append(t + rk.C[1:rk.n_stages] * h, t + h)
-    motions, forces = stage_inputs(rk, times)
-    motions = np.vstack((motions[:1], motions))        # row s: stage s (row 0 unused)
-    forces = np.ascontiguousarray(np.vstack((forces[:1], forces)))
+    times = np.append(t + rk.C[:rk.n_stages] * h, t + h)   # row s: stage s, then t + h
+    stage_inputs(rk, times)
     status, err, y_new, f_new = rk.equations.ckernel.prk_trial(
-        tableau(rk), h, np.concatenate((rk.q, rk.qd)), rk.f, motions, forces, rk.rtol,
-        rk.atol, rk._projection_tol(), PROJECTION_MAX_ITER)
+        tableau(rk), h, np.concatenate((rk.q, rk.qd)), rk.f, rk.rtol, rk.atol,
+        rk._projection_tol(), PROJECTION_MAX_ITER)
     if status in (ckernel.SINGULAR, ckernel.SPRING):
         return None
     rk.stats.naccel += rk.n_stages

@@ -25,6 +25,8 @@ OK, SINGULAR, PROJECTION, NOT_FINITE, SPRING, ENERGY, ERROR_NORM = range(7)
 FORCE_CODES = {PointForce: 0, Torque: 1, SpringDamper: 2, RotationalSpringDamper: 3}
 # Stages of the largest tableau a trial step may have (DOP853's 12, plus its last row).
 MAX_STAGES = 13
+# Times whose inputs one call can take (a run of 64 rk4p steps evaluates 3 times each).
+MAX_ROWS = 192
 ENV_LIBRARY = "MBDFMU_C_KERNEL"
 
 _P, _I = ctypes.c_void_p, ctypes.c_int64
@@ -139,17 +141,21 @@ def model_arrays(eq) -> dict:
 
 
 class Buffers:
-    """The persistent arrays of one kernel, and their addresses."""
+    """The persistent arrays of one kernel, and their addresses (``p_<name>``): arguments
+    and results are copied in and out, so a call passes addresses known beforehand."""
 
     def __init__(self, n: int, m: int, nf: int, nout: int):
         sizes = dict(q=n, qd=n, motion=3 * m, uf=max(nf, 1), qdd=n, lam=max(m, 1),
-                     y=2 * n, f=2 * n, y_new=2 * n, f_new=2 * n, K=MAX_STAGES * 2 * n,
-                     motions=MAX_STAGES * 3 * m, ufs=MAX_STAGES * max(nf, 1), err=1,
-                     audit=9, out=nout, psi=max(m, 1), data=1, gamma=max(m, 1))
+                     y=2 * n, f=2 * n, y_new=2 * n, f_new=2 * n, K=MAX_STAGES * 2 * n, err=1,
+                     audit=9, out=nout)
         for name, size in sizes.items():
             array = np.zeros(size)
             setattr(self, name, array)
             setattr(self, "p_" + name, array.ctypes.data)
+        # inputs at each time a run of steps evaluates: (c, c', c'') and the force inputs
+        self.motions = np.zeros((MAX_ROWS, 3 * m))
+        self.ufs = np.zeros((MAX_ROWS, max(nf, 1)))
+        self.p_motions, self.p_ufs = self.motions.ctypes.data, self.ufs.ctypes.data
         self.done = np.zeros(1, dtype=np.int64)
         self.p_done = self.done.ctypes.data
 
@@ -183,11 +189,13 @@ class Kernel:
         self.memo = np.zeros(lib.mbd_memo_size(self.address))
         model.work, model.memo = self.work.ctypes.data, self.memo.ctypes.data
         self.buf = Buffers(self.n, self.m, self.nf, self.nout)
+        self._tableaus: dict = {}
         self._bind(lib)
 
     def _bind(self, lib) -> None:
         d = ctypes.c_double
         signatures = {"mbd_accelerations": [_P] * 8, "mbd_outputs": [_P] * 8,
+                      "mbd_state_outputs": [_P] * 8,
                       "mbd_rk4p_steps": [_P, _P, _P, d, _I, _P, _I, _P, _I, d, _I, _P, d, d, _P],
                       "mbd_prk_trial": [_P, _I, _P, _P, _P, _P, d, _P, _P, _P, _P, d, d, d, _I,
                                         _P, _P, _P, _P]}
@@ -226,33 +234,47 @@ class Kernel:
             return None
         return b.out.copy()
 
-    def rk4p_steps(self, q, qd, qdd, h, motions, ufs, tol, max_iter, audit, divergence,
-                   roundoff):
-        """Steps of rk4p (``kernel.c``'s ``mbd_rk4p_steps``): motions (s, 3, 3m) and ufs
-        (s, 3, nf), or one (3, 3m) / (3, nf) block for every step; audit: the energy
-        check's state, updated in place. Returns (q, q', q'', steps done, status)."""
+    def state_outputs(self, q, qd, motion, uf):
+        """The output vector at (q, q') with q'' and lam of eq. (14) at that state (those the
+        last step computed when it ended there): one call. None: the numpy path's case."""
+        b = self.buf
+        self._load(q, qd, motion, uf)
+        if self._state_outputs(self.address, b.p_q, b.p_qd, b.p_motion, b.p_uf, b.p_qdd, b.p_lam,
+                               b.p_out) != OK:
+            return None
+        return b.out.copy()
+
+    def rk4p_steps(self, q, qd, qdd, h, steps, tol, max_iter, audit, divergence, roundoff):
+        """``steps`` steps of rk4p (``mbd_rk4p_steps``) with the inputs the caller put in
+        ``buf.motions`` / ``buf.ufs``: rows 3k .. 3k + 2 at t, t + h/2, t + h of step k;
+        audit: the energy check's state (9 values, updated). Returns (q, q', q'', steps
+        done, status)."""
         b, n = self.buf, self.n
         b.y[:n], b.y[n:], b.f[:n], b.f[n:] = q, qd, qd, qdd
-        motions = np.ascontiguousarray(motions, dtype=float)
-        ufs = np.ascontiguousarray(ufs, dtype=float) if self.nf else b.ufs
-        steps = len(motions) if motions.ndim == 3 else 0
-        status = self._rk4p_steps(
-            self.address, b.p_y, b.p_f, h, steps or 1, motions.ctypes.data,
-            9 * self.m if steps else 0, ufs.ctypes.data, 3 * self.nf if steps else 0, tol,
-            max_iter, audit.ctypes.data, divergence, roundoff, b.p_done)
+        b.audit[:] = audit
+        status = self._rk4p_steps(self.address, b.p_y, b.p_f, h, steps, b.p_motions, 9 * self.m,
+                                  b.p_ufs, 3 * self.nf, tol, max_iter, b.p_audit, divergence,
+                                  roundoff, b.p_done)
         return b.y[:n].copy(), b.y[n:].copy(), b.f[n:].copy(), int(b.done[0]), status
 
-    def prk_trial(self, tableau, h, y, f0, motions, ufs, rtol, atol, tol, max_iter):
-        """The arithmetic of one step of an embedded pair (``mbd_prk_trial``): tableau
-        (A (ns, ns), B, E, E3 or None) as contiguous arrays; motions (ns + 1, 3m), ufs
-        (ns + 1, nf). Returns (status, err, y_new, f_new)."""
+    def tableau(self, key, A, B, E, E3) -> tuple:
+        """An embedded pair's arrays, kept with their addresses (once per ``key``)."""
+        if key not in self._tableaus:
+            arrays = [None if x is None else np.ascontiguousarray(x, dtype=float)
+                      for x in (A, B, E, E3)]
+            self._arrays += [x for x in arrays if x is not None]
+            self._tableaus[key] = (arrays[1].size, *(None if x is None else x.ctypes.data
+                                                     for x in arrays))
+        return self._tableaus[key]
+
+    def prk_trial(self, tableau, h, y, f0, rtol, atol, tol, max_iter):
+        """The arithmetic of one step of an embedded pair (``mbd_prk_trial``) with the
+        inputs in ``buf.motions`` / ``buf.ufs`` (row s: stage s; row ns: t + h); tableau
+        from ``tableau``. Returns (status, err, y_new, f_new)."""
         b = self.buf
-        A, B, E, E3 = tableau
         b.y[:] = y
         b.f[:] = f0
-        ufs = ufs.ctypes.data if self.nf else b.p_ufs
-        status = self._prk_trial(self.address, B.size, A.ctypes.data, B.ctypes.data, E.ctypes.data,
-                                 None if E3 is None else E3.ctypes.data, h, b.p_y, b.p_f,
-                                 motions.ctypes.data, ufs, rtol, atol, tol, max_iter, b.p_y_new,
-                                 b.p_f_new, b.p_err, b.p_K)
+        status = self._prk_trial(self.address, *tableau, h, b.p_y, b.p_f, b.p_motions,
+                                 b.p_ufs, rtol, atol, tol, max_iter, b.p_y_new, b.p_f_new,
+                                 b.p_err, b.p_K)
         return status, float(b.err[0]), b.y_new.copy(), b.f_new.copy()

@@ -101,3 +101,11 @@ int mbd_outputs(const Model *M, const double *q, const double *qd, const double 
     out[o++] = sqrt(v2);
     return ST_OK;
 }
+
+/* The outputs at a state: q'' and lam of eq. (14) (the kept evaluation when the step
+ * ended here, else computed), then mbd_outputs. qdd (n), lam (m): filled. */
+int mbd_state_outputs(const Model *M, const double *q, const double *qd, const double *motion,
+                      const double *uf, double *qdd, double *lam, double *out) {
+    int st = mbd_accelerations(M, q, qd, motion, motion + 2 * M->m, uf, qdd, lam);
+    return st != ST_OK ? st : mbd_outputs(M, q, qd, qdd, lam, motion, uf, out);
+}
