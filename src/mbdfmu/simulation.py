@@ -18,8 +18,7 @@ from .equations.projection import (ASSEMBLY_TOL, assemble, assembly_changes, ini
                                    project_positions, project_velocities)
 from .errors import InputError, SettingError, SolverError
 from .integrators import make_integrator
-from .integrators.base import Counters, WorkLimit
-from .integrators.energy_audit import EnergyAudit
+from .integrators.base import WorkLimit
 from .integrators.settings import SolverSettings, settings_from_scene
 from .model.reader import load_scene
 from .model.scene import Scene
@@ -221,7 +220,7 @@ class Simulation:
         CPU time) if given; on failure the state stays where it was."""
         # Only the integrator and the flag change while stepping (inputs do not), so that
         # is all the rollback keeps.
-        snapshot, inputs_changed = rollback_point(self.integrator), self._inputs_changed
+        snapshot, inputs_changed = self.integrator.rollback_point(), self._inputs_changed
         try:
             if self._inputs_changed:
                 self._reinitialize()
@@ -273,25 +272,6 @@ class Simulation:
         self._drivers, self._forces = decode(state["drivers"]), decode(state["forces"])
         self._inputs_changed = bool(state["inputs_changed"])
         self._cache = self._held = None
-
-
-def rollback_point(integrator) -> dict:
-    """What ``integrator.get_state()`` gives, for a rollback within the process, cheaper:
-    arrays copied, the counters and the energy audit (flat: numbers and strings) copied
-    shallowly, anything else encoded; ``set_state`` restores it."""
-    state = {}
-    for name in ("t", "q", "qd", "h", "stats", "audit") + integrator.state_fields:
-        value = getattr(integrator, name)
-        if isinstance(value, np.ndarray):
-            value = value.copy()
-        elif isinstance(value, (Counters, EnergyAudit)):
-            flat = value
-            value = object.__new__(type(flat))
-            value.__dict__.update(flat.__dict__)
-        elif not (value is None or isinstance(value, (bool, int, float, str))):
-            value = encode(value)
-        state[name] = value
-    return state
 
 
 def output_time_derivatives(sim: Simulation) -> tuple[np.ndarray, np.ndarray]:
