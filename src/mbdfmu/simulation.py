@@ -14,8 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from .equations import Equations
-from .equations.projection import (ASSEMBLY_TOL, assemble, assembly_changes, initial_estimates,
-                                   project_positions, project_velocities)
+from .equations.projection import (ASSEMBLY_TOL, PROJECTION_MAX_ITER, assemble,
+                                   assembly_changes, initial_estimates, project_positions,
+                                   project_velocities)
 from .errors import InputError, SettingError, SolverError
 from .integrators import make_integrator
 from .integrators.base import WorkLimit
@@ -207,10 +208,13 @@ class Simulation:
     def _reinitialize(self) -> None:
         """After inputs change: the state is made consistent with the new driver positions."""
         tol = ASSEMBLY_TOL * self.equations.length_scale * REINITIALIZE_TOL_FACTOR
-        u = self.inputs_at(self.t)
-        q, _ = project_positions(self.equations, self.t, self.q, tol=tol, u=u)
-        qd = project_velocities(self.equations, self.t, q, self.qd, u)
-        self.integrator.reset_state(q, qd)
+        u, kernel = self.inputs_at(self.t), self.equations.ckernel
+        done = None if kernel is None else kernel.project(
+            self.q, self.qd, self.equations.motion_values(self.t, u), tol, PROJECTION_MAX_ITER)
+        if done is None:
+            q, _ = project_positions(self.equations, self.t, self.q, tol=tol, u=u)
+            done = q, project_velocities(self.equations, self.t, q, self.qd, u)
+        self.integrator.reset_state(*done)
         self._inputs_changed = False
 
     # ------------------------------------------------------------------ stepping

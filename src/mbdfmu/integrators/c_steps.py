@@ -33,7 +33,9 @@ def stage_inputs(integrator, times) -> None:
     kernel, k = eq.ckernel, len(times)
     motions, forces = kernel.buf.motions, kernel.buf.ufs
     if not eq.scene.drivers:
-        motions[:k] = np.concatenate(eq.motion_values(0.0))    # offsets only: constant
+        if kernel.static_rows < k:      # offsets only: the same at every time, written once
+            motions[:k] = np.concatenate(eq.motion_values(0.0))
+            kernel.static_rows = k
         if kernel.nf:
             inputs = [integrator.inputs(t) for t in times]
             forces[:k] = inputs[0].forces if all(u is inputs[0] for u in inputs) else \
@@ -111,15 +113,17 @@ def _rk4p_run(rk, t0: float, h: float, k: int, count: int) -> tuple[int, int]:
 
 
 def tableau(rk) -> tuple:
-    """(ns, A (ns, ns), B, E, E3 or None) of an embedded pair as the kernel takes them."""
+    """(ns, A (ns, ns), B, E, E3 or None) of an embedded pair as the kernel takes them,
+    then the stages' time fractions with 1 appended (the step's end)."""
     cls = type(rk)
     if cls not in _TABLEAUS:
         ns = rk.n_stages
         A = np.zeros((ns, ns))
         A[:, :rk.A.shape[1]] = rk.A[:ns]
         E, E3 = (rk.E5, rk.E3) if hasattr(rk, "E5") else (rk.E, None)
-        _TABLEAUS[cls] = (A, rk.B, E, E3)
-    return rk.equations.ckernel.tableau(cls, *_TABLEAUS[cls])
+        _TABLEAUS[cls] = (A, rk.B, E, E3), np.append(rk.C[:ns], 1.0)
+    arrays, fractions = _TABLEAUS[cls]
+    return (*rk.equations.ckernel.tableau(cls, *arrays), fractions)
 
 
 def prk_step(rk, h: float, safety: float, min_factor: float, max_factor: float,
@@ -127,11 +131,11 @@ def prk_step(rk, h: float, safety: float, min_factor: float, max_factor: float,
     """``ProjectedRK._step_impl`` with the step's arithmetic in C: (accepted, next step),
     or None when the Python step must do it. The factors are projected_rk.py's."""
     t, n = rk.t, rk.q.size
-    times = np.append(t + rk.C[:rk.n_stages] * h, t + h)   # row s: stage s, then t + h
-    stage_inputs(rk, times)
+    table = tableau(rk)
+    stage_inputs(rk, t + h * table[-1])        # row s: stage s, then t + h
     status, err, y_new, f_new = rk.equations.ckernel.prk_trial(
-        tableau(rk), h, np.concatenate((rk.q, rk.qd)), rk.f, rk.rtol, rk.atol,
-        rk._projection_tol(), PROJECTION_MAX_ITER)
+        table[:-1], h, rk.q, rk.qd, rk.f, rk.rtol, rk.atol, rk._projection_tol(),
+        PROJECTION_MAX_ITER)
     if status in (ckernel.SINGULAR, ckernel.SPRING):
         return None
     rk.stats.naccel += rk.n_stages

@@ -190,12 +190,15 @@ class Kernel:
         model.work, model.memo = self.work.ctypes.data, self.memo.ctypes.data
         self.buf = Buffers(self.n, self.m, self.nf, self.nout)
         self._tableaus: dict = {}
+        self.static_rows = 0          # rows of buf.motions holding a driverless scene's block
         self._bind(lib)
 
     def _bind(self, lib) -> None:
         d = ctypes.c_double
         signatures = {"mbd_accelerations": [_P] * 8, "mbd_outputs": [_P] * 8,
                       "mbd_state_outputs": [_P] * 8,
+                      "mbd_project_positions": [_P, _P, _P, ctypes.c_double, _I],
+                      "mbd_project_velocities": [_P] * 5,
                       "mbd_rk4p_steps": [_P, _P, _P, d, _I, _P, _I, _P, _I, d, _I, _P, d, d, _P],
                       "mbd_prk_trial": [_P, _I, _P, _P, _P, _P, d, _P, _P, _P, _P, d, d, d, _I,
                                         _P, _P, _P, _P]}
@@ -213,7 +216,8 @@ class Kernel:
         b.q[:] = q
         b.qd[:] = qd
         b.motion[:m], b.motion[m:2 * m], b.motion[2 * m:] = motion
-        b.uf[:self.nf] = uf
+        if uf is not None:
+            b.uf[:self.nf] = uf
 
     def accelerations(self, q, qd, motion, uf):
         """(q'', lam) of eq. (14); motion: (c, c', c'') of every row; uf: force inputs."""
@@ -233,6 +237,18 @@ class Kernel:
                          b.p_out) != OK:
             return None
         return b.out.copy()
+
+    def project(self, q, qd, motion, tol, max_iter):
+        """(q, q') projected onto the constraints (positions to ``tol``, then velocities;
+        ``projection.project_positions`` / ``project_velocities``), or None when the numpy
+        path must do it (no convergence, a singular Schur complement: it says why)."""
+        b, m = self.buf, self.m
+        self._load(q, qd, motion, None)
+        if self._project_positions(self.address, b.p_q, b.p_motion, tol, max_iter) != OK or \
+                self._project_velocities(self.address, b.p_q, b.p_qd, b.p_motion,
+                                         b.p_motion + 8 * m) != OK:
+            return None
+        return b.q.copy(), b.qd.copy()
 
     def state_outputs(self, q, qd, motion, uf):
         """The output vector at (q, q') with q'' and lam of eq. (14) at that state (those the
@@ -267,12 +283,13 @@ class Kernel:
                                                      for x in arrays))
         return self._tableaus[key]
 
-    def prk_trial(self, tableau, h, y, f0, rtol, atol, tol, max_iter):
+    def prk_trial(self, tableau, h, q, qd, f0, rtol, atol, tol, max_iter):
         """The arithmetic of one step of an embedded pair (``mbd_prk_trial``) with the
-        inputs in ``buf.motions`` / ``buf.ufs`` (row s: stage s; row ns: t + h); tableau
-        from ``tableau``. Returns (status, err, y_new, f_new)."""
-        b = self.buf
-        b.y[:] = y
+        inputs in ``buf.motions`` / ``buf.ufs`` (row s: stage s; row ns: t + h), from
+        (q, q') with f0 = y' there; tableau from ``tableau``. Returns (status, err, y_new,
+        f_new)."""
+        b, n = self.buf, self.n
+        b.y[:n], b.y[n:] = q, qd
         b.f[:] = f0
         status = self._prk_trial(self.address, *tableau, h, b.p_y, b.p_f, b.p_motions,
                                  b.p_ufs, rtol, atol, tol, max_iter, b.p_y_new, b.p_f_new,
