@@ -57,25 +57,28 @@ typedef struct {
 
 /* ---- row primitives (joints.py) ------------------------------------------------------ */
 
-static inline void rotated(const double *qe, I b, double vx, double vy, double *x, double *y) {
-    double c = cos(qe[3 * b + 2]), s = sin(qe[3 * b + 2]);
-    *x = c * vx - s * vy;
-    *y = s * vx + c * vy;
+/* A_b (vx, vy) with body b's cos and sin (cs, sn: per body, the ground's last). */
+static inline void rotated(const double *cs, const double *sn, I b, double vx, double vy,
+                           double *x, double *y) {
+    *x = cs[b] * vx - sn[b] * vy;
+    *y = sn[b] * vx + cs[b] * vy;
 }
 
 /* psi (m) = terms - cval; raw (nraw) = the terms' Jacobian values (constants first, then
  * the coincidence and line blocks, constraints.py's layout); gamma (m) without c'' when
  * qde is given. qe, qde: (n + 3), the ground's three zeros last. */
 static void terms(const Model *M, const double *qe, const double *qde, const double *cval,
-                  double *psi, double *raw, double *gamma) {
+                  double *psi, double *raw, double *gamma, double *cs) {
     I k0 = M->nconst, kc = M->kc, kl = M->kl;
+    double *sn = cs + M->nb + 1;     /* cos and sin of every body's angle, once (planar.poses) */
+    for (I b = 0; b <= M->nb; b++) { cs[b] = cos(qe[3 * b + 2]); sn[b] = sin(qe[3 * b + 2]); }
     memcpy(raw, M->constants, (size_t)k0 * sizeof(double));
     for (I r = 0; r < M->m; r++) { psi[r] = 0.0; if (gamma) gamma[r] = 0.0; }
     for (I k = 0; k < kc; k++) {
         I i = M->c_bi[k], j = M->c_bj[k], r0 = M->c_rows[2 * k], r1 = M->c_rows[2 * k + 1];
         double aix, aiy, ajx, ajy;
-        rotated(qe, i, M->c_si[2 * k], M->c_si[2 * k + 1], &aix, &aiy);
-        rotated(qe, j, M->c_sj[2 * k], M->c_sj[2 * k + 1], &ajx, &ajy);
+        rotated(cs, sn, i, M->c_si[2 * k], M->c_si[2 * k + 1], &aix, &aiy);
+        rotated(cs, sn, j, M->c_sj[2 * k], M->c_sj[2 * k + 1], &ajx, &ajy);
         psi[r0] = qe[3 * i] + aix - qe[3 * j] - ajx;
         psi[r1] = qe[3 * i + 1] + aiy - qe[3 * j + 1] - ajy;
         raw[k0 + k] = -aiy;
@@ -92,9 +95,9 @@ static void terms(const Model *M, const double *qe, const double *qde, const dou
     for (I k = 0; k < kl; k++) {
         I i = M->l_bi[k], j = M->l_bj[k], row = M->l_rows[k];
         double aix, aiy, ajx, ajy, ux, uy, w = M->l_w[k];
-        rotated(qe, i, M->l_si[2 * k], M->l_si[2 * k + 1], &aix, &aiy);
-        rotated(qe, j, M->l_sj[2 * k], M->l_sj[2 * k + 1], &ajx, &ajy);
-        rotated(qe, i, M->l_u[2 * k], M->l_u[2 * k + 1], &ux, &uy);
+        rotated(cs, sn, i, M->l_si[2 * k], M->l_si[2 * k + 1], &aix, &aiy);
+        rotated(cs, sn, j, M->l_sj[2 * k], M->l_sj[2 * k + 1], &ajx, &ajy);
+        rotated(cs, sn, i, M->l_u[2 * k], M->l_u[2 * k + 1], &ux, &uy);
         double dx = qe[3 * j] + ajx - qe[3 * i] - aix, dy = qe[3 * j + 1] + ajy - qe[3 * i + 1] - aiy;
         double ud = ux * dx + uy * dy;
         psi[row] += w * ud;
@@ -257,7 +260,7 @@ static int forces(const Model *M, const double *q, const double *qd, const doubl
 
 typedef struct {
     double *qe, *qde, *psi, *raw, *data, *values, *gamma, *rhs, *lam, *x, *band, *tmp, *F,
-           *Fm, *nv, *qv;
+           *Fm, *nv, *cs, *qv;
 } Scratch;
 
 static Scratch scratch(const Model *M, double *w) {
@@ -278,6 +281,7 @@ static Scratch scratch(const Model *M, double *w) {
     s.F = w; w += n;
     s.Fm = w; w += n;
     s.nv = w; w += n;
+    s.cs = w; w += 2 * (M->nb + 1);
     s.qv = w;
     return s;
 }
@@ -286,7 +290,7 @@ static Scratch scratch(const Model *M, double *w) {
 I mbd_work_size(const Model *M, I stages) {
     I n = M->n, m = M->m;
     return 2 * (n + 3) + 7 * m + M->nraw + M->size + 1 + M->nkeep + (M->kd + 1) * m + 4 * n
-           + 16 + (stages + 4) * 2 * n;
+           + 2 * (M->nb + 1) + 16 + (stages + 4) * 2 * n;
 }
 
 static void extend(const Model *M, const double *q, double *qe) {
@@ -308,7 +312,7 @@ static int accelerations(const Model *M, Scratch *s, const double *q, const doub
     }
     extend(M, q, s->qe);
     extend(M, qd, s->qde);
-    terms(M, s->qe, s->qde, cval, s->psi, s->raw, s->gamma);
+    terms(M, s->qe, s->qde, cval, s->psi, s->raw, s->gamma, s->cs);
     merged(M, s->raw, s->data, s->values);
     for (I k = 0; k < n; k++) s->Fm[k] = M->minv[k] * s->F[k];
     jac_mul(M, s->values, s->Fm, s->rhs);
@@ -382,7 +386,7 @@ void mbd_constraints(const Model *M, const double *q, const double *qd, const do
     Scratch s = scratch(M, M->work);
     extend(M, q, s.qe);
     if (qd) extend(M, qd, s.qde);
-    terms(M, s.qe, qd ? s.qde : NULL, cval, psi, s.raw, qd ? gamma : NULL);
+    terms(M, s.qe, qd ? s.qde : NULL, cval, psi, s.raw, qd ? gamma : NULL, s.cs);
     merged(M, s.raw, data, s.values);
 }
 
@@ -393,7 +397,7 @@ static int project_positions(const Model *M, Scratch *s, double *q, const double
     I n = M->n, m = M->m;
     for (I it = 0; it <= max_iter; it++) {
         extend(M, q, s->qe);
-        terms(M, s->qe, NULL, cval, s->psi, s->raw, NULL);
+        terms(M, s->qe, NULL, cval, s->psi, s->raw, NULL, s->cs);
         merged(M, s->raw, s->data, s->values);
         double err = 0.0;
         for (I r = 0; r < m; r++) {
@@ -440,7 +444,7 @@ int mbd_project_velocities(const Model *M, const double *q, double *qd, const do
     Scratch s = scratch(M, M->work);
     if (M->m == 0) return ST_OK;
     extend(M, q, s.qe);
-    terms(M, s.qe, NULL, cval, s.psi, s.raw, NULL);
+    terms(M, s.qe, NULL, cval, s.psi, s.raw, NULL, s.cs);
     merged(M, s.raw, s.data, s.values);
     return project_velocities(M, &s, qd, cd);
 }

@@ -73,7 +73,7 @@ int mbd_outputs(const Model *M, const double *q, const double *qd, const double 
         for (int c = 0; c < 3; c++) out[o++] = qd[3 * b + c];
     }
     extend(M, q, s.qe);
-    terms(M, s.qe, NULL, motion, s.psi, s.raw, NULL);
+    terms(M, s.qe, NULL, motion, s.psi, s.raw, NULL, s.cs);
     merged(M, s.raw, s.data, s.values);
     double *joints = s.qv;
     joint_values(M, q, lam, s.data, joints);
