@@ -183,10 +183,21 @@ def test_c_kernel_runs_replay_bit_for_bit_from_a_saved_state():
     assert np.array_equal(drive(sim, 10, 1e-3), first)
 
 
-def test_a_singular_schur_complement_is_left_to_the_numpy_path():
-    """The parallelogram's redundant rows make S singular: the kernel hands every
-    evaluation back, and the minimum-norm answers are the numpy kernel's, exactly (the
-    outputs, computed in C from them, to round-off)."""
+def test_minimum_norm_solves_are_the_numpy_kernels():
+    """Redundant rows (the parallelogram) and singular crossings (P2 N = 2's cranks pass
+    the horizontal near t = 0.79 s) take eq. 14's minimum-norm multipliers: the C kernel's
+    (Jacobi eigenvalues with lstsq's cut-off) are the numpy kernel's to round-off."""
+    for name, method, t_end in (("parallelogram", "rk4p", 0.05), ("n_four_bar_2", "rk4p", 1.0)):
+        plain, fast = (mbdfmu.simulate(scene(name), t_end=t_end, method=method, kernel=k,
+                                       output_interval=1e-2) for k in ("numpy", "c"))
+        for a, b in ((plain.q, fast.q), (plain.qd, fast.qd), (plain.lam, fast.lam)):
+            np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-9 * max(1.0, np.abs(a).max()))
+
+
+def test_without_minimum_norm_in_c_the_numpy_path_answers(monkeypatch):
+    """MIN_NORM_IN_C off: every singular solve goes back to the numpy path, whose answers
+    then come out exactly (the outputs, computed in C from them, to round-off)."""
+    monkeypatch.setattr(ckernel, "MIN_NORM_IN_C", False)
     plain, fast = (mbdfmu.simulate(scene("parallelogram"), t_end=0.05, method="rk4p", kernel=k)
                    for k in ("numpy", "c"))
     for a, b in ((plain.q, fast.q), (plain.qd, fast.qd), (plain.qdd, fast.qdd),

@@ -28,6 +28,10 @@ MAX_STAGES = 13
 # Times whose inputs one call can take (a run of 64 rk4p steps evaluates 3 times each).
 MAX_ROWS = 192
 ENV_LIBRARY = "MBDFMU_C_KERNEL"
+# Minimum-norm solves (singular configurations, redundant rows) in C, as sparsity.py does
+# them (lstsq's cut-off, iterated Tikhonov); False hands them to the numpy path instead,
+# which then follows whatever that path does.
+MIN_NORM_IN_C = True
 
 _P, _I = ctypes.c_void_p, ctypes.c_int64
 _FIELDS = (
@@ -36,7 +40,7 @@ _FIELDS = (
     "*cols npairs *pair_a *pair_b *pair_minv *band_index *perm kd *mass *minv *gravity "
     "%rank_tol *f_const nforce *f_int *f_real nr *joint_rows *reaction_entries *joint_bj "
     "*frame_body *reaction_joints *frame_angle *frame_point nj nplan *joint_plan ncoupler "
-    "*coupler_rows ndriver *driver_rows *work *memo").split()
+    "*coupler_rows ndriver *driver_rows banded min_norm *work *memo").split()
 
 
 class Model(ctypes.Structure):
@@ -136,7 +140,8 @@ def model_arrays(eq) -> dict:
              frame_angle=c.frame_angle, frame_point=c.frame_point, nj=len(eq.scene.joints),
              nplan=eq._joint_outputs.size, joint_plan=eq._joint_outputs,
              ncoupler=c.coupler_rows.size, coupler_rows=c.coupler_rows,
-             ndriver=c.driver_rows.size, driver_rows=c.driver_rows)
+             ndriver=c.driver_rows.size, driver_rows=c.driver_rows,
+             banded=int(p.banded), min_norm=int(MIN_NORM_IN_C))
     return a
 
 

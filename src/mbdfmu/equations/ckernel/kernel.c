@@ -51,6 +51,7 @@ typedef struct {
     const double *frame_angle, *frame_point;
     I nj, nplan; const I *joint_plan; I ncoupler; const I *coupler_rows;
     I ndriver; const I *driver_rows;
+    I banded, min_norm;   /* S in band storage (else dense); minimum-norm solves here */
     double *work;
     double *memo;   /* the last evaluation of eq. (14): its arguments and results (memo_size) */
 } Model;
@@ -142,47 +143,12 @@ static void jac_t_mul(const Model *M, const double *values, const double *y, dou
     for (I k = 0; k < M->nkeep; k++) out[M->cols[k]] += values[k] * y[M->rows[k]];
 }
 
-/* x with (J M^-1 J^T) x = b by banded Cholesky in reverse Cuthill-McKee order; ST_SINGULAR
- * when the pivots say S is too near singular (the numpy path's minimum-norm case). */
-static int schur_solve(const Model *M, const double *values, const double *b, double *x,
-                       double *band, double *tmp) {
-    I m = M->m, kd = M->kd;
-    memset(band, 0, (size_t)((kd + 1) * m) * sizeof(double));
-    for (I p = 0; p < M->npairs; p++)
-        band[M->band_index[p]] += values[M->pair_a[p]] * values[M->pair_b[p]] * M->pair_minv[p];
-#define L(i, j) band[(i) * m + (j)]
-    double dmax = 0.0, dmin = INFINITY;
-    for (I j = 0; j < m; j++) {
-        double s = L(0, j);
-        for (I k = (j - kd > 0 ? j - kd : 0); k < j; k++) s -= L(j - k, k) * L(j - k, k);
-        if (!(s > 0.0)) return ST_SINGULAR;
-        double d = sqrt(s);
-        L(0, j) = d;
-        if (d > dmax) dmax = d;
-        if (d < dmin) dmin = d;
-        I end = j + kd + 1 < m ? j + kd + 1 : m;
-        for (I i = j + 1; i < end; i++) {
-            double t = L(i - j, j);
-            for (I k = (i - kd > 0 ? i - kd : 0); k < j; k++) t -= L(i - k, k) * L(j - k, k);
-            L(i - j, j) = t / d;
-        }
-    }
-    if (!(dmin > sqrt(M->rank_tol) * dmax)) return ST_SINGULAR;
-    for (I i = 0; i < m; i++) {
-        double s = b[M->perm[i]];
-        for (I k = (i - kd > 0 ? i - kd : 0); k < i; k++) s -= L(i - k, k) * tmp[k];
-        tmp[i] = s / L(0, i);
-    }
-    for (I i = m - 1; i >= 0; i--) {
-        double s = tmp[i];
-        I end = i + kd + 1 < m ? i + kd + 1 : m;
-        for (I k = i + 1; k < end; k++) s -= L(k - i, i) * tmp[k];
-        tmp[i] = s / L(0, i);
-    }
-#undef L
-    for (I i = 0; i < m; i++) x[M->perm[i]] = tmp[i];
-    return ST_OK;
+static int all_finite_values(const double *x, I k) {
+    for (I i = 0; i < k; i++) if (!isfinite(x[i])) return 0;
+    return 1;
 }
+
+#include "solve.h"
 
 /* ---- applied forces (forces.py) --------------------------------------------------------- */
 
@@ -258,6 +224,12 @@ static int forces(const Model *M, const double *q, const double *qd, const doubl
 
 /* ---- scratch space ----------------------------------------------------------------------- */
 
+/* scratch of schur_solve: two dense m x m or two bands */
+static I solve_size(const Model *M) {
+    I band = (M->kd + 1) * M->m;
+    return 2 * (M->banded ? band : (M->m * M->m > band ? M->m * M->m : band));
+}
+
 typedef struct {
     double *qe, *qde, *psi, *raw, *data, *values, *gamma, *rhs, *lam, *x, *band, *tmp, *F,
            *Fm, *nv, *cs, *qv;
@@ -276,8 +248,8 @@ static Scratch scratch(const Model *M, double *w) {
     s.rhs = w; w += m;
     s.lam = w; w += m;
     s.x = w; w += m;
-    s.band = w; w += (M->kd + 1) * m;
-    s.tmp = w; w += m;
+    s.band = w; w += solve_size(M);
+    s.tmp = w; w += 3 * m;
     s.F = w; w += n;
     s.Fm = w; w += n;
     s.nv = w; w += n;
@@ -289,7 +261,7 @@ static Scratch scratch(const Model *M, double *w) {
 /* doubles of scratch space the kernel needs, with room for the steppers' stages */
 I mbd_work_size(const Model *M, I stages) {
     I n = M->n, m = M->m;
-    return 2 * (n + 3) + 7 * m + M->nraw + M->size + 1 + M->nkeep + (M->kd + 1) * m + 4 * n
+    return 2 * (n + 3) + 9 * m + M->nraw + M->size + 1 + M->nkeep + solve_size(M) + 4 * n
            + 2 * (M->nb + 1) + 16 + (stages + 4) * 2 * n;
 }
 
