@@ -13,6 +13,8 @@ checks it and says what is wrong).
 
 from __future__ import annotations
 
+from operator import itemgetter
+
 import numpy as np
 
 
@@ -23,7 +25,9 @@ class RealCache:
         reals = table.by_type["Real"]
         count = max(reals, default=-1) + 1
         self.vrs = np.array(sorted(reals), dtype=np.intp)
-        self.names = [reals[vr].name for vr in self.vrs.tolist()]
+        names = [reals[vr].name for vr in self.vrs.tolist()]
+        self.read = itemgetter(*names) if len(names) > 1 else (lambda values: (values[names[0]],)
+                                                                if names else ())
         self.values = np.zeros(max(count, 1))
         self.mask = np.zeros(max(count, 1), dtype=np.uint8)
         self.mask[self.vrs] = 1
@@ -34,7 +38,7 @@ class RealCache:
     def publish(self, values: dict) -> None:
         """Refresh from ``values`` and let the wrapper serve them (all must be numbers)."""
         try:
-            self.values[self.vrs] = [values[name] for name in self.names]
+            self.values[self.vrs] = self.read(values)
         except (KeyError, TypeError, ValueError):
             return
         self.valid[0] = 1

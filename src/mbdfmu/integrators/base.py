@@ -303,8 +303,11 @@ class Integrator:
         state = {}
         for name in ("t", "q", "qd", "h", "stats", "audit") + self.state_fields:
             value = getattr(self, name)
-            if isinstance(value, (Counters, EnergyAudit)):
-                copied = object.__new__(type(value))
+            kind = type(value)
+            if kind is np.ndarray:
+                state[name] = value.copy()
+            elif kind is Counters or kind is EnergyAudit:
+                copied = object.__new__(kind)
                 copied.__dict__.update(value.__dict__)
                 state[name] = copied
             else:

@@ -1,10 +1,11 @@
 /*
  * solve.h (part of kernel.c): (J M^-1 J^T) x = b as sparsity.py solves it.
  *
- * Below BANDED_MIN_ROWS rows (M->banded 0) S is dense and factorised by Cholesky in the
+ * Below BANDED_MIN_ROWS rows (M->banded 0) numpy factorises S dense by Cholesky in the
  * rows' own order (solve_spd's potrf), above it in band storage in reverse Cuthill-McKee
  * order (JacobianPattern.schur_solve's pbtrf); either is trusted when its pivots say S is
- * well conditioned (_well_conditioned). Otherwise the minimum-norm least-squares solution:
+ * well conditioned (_well_conditioned). Here the band answers first at any size (the
+ * same numbers to round-off, cheaper), the dense form where the band's pivots are not. Otherwise the minimum-norm least-squares solution:
  * dense, the eigenvalues of S by cyclic Jacobi rotations with those at or below
  * rank_tol times the largest dropped (lstsq's cut-off on the singular values of symmetric
  * S); banded, iterated Tikhonov regularisation (JacobianPattern._min_norm). With
@@ -191,8 +192,22 @@ static int banded_solve(const Model *M, const double *values, const double *b, d
     return ST_OK;
 }
 
-/* x with (J M^-1 J^T) x = b: ST_OK, or ST_SINGULAR where the numpy path must answer. */
+/* x with (J M^-1 J^T) x = b: ST_OK, or ST_SINGULAR where the numpy path must answer.
+ * Below BANDED_MIN_ROWS the band (cheaper at any size) answers where its pivots are
+ * well conditioned, and the dense form decides only where they are not. */
 static int schur_solve(const Model *M, const double *values, const double *b, double *x,
                        double *work, double *tmp) {
-    return M->banded ? banded_solve(M, values, b, x, work, tmp) : dense_solve(M, values, b, x, work);
+    if (M->banded) return banded_solve(M, values, b, x, work, tmp);
+    I m = M->m, kd = M->kd, size = (kd + 1) * m;
+    double *L = work, dmin, dmax;
+    memset(L, 0, (size_t)size * sizeof(double));
+    for (I p = 0; p < M->npairs; p++)
+        L[M->band_index[p]] += values[M->pair_a[p]] * values[M->pair_b[p]] * M->pair_minv[p];
+    if (band_cholesky(L, m, kd, &dmin, &dmax) && dmin > sqrt(M->rank_tol) * dmax) {
+        for (I i = 0; i < m; i++) tmp[i] = b[M->perm[i]];
+        band_substitute(L, m, kd, tmp);
+        for (I i = 0; i < m; i++) x[M->perm[i]] = tmp[i];
+        return ST_OK;
+    }
+    return dense_solve(M, values, b, x, work);
 }
