@@ -525,19 +525,17 @@ def test_p6_fixed_step_methods_stop_at_the_first_spike(method):
         run("light_cart_pole", 10.0, method=method, output_interval=0.01)
 
 
-def test_energy_step_control_is_what_resolves_p6(monkeypatch):
-    """Without the energy error estimate, dop853p at rtol 1e-6 misses the criterion by 15x
-    (1.5e-5) and its energy audit alone (a gross-error check) lets that pass: the per-step
-    estimate is what makes the default honest."""
+def test_step_control_at_rtol_over_100_resolves_p6_with_or_without_the_energy_estimate(
+        monkeypatch):
+    """At rtol as a per-step tolerance dop853p missed P6's criterion by 15x without the
+    energy error estimate; aiming each step at rtol / 100 (``local_tolerance``) it meets
+    it by itself (measured 7.5e-9 at 3 s either way)."""
     import mbdfmu.integrators.energy_audit as audit
-    monkeypatch.setattr(audit, "ENERGY_STEP_FACTOR", 1e12)
-    res = run("light_cart_pole", 3.0, method="dop853p", output_interval=0.01)
-    _, w_err = cart_pole_errors(res)
-    assert w_err > 2 * P6_CRITERION            # measured 3.1e-6 at 3 s (1.5e-5 at 10 s)
-    monkeypatch.undo()
-    res = run("light_cart_pole", 3.0, method="dop853p", output_interval=0.01)
-    _, w_err = cart_pole_errors(res)
-    assert w_err < 0.5 * P6_CRITERION          # measured 1.2e-7
+    for factor in (1e12, audit.ENERGY_STEP_FACTOR):
+        monkeypatch.setattr(audit, "ENERGY_STEP_FACTOR", factor)
+        res = run("light_cart_pole", 3.0, method="dop853p", output_interval=0.01)
+        _, w_err = cart_pole_errors(res)
+        assert w_err < 0.05 * P6_CRITERION
 
 
 # --------------------------------------------------------------------------------- P7 ---

@@ -14,8 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from .equations import Equations
-from .equations.projection import (ASSEMBLY_TOL, assemble, assembly_changes, initial_estimates,
-                                   project_positions, project_velocities)
+from .equations.projection import (ASSEMBLY_TOL, PROJECTION_MAX_ITER, assemble,
+                                   assembly_changes, initial_estimates, project_positions,
+                                   project_velocities)
 from .errors import InputError, SettingError, SolverError
 from .integrators import make_integrator
 from .integrators.base import WorkLimit
@@ -23,41 +24,15 @@ from .integrators.settings import SolverSettings, settings_from_scene
 from .model.reader import load_scene
 from .model.scene import Scene
 from .model.variables import InputValues, inputs, outputs
-from .plain import Plain, decode, encode
+from .plain import decode, encode
 from .result import Result
-from .signals import DriverTable, Held, LinearTable, SampledDriver
+from .signals import DriverTable, Held, LinearTable, SampledDriver, TaylorInput
 
 # After an input jump the state is re-projected to this many times the assembly tolerance.
 REINITIALIZE_TOL_FACTOR = 100
 DRIVER_FIELDS = ("position", "velocity", "acceleration")
 # Time step (s) of the central differences of output_time_derivatives.
 DELTA = 2e-4
-
-
-class TaylorInput(Plain):
-    """Force inputs that follow their Taylor polynomial from ``t0``:
-    ``sum_k coefficients[k] (t - t0)^k / k!`` (an FMU's input with its derivatives)."""
-
-    plain_fields = ("t0", "coefficients")
-
-    def __init__(self, t0: float, value):
-        self.t0 = float(t0)
-        self.coefficients = np.atleast_2d(np.asarray(value, dtype=float)).copy()
-
-    def set_derivative(self, index: int, order: int, value: float) -> None:
-        """The ``order``-th time derivative of component ``index`` at ``t0``."""
-        missing = order + 1 - len(self.coefficients)
-        if missing > 0:
-            self.coefficients = np.vstack([self.coefficients,
-                                           np.zeros((missing, self.coefficients.shape[1]))])
-        self.coefficients[order, index] = float(value)
-
-    def __call__(self, t):
-        tau, term, total = t - self.t0, 1.0, np.zeros(self.coefficients.shape[1])
-        for k, c in enumerate(self.coefficients):
-            total = total + c * term
-            term = term * tau / (k + 1)
-        return total
 
 
 class Simulation:
@@ -86,6 +61,7 @@ class Simulation:
                          zip(layout.drivers, layout.driver_initial)}
         self._forces = {name: Held(np.zeros(len(f))) for name, f in layout.fields.items()}
         self._inputs_changed = False
+        self._held = None                # the inputs while all are held (inputs_at)
         q0, qd0 = assemble(self.equations, t0, self.inputs_at(t0))
         # what assembly changed of the scene's initial values, for the user to see
         self.warnings = assembly_changes(self.equations, initial_estimates(self.equations),
@@ -125,11 +101,16 @@ class Simulation:
         layout = self.equations.layout
         if not self._drivers and not self._forces:
             return self.equations.no_inputs
+        if self._held is not None:       # every input held: the same values at any t
+            return self._held
         motions = np.array([self._drivers[n](t) for n in layout.drivers], dtype=float)
         forces = [np.atleast_1d(np.asarray(self._forces[n](t), dtype=float))
                   for n in layout.forces]
-        return InputValues(motions.reshape(-1, 3),
-                           np.concatenate(forces) if forces else np.zeros(0))
+        values = InputValues(motions.reshape(-1, 3),
+                             np.concatenate(forces) if forces else np.zeros(0))
+        if not self._drivers and all(type(f) is Held for f in self._forces.values()):
+            self._held = values
+        return values
 
     def _split(self, name: str) -> tuple[str, str]:
         if name not in self.input_names:
@@ -156,7 +137,7 @@ class Simulation:
             values[fields.index(field)] = value
             self._forces[item] = Held(values)
         self._inputs_changed = True
-        self._cache = None
+        self._cache = self._held = None
 
     def set_input_derivative(self, name: str, order: int, value: float) -> None:
         """The ``order``-th time derivative (1 or more) of an input at the current time: the
@@ -185,7 +166,7 @@ class Simulation:
                 signal = self._forces[item] = TaylorInput(self.t, signal(self.t))
             signal.set_derivative(self.equations.layout.fields[item].index(field), order, value)
         self._inputs_changed = True
-        self._cache = None
+        self._cache = self._held = None
 
     def set_input_signal(self, item: str, signal) -> None:
         """Drive a force item or a driver with a function of time (see ``signals``)."""
@@ -196,15 +177,18 @@ class Simulation:
         else:
             raise InputError(f'"{item}" is not an input-driven driver or force of this scene')
         self._inputs_changed = True
-        self._cache = None
+        self._cache = self._held = None
 
     def _reinitialize(self) -> None:
         """After inputs change: the state is made consistent with the new driver positions."""
         tol = ASSEMBLY_TOL * self.equations.length_scale * REINITIALIZE_TOL_FACTOR
-        u = self.inputs_at(self.t)
-        q, _ = project_positions(self.equations, self.t, self.q, tol=tol, u=u)
-        qd = project_velocities(self.equations, self.t, q, self.qd, u)
-        self.integrator.reset_state(q, qd, self.t)
+        u, kernel = self.inputs_at(self.t), self.equations.ckernel
+        done = None if kernel is None else kernel.project(
+            self.q, self.qd, self.equations.motion_values(self.t, u), tol, PROJECTION_MAX_ITER)
+        if done is None:
+            q, _ = project_positions(self.equations, self.t, self.q, tol=tol, u=u)
+            done = q, project_velocities(self.equations, self.t, q, self.qd, u)
+        self.integrator.reset_state(*done, self.t)
         self._inputs_changed = False
 
     def inputs_known_ahead(self) -> bool:
@@ -226,7 +210,7 @@ class Simulation:
         times); None: when the inputs beyond it are known (``inputs_known_ahead``)."""
         # Only the integrator and the flag change while stepping (inputs do not), so that
         # is all the rollback keeps.
-        snapshot, inputs_changed = self.integrator.get_state(), self._inputs_changed
+        snapshot, inputs_changed = self.integrator.rollback_point(), self._inputs_changed
         try:
             if self._inputs_changed:
                 self._reinitialize()
@@ -253,6 +237,13 @@ class Simulation:
         return self._cache
 
     def output_vector(self) -> np.ndarray:
+        kernel = self.equations.ckernel
+        if kernel is not None and not self._inputs_changed:   # one call, q'' kept from the step
+            u = self.inputs_at(self.t)
+            values = kernel.state_outputs(self.q, self.qd, self.equations.motion_values(self.t, u),
+                                          u.forces)
+            if values is not None:
+                return values
         qdd, lam = self.accelerations()
         return self.equations.output_values(self.t, self.q, self.qd, qdd, lam,
                                             self.inputs_at(self.t))
@@ -272,7 +263,7 @@ class Simulation:
         self.integrator.set_state(state["integrator"])
         self._drivers, self._forces = decode(state["drivers"]), decode(state["forces"])
         self._inputs_changed = bool(state["inputs_changed"])
-        self._cache = None
+        self._cache = self._held = None
 
 
 def output_time_derivatives(sim: Simulation) -> tuple[np.ndarray, np.ndarray]:

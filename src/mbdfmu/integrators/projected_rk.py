@@ -34,7 +34,7 @@ from scipy.integrate import DOP853, RK45
 from ..equations.projection import project_positions, project_velocities
 from ..equations.sparsity import schur_solve
 from ..errors import SolverError
-from . import dense_output, singular_zone
+from . import c_steps, dense_output, singular_zone
 from .adaptive import AdaptiveStepping
 from .base import Integrator, OutputPoint
 from .energy_audit import ENERGY_STEP_FACTOR, ENERGY_TOL_FACTOR
@@ -142,6 +142,9 @@ class ProjectedRK(AdaptiveStepping, Integrator):
             return out
         return tangent
 
+    def _projection_tol(self) -> float:
+        return projection_tol(self)
+
     def _project(self, t_new, y_new):
         """Mass-weighted projection of y_new = (q, q') onto the constraints at t_new;
         SolverError when Newton does not converge."""
@@ -171,6 +174,10 @@ class ProjectedRK(AdaptiveStepping, Integrator):
 
     def _attempt(self, h, c0):
         """One step of size h from the current state: (accepted, h_next, state)."""
+        if self.equations.ckernel is not None and c0 >= singular_zone.NEAR_ZONE:
+            stepped = c_steps.prk_attempt(self, h, SAFETY, MIN_FACTOR, MAX_FACTOR)
+            if stepped is not None:      # else near a singular configuration: in Python
+                return stepped
         t, n = self.t, self.q.size
         y = np.concatenate((self.q, self.qd))
         K = rk_stages(self._rhs_y, t, y, h, self.A, self.C, self.f, self.n_stages)

@@ -16,6 +16,7 @@ import numpy as np
 from ..equations.projection import PROJECTION_MAX_ITER, ROUNDOFF_RESIDUAL
 from ..equations.sparsity import RANK_TOLERANCE
 from ..errors import SolverError
+from . import c_steps
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
 from .projected_rk import ProjectedRK, projection_tol, rk_stages
 
@@ -71,6 +72,8 @@ class RK4P(ProjectedRK):
 
     def _fixed_run(self, t0, h, k, stop, n, t_target):
         """The base class's run of steps, compiled in one call when possible."""
+        if self.equations.ckernel is not None and self.equations.m > 0:
+            return c_steps.rk4p_run(self, t0, h, k, stop, n, t_target)   # the C kernel
         if not self.compiled_steps:
             return super()._fixed_run(t0, h, k, stop, n, t_target)
         from .rk4p_compiled import StepStatus   # numba only when the compiled path runs
