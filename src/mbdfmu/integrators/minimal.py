@@ -34,6 +34,8 @@ RANK_RTOL = 1e-9
 # Re-choose the partition when the dependent block's smallest singular value (relative to
 # its largest) falls below this fraction of Psi_q's own.
 REPARTITION_RATIO = 1e-2
+# Constraint rows up to which the partition is checked after every accepted step.
+CHECK_ROWS = 60
 
 
 def choose_partition(J: np.ndarray) -> np.ndarray:
@@ -98,7 +100,8 @@ class MinimalCoordinates(DOP853P):
         if self.equations.ckernel is not None:
             stepped = c_steps.mc_step(self, h, SAFETY, MIN_FACTOR, MAX_FACTOR, ENERGY_MIN_GAIN)
         accepted, h_next = stepped if stepped is not None else self._python_step(h)
-        if accepted or self.trial_status == c_steps.ckernel.PROJECTION:   # or Newton failed
+        failed = self.trial_status == c_steps.ckernel.PROJECTION      # a Newton solve
+        if failed or (accepted and self.equations.m <= CHECK_ROWS):
             self._check_partition()
         return accepted, h_next
 
