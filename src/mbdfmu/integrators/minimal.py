@@ -31,8 +31,9 @@ from .projected_rk import ENERGY_MIN_GAIN, MAX_FACTOR, MIN_FACTOR, SAFETY, DOP85
 ANGLE_WEIGHT = 0.1
 # Rank decisions on the pivoted R diagonal, relative to its largest entry.
 RANK_RTOL = 1e-9
-# Re-choose the partition when the dependent block's smallest singular value (relative to
-# its largest) falls below this fraction of Psi_q's own.
+# A partition is taken when its dependent block's smallest over largest singular value is at
+# least this fraction of Psi_q's own, and re-chosen when that ratio falls to this fraction
+# of its value when chosen.
 REPARTITION_RATIO = 1e-2
 # Constraint rows up to which the partition is checked after every accepted step.
 CHECK_ROWS = 60
