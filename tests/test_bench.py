@@ -113,3 +113,15 @@ def test_bench_command_quick_synchronous(tmp_path, capsys):
     assert (out / "summary.md").exists()
     assert cli.main(["bench", "P99", "--scheduler", "synchronous", "-o", str(out)]) == 2
     assert 'unknown bench scene "P99"' in capsys.readouterr().err
+
+
+def test_summary_lists_silently_wrong_runs(tmp_path):
+    # issue 12: an adaptive run that claims success with an error above 100 x its rtol
+    rows = [_row("a", 1e-6, 1.0, 5e-5), _row("a", 1e-8, 2.0, 2e-6),   # 50 x (fine), 200 x
+            _row("b", 1e-6, 1.0, 1.0, "failed")]                       # failed: said so
+    silent = bench_charts.silently_wrong(rows)
+    assert [(r["method"], r["setting"]) for r in silent] == [("a", 1e-8)]
+    text = bench_charts.write_summary(rows, tmp_path / "summary.md").read_text()
+    assert "Silently wrong runs (an adaptive method claiming success with an error above " \
+           "100 x rtol): 1." in text
+    assert "rtol 1e-08: error 2e-06" in text

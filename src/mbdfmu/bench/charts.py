@@ -19,6 +19,8 @@ from .cases import CASES, LEVELS
 STABILITY_CLASSES = ("stable", "drifting", "unstable", "failed")
 STABILITY_COLORS = ("#4daf4a", "#ffd92f", "#ff7f00", "#b2182b")
 DPI = 110
+# A run claiming success with an error above this times its rtol is silently wrong (issue 12).
+SILENT_FACTOR = 100.0
 
 
 def _by_scene(rows):
@@ -165,13 +167,35 @@ def _fmt(cpu, how):
     return f"<= {cpu:.3g} s" if how == "at most" else f"{cpu:.3g} s"
 
 
+def silently_wrong(rows) -> list:
+    """Runs of an adaptive method (kind "rtol", the setting its rtol) that claim success
+    with an error above SILENT_FACTOR times that rtol (errors in the scenes' units, m or rad
+    of metre-sized mechanisms): issue 12's count, whose target is none."""
+    return [r for r in rows if r["kind"] == "rtol" and r["status"] == "ok"
+            and math.isfinite(_float(r["error"]))
+            and _float(r["error"]) > SILENT_FACTOR * _float(r["setting"])]
+
+
+def _float(value) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
 def write_summary(rows, path: Path, notes: dict | None = None, footer: str = "") -> Path:
     notes = notes or {}
+    silent = silently_wrong(rows)
     lines = ["# mbdfmu bench summary", "",
              "CPU time each method needs to reach an error of 1e-4, 1e-6 and 1e-8 against the "
              "scene's reference, interpolated (log-log) on its work-precision line; "
              "\"<=\" when its coarsest setting is already below the level; \"cannot\" when "
-             "no setting of the sweep reaches it.", ""]
+             "no setting of the sweep reaches it.", "",
+             f"Silently wrong runs (an adaptive method claiming success with an error above "
+             f"{SILENT_FACTOR:g} x rtol): {len(silent)}."]
+    lines += [f"- {r['scene']} {r['method']} rtol {_float(r['setting']):g}: error "
+              f"{_float(r['error']):.2g}" for r in silent]
+    lines.append("")
     for key, srows in _by_scene(rows).items():
         case = CASES.get(key)
         table = reach_table(srows)
