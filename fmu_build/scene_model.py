@@ -131,9 +131,12 @@ class Model(Slave):
         s = dict(build["settings"])
         if s["method"] != base.method_name:     # the scene's options belong to its method
             base = core.SolverSettings(output_interval=base.output_interval)
+        # solver.rtol / solver.atol left at their defaults are not a statement of accuracy:
+        # a fixed-step method then keeps its own (SolverSettings.tolerances_for)
+        tol = {k: None if s[k] == getattr(base, k) and k not in base.given else s[k]
+               for k in ("rtol", "atol")}
         settings = base.updated(where, names={v: k for k, v in SETTINGS.items()},
-                                method=s["method"], step=s["step"] or None, rtol=s["rtol"],
-                                atol=s["atol"])
+                                method=s["method"], step=s["step"] or None, **tol)
         # the C kernel shipped in the FMU unless asked otherwise (numba would compile anew
         # in every fresh extraction of the FMU), see docs/performance.md
         sim = core.Simulation(scene, kernel=self.kernel, settings=settings, t0=build["t0"])
