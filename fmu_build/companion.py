@@ -129,9 +129,9 @@ def variable_table(cls: type[base.CompanionSlave], source: Path) -> list[Variabl
     return table
 
 
-def build_companion(source, output=None) -> Path:
-    """Build the FMU of a companion source; returns its path (default ``<Class>.fmu`` in
-    the cwd, the class name being the model identifier)."""
+def build_companion(source, output=None, fmi_version: int = 2) -> Path:
+    """Build the FMU (FMI ``fmi_version``.0) of a companion source; returns its path
+    (default ``<Class>.fmu`` in the cwd, the class name being the model identifier)."""
     source = Path(source)
     if not source.is_file():
         raise BuildError(f"{source}: no such file")
@@ -145,8 +145,9 @@ def build_companion(source, output=None) -> Path:
     outputs = tuple(v.name for v in table if v.causality == "output")
     model = fmu_text + MODEL_CLASS.format(name=cls.__name__, outputs=outputs)
     info = ModelInfo(description=cls.DESCRIPTION, author=cls.AUTHOR, version=cls.VERSION,
-                     generation_tool=f"mbdfmu {__version__} companion (native FMI 2.0 runtime)")
+                     generation_tool=f"mbdfmu {__version__} companion (native FMI "
+                                     f"{fmi_version}.0 runtime)")
     capabilities = Capabilities(can_interpolate_inputs=bool(cls.INTERPOLATES_INPUTS),
                                 max_output_derivative_order=2)
     return write_checked(output, cls.__name__, table, model, info=info, default_experiment=None,
-                         capabilities=capabilities)
+                         capabilities=capabilities, fmi_version=fmi_version)

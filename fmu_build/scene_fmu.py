@@ -1,5 +1,5 @@
-"""Turn a scene into an FMI 2.0 co-simulation FMU on the native runtime:
-``build_fmu(scene_path, output=None, parameters=None)``.
+"""Turn a scene into an FMI 2.0 (or 3.0) co-simulation FMU on the native runtime:
+``build_fmu(scene_path, output=None, parameters=None, fmi_version=2)``.
 
 The FMU (``package.write_fmu``) holds the native wrapper, the runtime package, and under
 ``resources/``:
@@ -176,10 +176,12 @@ def _load(scene_path, values: dict[str, float] | None):
     return scene_path, data, text, scene
 
 
-def build_fmu(scene_path, output=None, parameters: dict[str, float] | None = None) -> Path:
+def build_fmu(scene_path, output=None, parameters: dict[str, float] | None = None,
+              fmi_version: int = 2) -> Path:
     """Build the FMU of a scene file (or a shipped scene's name); returns its path (default
     ``<Model>.fmu`` in the cwd). ``parameters``: start values baked into the FMU
-    (``{"crank.mass": 0.3}``; names and ranges as ``mbdfmu.with_parameters`` checks them)."""
+    (``{"crank.mass": 0.3}``; names and ranges as ``mbdfmu.with_parameters`` checks them);
+    ``fmi_version``: 2 (FMI 2.0) or 3 (FMI 3.0, the same variables and behaviour)."""
     scene_path, data, text, scene = _load(scene_path, parameters)
     table = variable_table(scene)
     core, core_files = _core_files()
@@ -192,10 +194,10 @@ def build_fmu(scene_path, output=None, parameters: dict[str, float] | None = Non
                                    run.rtol)
     info = ModelInfo(description=scene.description, author=scene.author or "mbdfmu",
                      version=scene.version or __version__,
-                     generation_tool=f"mbdfmu {__version__} (native FMI 2.0 runtime)")
+                     generation_tool=f"mbdfmu {__version__} (native FMI {fmi_version}.0 runtime)")
     resources = {**core_files, "scene.toml": text.encode(),
                  "scene.json": json.dumps(data, indent=1, sort_keys=True).encode()}
     capabilities = Capabilities(can_interpolate_inputs=True, max_output_derivative_order=2)
     return write_checked(output, scene.name, table, source, info=info,
                          default_experiment=experiment, extra_resources=resources,
-                         capabilities=capabilities)
+                         capabilities=capabilities, fmi_version=fmi_version)

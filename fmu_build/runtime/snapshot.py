@@ -101,7 +101,8 @@ class StateProtocol:
         self.restore_state(copy_tree(tree["model"]))
         self.values = dict(tree["values"])
         self.set_since_step = dict(tree["set_since_step"])
-        self._fmi_time, self.start_time = tree["time"], tree["start_time"]
+        self._fmi_at(tree["time"])
+        self.start_time = tree["start_time"]
         self.stop_time, self.tolerance = tree["stop_time"], tree["tolerance"]
         self._fmi_dirty, self._fmi_terminate = tree["dirty"], tree["terminate_requested"]
         self._fmi_state = tree["state"]
