@@ -42,9 +42,9 @@ class Variable:
     """One FMI scalar variable.
 
     ``start`` is in the variable's ``unit`` (SI names such as ``"m"``, ``"N.m"``).
-    ``dependencies`` (outputs only) names the inputs the output depends on directly
-    within one communication point: ``()`` means none (written as ``dependencies=""``),
-    ``None`` means "all" (the attribute is left out). ``initial_dependencies`` is the same
+    ``dependencies`` (outputs and state derivatives) names the knowns (inputs, exposed
+    states) the variable depends on directly within one communication point: ``()``
+    means none (written as ``dependencies=""``), ``None`` means "all" (left out). ``initial_dependencies`` is the same
     for the output's value in Initialization Mode (knowns: inputs and exact parameters).
     ``derivative`` names the variable this one is the time derivative of (a state's
     derivative, or an FMI 3.0 derivative input).
@@ -120,8 +120,10 @@ def _declaration_problem(v: Variable) -> str | None:
         return f"a {v.causality} with initial={v.initial} needs a start value"
     if not v.has_start and v.start is not None:
         return f"initial={v.initial} does not allow a start value"
-    if v.causality != "output" and (v.dependencies is not None or v.initial_dependencies is not None):
-        return "only outputs have dependencies"
+    if v.causality != "output" and v.initial_dependencies is not None:
+        return "only outputs have initial dependencies"
+    if v.causality != "output" and v.derivative is None and v.dependencies is not None:
+        return "only outputs and state derivatives have dependencies"
     return None if v.start is None else value_problem(v, v.start)
 
 

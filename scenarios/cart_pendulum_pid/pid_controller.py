@@ -17,6 +17,7 @@ from mbdfmu.fmu_build.runtime import companion as base
 
 
 class PIDController(base.CompanionSlave):
+    STATE_INFO = {"z": ("m.s", "integral of the cart's position error x - x_ref")}
     DESCRIPTION = "PID on the cart position with PD feedback of the pole angle: force out"
     VARIABLES = (
         base.Var("kp_x", "parameter", "N/m", 16.956, "proportional gain, cart position"),
@@ -46,6 +47,10 @@ class PIDController(base.CompanionSlave):
 
     def step(self, t, h, state):
         return {"z": state["z"] + (self.values["x"] - self.set_point(t)) * h}
+
+    def rates(self, state):
+        """z' = x - x_ref at the communication point (directional derivatives)."""
+        return {"z": self.values["x"] - self.set_point(self.time)}
 
     def outputs(self, state):
         p = self.values

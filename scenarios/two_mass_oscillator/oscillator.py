@@ -94,6 +94,12 @@ class Oscillator(base.CompanionSlave):
         x, v = (sum(e[i][k] * z[k] for k in range(n)) for i in (0, 1))
         return {"x": x, "v": v}
 
+    def rates(self, state):
+        """The equation of motion at the communication point (directional derivatives)."""
+        a = self.acceleration(state["x"], state["v"], self.input("force"),
+                              self.input("x_other"), self.input("v_other"))
+        return {"x": state["v"], "v": a}
+
     def outputs(self, state):
         p = self.values
         xo, vo = self.input("x_other"), self.input("v_other")
