@@ -8,7 +8,8 @@ against N from N = 10 to the largest N (target: at most 1.1, i.e. linear cost). 
 tolerance (steps chosen by the error control). The B0 error at the end against P2's exact
 one-degree-of-freedom reduction shows the runs are right, not only fast.
 
-    python benchmarks/scaling.py [--sizes 2 10 40 160] [--t-end 1.0] [--repeat 3] [-o DIR]
+    python benchmarks/scaling.py [--sizes 2 10 40 160] [--t-end 1.0] [--repeat 3]
+                                 [--kernel c|numba|numpy] [-o DIR]
 
 Writes ``scaling.csv``, ``scaling.md`` and ``scaling.png`` into DIR (default
 docs/figures/performance).
@@ -72,6 +73,8 @@ def main(argv=None):
     parser.add_argument("--sizes", type=int, nargs="+", default=[2, 10, 40, 160])
     parser.add_argument("--t-end", type=float, default=1.0)
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--kernel", choices=("c", "numba", "numpy"), default="c",
+                        help="constraint kernel (default c: what FMUs run)")
     parser.add_argument("-o", "--output", default=str(ROOT / "docs" / "figures" / "performance"))
     args = parser.parse_args(argv)
     out = Path(args.output)
@@ -80,7 +83,7 @@ def main(argv=None):
     for n in args.sizes:
         scene = n_four_bar(n)
         for name, settings in METHODS.items():
-            r = time_run(scene, args.t_end, settings, args.repeat)
+            r = time_run(scene, args.t_end, {**settings, "kernel": args.kernel}, args.repeat)
             r.update(N=n, bodies=len(scene.bodies), method=name,
                      us_per_step=1e6 * r["cpu_s"] / r["nsteps"],
                      s_per_sim_s=r["cpu_s"] / args.t_end)

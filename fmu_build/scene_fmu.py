@@ -27,6 +27,7 @@ from pathlib import Path
 from .. import __file__ as core_init
 from .. import __version__
 from ..equations import Equations
+from ..equations.ckernel.build import KernelBuildError, compile_kernel
 from ..equations.projection import assemble
 from ..errors import SceneError
 from ..integrators import METHOD_NAMES
@@ -52,6 +53,9 @@ SHIPPED_MODULES = ("__init__.py", "errors.py", "plain.py", "result.py", "signals
 # fmi2Discard with the reason, and the FMU stays at its last communication point.
 MAX_STEPS_DEFAULT = 100_000
 MAX_CPU_DEFAULT = 10.0
+# The compiled C kernel's name in the FMU's resources (docs/performance.md): loaded at
+# instantiation, so nothing is compiled when the FMU is loaded.
+KERNEL_FILE = "mbdfmu_kernel.so"
 
 
 def select_outputs(scene) -> list:
@@ -206,6 +210,15 @@ def with_start_values(scene_path: Path, parameters: dict) -> tuple[dict, str]:
     return tomllib.loads(text), text
 
 
+def shipped_kernel() -> dict[str, bytes]:
+    """The compiled C kernel as a resource (compiled once per content into the cache), or
+    nothing when it cannot be compiled here: the FMU then runs the numpy kernel and logs so."""
+    try:
+        return {KERNEL_FILE: compile_kernel().read_bytes()}
+    except KernelBuildError:
+        return {}
+
+
 def _load(scene_path, values: dict[str, float] | None):
     """The scene's file, its data and text with ``values`` written in (so the shipped
     scene.json and scene.toml carry them, and the FMU's start values are them), and the
@@ -234,7 +247,8 @@ def build_fmu(scene_path, output=None, parameters: dict[str, float] | None = Non
     source = fill_template(TEMPLATE, {"CORE_PACKAGE": core, "SCENE_FILE": "scene.json",
                                       "OUTPUTS": outputs_, "STATES": tuple(states),
                                       "ACCELERATIONS": tuple(d for d in derivatives
-                                                             if d not in states)})
+                                                             if d not in states),
+                                      "KERNEL_FILE": KERNEL_FILE})
     run = scene.simulation
     settings = settings_from_scene(scene)
     experiment = DefaultExperiment(0.0, run.t_end, settings.output_interval_for(run.t_end),
@@ -243,7 +257,8 @@ def build_fmu(scene_path, output=None, parameters: dict[str, float] | None = Non
                      version=scene.version or __version__,
                      generation_tool=f"mbdfmu {__version__} (native FMI {fmi_version}.0 runtime)")
     resources = {**core_files, "scene.toml": text.encode(),
-                 "scene.json": json.dumps(data, indent=1, sort_keys=True).encode()}
+                 "scene.json": json.dumps(data, indent=1, sort_keys=True).encode(),
+                 **shipped_kernel()}
     capabilities = Capabilities(can_interpolate_inputs=True, max_output_derivative_order=2,
                                 provides_directional_derivative=True)
     return write_checked(output, scene.name, table, source, info=info,

@@ -45,6 +45,7 @@ SCENE_FILE = "scene.json"
 OUTPUTS = ()          # the FMU's outputs, in value-reference order
 STATES = ()           # the continuous states: per body x, y, phi, vx, vy, omega
 ACCELERATIONS = ()    # the derivatives of the velocities: per body ax, ay, alpha
+KERNEL_FILE = "mbdfmu_kernel.so"   # the compiled C kernel in resources/, when shipped
 # <<< GENERATED
 
 # FMU parameter -> SolverSettings field; the work limits (0: none) are the FMU's own.
@@ -93,6 +94,8 @@ class Model(Slave):
         self.scene = self.core.model.scene_from_dict(data, source=SCENE_FILE)
         self.parameter_names = [p.name for p in self.core.model.variables.parameters(self.scene)]
         self.input_names = frozenset(v.name for v in self.core.model.variables.inputs(self.scene))
+        self.kernel = self.load_kernel()
+        self.limit = None            # ((max steps, max cpu), the WorkLimit of those)
         self.sim = self.built = None
         self.slots = None
         self.pending = []            # [input, order, value] set since the last step
@@ -100,6 +103,24 @@ class Model(Slave):
         # a state's place: (0 for q, 1 for q', index); the inputs' places in InputValues
         self.state_slot = {n: (k % 6 // 3, 3 * (k // 6) + k % 3) for k, n in enumerate(STATES)}
         self.input_slot = input_slots(self.core.model.variables.input_layout(self.scene))
+
+    def load_kernel(self) -> str:
+        """The kernel this FMU runs: ``$MBDFMU_KERNEL`` if set, else the C kernel shipped
+        in the resources (compiled at build: nothing compiles here), else numpy, logged."""
+        if os.environ.get("MBDFMU_KERNEL"):
+            return os.environ["MBDFMU_KERNEL"]
+        ckernel, path = self.core.equations.ckernel, self.resources / KERNEL_FILE
+        if not path.is_file():
+            self.log("no compiled C kernel in this FMU (no C compiler at build): the numpy "
+                     "kernel runs, about 30 times slower")
+            return "numpy"
+        try:
+            ckernel.use_library(path)
+            ckernel.library()
+        except OSError as exc:
+            self.log(f"the FMU's C kernel cannot be loaded here ({exc}): the numpy kernel runs")
+            return "numpy"
+        return "c"
 
     # ----- building the simulation ----------------------------------------------------
     def build_key(self) -> dict:
@@ -124,23 +145,26 @@ class Model(Slave):
         settings = base.updated(where, names={v: k for k, v in SETTINGS.items()},
                                 method=s["method"], step=s["step"] or None, rtol=s["rtol"],
                                 atol=s["atol"])
-        # numpy kernel unless asked otherwise: numba would compile its kernel anew in every
-        # fresh extraction of the FMU (seconds at instantiation), see docs/performance.md
-        kernel = os.environ.get("MBDFMU_KERNEL") or "numpy"
-        sim = core.Simulation(scene, kernel=kernel, settings=settings, t0=build["t0"])
-        self.slots = [sim.output_names.index(n) for n in OUTPUTS]
+        # the C kernel shipped in the FMU unless asked otherwise (numba would compile anew
+        # in every fresh extraction of the FMU), see docs/performance.md
+        sim = core.Simulation(scene, kernel=self.kernel, settings=settings, t0=build["t0"])
+        self.slots = np.array([sim.output_names.index(n) for n in OUTPUTS], dtype=np.intp)
         return sim
 
     def work_limit(self):
         """The bounds of one communication step, checked (0: none)."""
         steps, cpu = self.values[MAX_STEPS], self.values[MAX_CPU]
+        if self.limit is not None and self.limit[0] == (steps, cpu):
+            return self.limit[1]        # the same bounds: the object checked before
         if steps < 0:
             raise ValueError(f"{MAX_STEPS} must be 0 (no limit) or positive, got {steps}")
         if not (math.isfinite(cpu) and cpu >= 0):
             raise ValueError(f"{MAX_CPU} must be 0 (no limit) or a positive number of "
                              f"seconds, got {cpu!r}")
-        return self.core.integrators.base.WorkLimit(steps or None, cpu or None,
-                                                    names=(MAX_STEPS, MAX_CPU))
+        limit = self.core.integrators.base.WorkLimit(steps or None, cpu or None,
+                                                     names=(MAX_STEPS, MAX_CPU))
+        self.limit = ((steps, cpu), limit)
+        return limit
 
     # ----- the FMI hooks ----------------------------------------------------------------
     def initialize(self):
@@ -183,11 +207,12 @@ class Model(Slave):
 
     def publish(self):
         self.derivatives = None
-        vector = self.sim.output_vector()
-        self.values.update(zip(OUTPUTS, [float(vector[i]) for i in self.slots]))
+        self.values.update(zip(OUTPUTS, self.sim.output_vector()[self.slots].tolist()))
         x = (self.sim.q, self.sim.qd)
         self.values.update((n, float(x[a][i])) for n, (a, i) in self.state_slot.items())
         self.values.update(zip(ACCELERATIONS, map(float, self.sim.accelerations()[0])))
+
+    STEP_CALCULATES = True          # publish() after every step sets the accelerations
 
     def calculate(self):
         """The accelerations follow inputs set since the step (state derivatives depend on

@@ -84,6 +84,7 @@ typedef int PyGILState_STATE;
     X(PyObject *, PyBytes_FromStringAndSize, (const char *, Py_ssize_t))       \
     X(int, PyBytes_AsStringAndSize, (PyObject *, char **, Py_ssize_t *))       \
     X(PyObject *, PyUnicode_AsUTF8String, (PyObject *))                        \
+    X(void *, PyLong_AsVoidPtr, (PyObject *))                                  \
     X(PyObject *, PyErr_Occurred, (void))                                      \
     X(void, PyErr_Fetch, (PyObject **, PyObject **, PyObject **))              \
     X(void, PyErr_Clear, (void))
@@ -136,6 +137,13 @@ struct Instance {
     char **strings;                 /* GetString results: valid until the next call */
     size_t n_strings;
     int fatal;                      /* the runtime broke its contract: only free is left */
+    /* the slave's Real values, served by GetReal / GetFloat64 without Python while
+     * *fast_valid (runtime/real_cache.py): set by the slave after a step, cleared by every
+     * other call */
+    const double *fast_values;
+    const unsigned char *fast_mask;
+    volatile int64_t *fast_valid;
+    size_t fast_count;
 };
 
 typedef struct {
@@ -339,6 +347,7 @@ static int call(Instance *in, Method m, PyObject *args, PyObject **payload) {
                      "failed earlier; only FreeInstance is possible", METHOD_NAMES[m]);
         return ST_FATAL;
     }
+    if (in->fast_valid && m != M_GET) *in->fast_valid = 0;   /* anything may change now */
     PyObject *result = args ? py.PyObject_CallObject(in->methods[m], args) : NULL;
     if (args) py.Py_DecRef(args);
     long status = -1;
@@ -479,6 +488,20 @@ static int copy_out(Instance *in, Kind kind, PyObject *payload, void *values, si
     return !py.PyErr_Occurred();
 }
 
+/* GetReal / GetFloat64 without Python: every vr a Real variable while the slave's values
+ * are valid (see Instance); 0 when Python must answer. */
+static int fast_get_real(void *c, const unsigned int vr[], size_t nvr, double value[]) {
+    Instance *in = as_instance(c);
+    if (!in || in->fatal || !in->fast_valid || !*in->fast_valid || !python_alive()
+        || nvr > MAX_NVR || (nvr > 0 && (!vr || !value)))
+        return 0;
+    for (size_t i = 0; i < nvr; i++)
+        if (vr[i] >= in->fast_count || !in->fast_mask[vr[i]]) return 0;
+    free_strings(in);
+    for (size_t i = 0; i < nvr; i++) value[i] = in->fast_values[vr[i]];
+    return 1;
+}
+
 /* Get{type}: `function` names the FMI function in messages, `type` the slave's type name. */
 static int get_values(void *c, const char *function, const char *type, Kind kind,
                       const unsigned int vr[], size_t nvr, void *values) {
@@ -532,6 +555,26 @@ static int set_values(void *c, const char *function, const char *type, Kind kind
 
 /* ---- instances ----------------------------------------------------------------------------- */
 
+/* The slave's RealCache addresses (its attribute fast_real: values, mask, valid flag,
+ * count); none (no fast path) when it has no such attribute. Needs the GIL. */
+static void fast_real(Instance *in, PyObject *slave) {
+    PyObject *t = py.PyObject_GetAttrString(slave, "fast_real");
+    if (t && py.PyTuple_Size(t) == 4) {
+        void *values = py.PyLong_AsVoidPtr(py.PyTuple_GetItem(t, 0));
+        void *mask = py.PyLong_AsVoidPtr(py.PyTuple_GetItem(t, 1));
+        void *valid = py.PyLong_AsVoidPtr(py.PyTuple_GetItem(t, 2));
+        long count = py.PyLong_AsLong(py.PyTuple_GetItem(t, 3));
+        if (!py.PyErr_Occurred() && values && mask && valid && count >= 0) {
+            in->fast_values = values;
+            in->fast_mask = mask;
+            in->fast_valid = valid;
+            in->fast_count = (size_t)count;
+        }
+    }
+    if (t) py.Py_DecRef(t);
+    py.PyErr_Clear();
+}
+
 /* Build the slave through resources/mbdfmu_boot.py; NULL with `error` filled on failure.
  * `function` names the instantiating FMI function in messages. Needs the GIL. */
 static Instance *create(const char *name, const char *guid, const char *resources,
@@ -566,8 +609,10 @@ static Instance *create(const char *name, const char *guid, const char *resource
         for (int m = 0; m < N_METHODS && length == 0; m++)
             if (!(in->methods[m] = py.PyObject_GetAttrString(slave, METHOD_NAMES[m])))
                 length = -1;
-        if (length == 0 && (in->log_queue = py.PyObject_GetAttrString(slave, "log_queue")))
+        if (length == 0 && (in->log_queue = py.PyObject_GetAttrString(slave, "log_queue"))) {
             in->magic = INSTANCE_MAGIC;
+            fast_real(in, slave);
+        }
         else
             snprintf(error, size, "%s: the model's slave lacks a protocol method of this "
                      "wrapper (%s ...)", function, METHOD_NAMES[N_METHODS - 1]);

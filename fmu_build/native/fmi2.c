@@ -99,6 +99,7 @@ fmi2Status fmi2Reset(fmi2Component c) { return call_without_arguments(c, M_RESET
 
 fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                        fmi2Real value[]) {
+    if (fast_get_real(c, vr, nvr, value)) return fmi2OK;
     return get_values(c, "fmi2GetReal", "Real", K_REAL, vr, nvr, value);
 }
 fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,

@@ -166,7 +166,16 @@ fmi3Status fmi3Set##T(fmi3Instance instance, const fmi3ValueReference valueRefer
 }
 #define TYPE(T, CTYPE, KIND) GETTER(T, CTYPE, #T, KIND) SETTER(T, CTYPE, #T, KIND)
 
-TYPE(Float64, fmi3Float64, K_REAL)
+/* Float64 first tries the values the slave published after a step (no Python). */
+fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference valueReferences[],
+                          size_t nValueReferences, fmi3Float64 values[], size_t nValues) {
+    if (nValues != nValueReferences)
+        return scalar_count(instance, "fmi3GetFloat64", nValueReferences, nValues);
+    if (fast_get_real(instance, valueReferences, nValueReferences, values)) return fmi3OK;
+    return get_values(instance, "fmi3GetFloat64", "Float64", K_REAL, valueReferences,
+                      nValueReferences, values);
+}
+SETTER(Float64, fmi3Float64, "Float64", K_REAL)
 TYPE(Int32, fmi3Int32, K_INT32)
 TYPE(Boolean, fmi3Boolean, K_C_BOOL)
 TYPE(String, fmi3String, K_STRING)

@@ -30,7 +30,7 @@ The model reads ``self.time`` (s), ``self.start_time``, ``self.stop_time``,
 ``self.resources`` (the FMU's resources folder) and logs with ``self.log(text)``. Names
 the base uses, which a model must not assign: ``values``, ``set_since_step``,
 ``variables``, ``time``, ``start_time``, ``stop_time``, ``tolerance``, ``resources``,
-``instance_name``, ``guid``, ``log_queue``,
+``instance_name``, ``guid``, ``log_queue``, ``fast_real``,
 ``take_log`` and everything starting with ``_fmi`` or ``fmi2_``.
 
 The ``fmi2_*`` methods form the protocol with the C wrapper (one per FMI function, see
@@ -44,6 +44,7 @@ from pathlib import Path
 
 from . import access, status
 from .log import LogQueue
+from .real_cache import RealCache
 from .machine import ALLOWED, State, fmi_function, refusal
 from .derivatives import DerivativeProtocol
 from .fmi3 import Fmi3Protocol, fmi3_text
@@ -75,6 +76,8 @@ class Slave(StateProtocol, DerivativeProtocol, Fmi3Protocol):
         self.log_queue = self._fmi_log.pending   # watched by the C wrapper
         self._fmi_default_start = default_start
         self._fmi_calculates = type(self).calculate is not Slave.calculate
+        self._fmi_reals = RealCache(variables)
+        self.fast_real = self._fmi_reals.address        # read by the C wrapper
         self._fmi_restart()
         self.setup()
 
@@ -84,6 +87,10 @@ class Slave(StateProtocol, DerivativeProtocol, Fmi3Protocol):
 
     def initialize(self) -> None:
         """Derive the internal state and calculated values from ``self.values``."""
+
+    # True: ``step`` leaves every calculated value current, so ``calculate`` follows sets only
+    # (and a step's values can be served by the wrapper without Python)
+    STEP_CALCULATES = False
 
     def calculate(self) -> None:
         """Outputs with direct feedthrough: compute them in ``self.values`` from the inputs
@@ -128,6 +135,7 @@ class Slave(StateProtocol, DerivativeProtocol, Fmi3Protocol):
     # ----- internal ----------------------------------------------------------------------
     def _fmi_restart(self) -> None:
         """The state right after fmi2Instantiate (also what fmi2Reset returns to)."""
+        self._fmi_reals.invalidate()
         self._fmi_state = State.INSTANTIATED
         self.values = self.variables.start_values()
         self.set_since_step: dict[str, object] = {}
@@ -277,7 +285,9 @@ class Slave(StateProtocol, DerivativeProtocol, Fmi3Protocol):
         self.step(time, step_size)
         self._fmi_at(end)
         self.set_since_step.clear()
-        self._fmi_stale = self._fmi_calculates
+        self._fmi_stale = self._fmi_calculates and not self.STEP_CALCULATES
+        if not self._fmi_stale:       # fmi2GetReal served by the wrapper until the next call
+            self._fmi_reals.publish(self.values)
         return status.OK, None
 
     @fmi_function("fmi2CancelStep")

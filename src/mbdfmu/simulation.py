@@ -14,8 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from .equations import Equations
-from .equations.projection import (ASSEMBLY_TOL, assemble, assembly_changes, initial_estimates,
-                                   project_positions, project_velocities)
+from .equations.projection import (ASSEMBLY_TOL, PROJECTION_MAX_ITER, assemble,
+                                   assembly_changes, initial_estimates, project_positions,
+                                   project_velocities)
 from .errors import InputError, SettingError, SolverError
 from .integrators import make_integrator
 from .integrators.base import WorkLimit
@@ -86,6 +87,7 @@ class Simulation:
                          zip(layout.drivers, layout.driver_initial)}
         self._forces = {name: Held(np.zeros(len(f))) for name, f in layout.fields.items()}
         self._inputs_changed = False
+        self._held = None                # the inputs while all are held (inputs_at)
         q0, qd0 = assemble(self.equations, t0, self.inputs_at(t0))
         # what assembly changed of the scene's initial values, for the user to see
         self.warnings = assembly_changes(self.equations, initial_estimates(self.equations),
@@ -125,11 +127,16 @@ class Simulation:
         layout = self.equations.layout
         if not self._drivers and not self._forces:
             return self.equations.no_inputs
+        if self._held is not None:       # every input held: the same values at any t
+            return self._held
         motions = np.array([self._drivers[n](t) for n in layout.drivers], dtype=float)
         forces = [np.atleast_1d(np.asarray(self._forces[n](t), dtype=float))
                   for n in layout.forces]
-        return InputValues(motions.reshape(-1, 3),
-                           np.concatenate(forces) if forces else np.zeros(0))
+        values = InputValues(motions.reshape(-1, 3),
+                             np.concatenate(forces) if forces else np.zeros(0))
+        if not self._drivers and all(type(f) is Held for f in self._forces.values()):
+            self._held = values
+        return values
 
     def _split(self, name: str) -> tuple[str, str]:
         if name not in self.input_names:
@@ -156,7 +163,7 @@ class Simulation:
             values[fields.index(field)] = value
             self._forces[item] = Held(values)
         self._inputs_changed = True
-        self._cache = None
+        self._cache = self._held = None
 
     def set_input_derivative(self, name: str, order: int, value: float) -> None:
         """The ``order``-th time derivative (1 or more) of an input at the current time: the
@@ -185,7 +192,7 @@ class Simulation:
                 signal = self._forces[item] = TaylorInput(self.t, signal(self.t))
             signal.set_derivative(self.equations.layout.fields[item].index(field), order, value)
         self._inputs_changed = True
-        self._cache = None
+        self._cache = self._held = None
 
     def set_input_signal(self, item: str, signal) -> None:
         """Drive a force item or a driver with a function of time (see ``signals``)."""
@@ -196,15 +203,18 @@ class Simulation:
         else:
             raise InputError(f'"{item}" is not an input-driven driver or force of this scene')
         self._inputs_changed = True
-        self._cache = None
+        self._cache = self._held = None
 
     def _reinitialize(self) -> None:
         """After inputs change: the state is made consistent with the new driver positions."""
         tol = ASSEMBLY_TOL * self.equations.length_scale * REINITIALIZE_TOL_FACTOR
-        u = self.inputs_at(self.t)
-        q, _ = project_positions(self.equations, self.t, self.q, tol=tol, u=u)
-        qd = project_velocities(self.equations, self.t, q, self.qd, u)
-        self.integrator.reset_state(q, qd)
+        u, kernel = self.inputs_at(self.t), self.equations.ckernel
+        done = None if kernel is None else kernel.project(
+            self.q, self.qd, self.equations.motion_values(self.t, u), tol, PROJECTION_MAX_ITER)
+        if done is None:
+            q, _ = project_positions(self.equations, self.t, self.q, tol=tol, u=u)
+            done = q, project_velocities(self.equations, self.t, q, self.qd, u)
+        self.integrator.reset_state(*done)
         self._inputs_changed = False
 
     # ------------------------------------------------------------------ stepping
@@ -214,7 +224,7 @@ class Simulation:
         CPU time) if given; on failure the state stays where it was."""
         # Only the integrator and the flag change while stepping (inputs do not), so that
         # is all the rollback keeps.
-        snapshot, inputs_changed = self.integrator.get_state(), self._inputs_changed
+        snapshot, inputs_changed = self.integrator.rollback_point(), self._inputs_changed
         try:
             if self._inputs_changed:
                 self._reinitialize()
@@ -239,6 +249,13 @@ class Simulation:
         return self._cache
 
     def output_vector(self) -> np.ndarray:
+        kernel = self.equations.ckernel
+        if kernel is not None and not self._inputs_changed:   # one call, q'' kept from the step
+            u = self.inputs_at(self.t)
+            values = kernel.state_outputs(self.q, self.qd, self.equations.motion_values(self.t, u),
+                                          u.forces)
+            if values is not None:
+                return values
         qdd, lam = self.accelerations()
         return self.equations.output_values(self.t, self.q, self.qd, qdd, lam,
                                             self.inputs_at(self.t))
@@ -258,7 +275,7 @@ class Simulation:
         self.integrator.set_state(state["integrator"])
         self._drivers, self._forces = decode(state["drivers"]), decode(state["forces"])
         self._inputs_changed = bool(state["inputs_changed"])
-        self._cache = None
+        self._cache = self._held = None
 
 
 def output_time_derivatives(sim: Simulation) -> tuple[np.ndarray, np.ndarray]:

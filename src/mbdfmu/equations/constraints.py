@@ -26,7 +26,7 @@ from .joints import JOINT_ROWS, RowBuilder, driver_row
 from .planar import dot, poses, rot90, rotate, velocities
 from .sparsity import JacobianPattern
 
-KERNELS = ("numpy", "numba")
+KERNELS = ("numpy", "numba", "c")
 
 
 def numba_installed() -> bool:
@@ -35,7 +35,9 @@ def numba_installed() -> bool:
 
 
 def choose_kernel(kernel: str | None) -> str:
-    """The constraint kernel: as asked, else ``$MBDFMU_KERNEL``, else numba when installed."""
+    """The constraint kernel: as asked, else ``$MBDFMU_KERNEL``, else numba when installed.
+    "c" is the C kernel (``ckernel``): eq. (14), projections, whole steps and outputs in C,
+    the constraint values themselves on the numpy path."""
     kernel = kernel or os.environ.get("MBDFMU_KERNEL") or "auto"
     if kernel == "auto":
         return "numba" if numba_installed() else "numpy"
@@ -43,6 +45,9 @@ def choose_kernel(kernel: str | None) -> str:
         raise InputError(f"unknown kernel {kernel!r}: choose one of {', '.join(KERNELS)} or auto")
     if kernel == "numba" and not numba_installed():
         raise InputError('kernel "numba" needs numba: pip install "mbdfmu[jit]"')
+    if kernel == "c" and not importlib.import_module(".ckernel", __package__).available():
+        raise InputError('kernel "c" needs its compiled library: a C compiler (gcc), or '
+                         "MBDFMU_C_KERNEL naming a compiled copy")
     return kernel
 
 
@@ -95,6 +100,7 @@ class ConstraintSet:
                                      if d.is_input], dtype=int)
         self._motion_rows = [(r, d.motion) for r, d in zip(self.driver_rows, scene.drivers)
                              if not d.is_input]
+        self._last_motion = None
         self._plan_pattern(minv)
 
     def _plan_pattern(self, minv: np.ndarray) -> None:
@@ -138,9 +144,25 @@ class ConstraintSet:
 
     # ------------------------------------------------------------------ evaluation
 
+    def motion_block(self, times, us) -> np.ndarray:
+        """``motion_values`` at several times at once, (k, 3, m): the same numbers, for the
+        steps of the C kernel; ``us`` the inputs at each time (None: no input drivers)."""
+        out = np.zeros((len(times), 3, self.m))
+        out[:, 0, :] = self.offsets
+        for row, motion in self._motion_rows:
+            out[:, :, row] = [motion.evaluate(t) for t in times]
+        if self._input_rows.size:
+            out[:, :, self._input_rows] = np.array([u.motions.T for u in us])
+        return out
+
     def motion_values(self, t: float, u: InputValues):
         """(c, c', c'') of every row at time t (formulation.md, eq. 7): the drivers' motions,
-        those of input-driven drivers from ``u``. Read-only arrays (one compiled signature)."""
+        those of input-driven drivers from ``u``. Read-only arrays (one compiled signature);
+        the last result is kept and returned again for the same t and input motions."""
+        last = self._last_motion
+        if last is not None and last[0] == t and (
+                not self._input_rows.size or np.array_equal(last[1], u.motions)):
+            return last[2]
         c = self.offsets.copy()
         cd, cdd = np.zeros(self.m), np.zeros(self.m)
         for row, motion in self._motion_rows:
@@ -149,6 +171,7 @@ class ConstraintSet:
             c[self._input_rows], cd[self._input_rows], cdd[self._input_rows] = u.motions.T
         for a in (c, cd, cdd):
             a.flags.writeable = False
+        self._last_motion = (t, u.motions.copy() if self._input_rows.size else None, (c, cd, cdd))
         return c, cd, cdd
 
     def values(self, t: float, q: np.ndarray, qd: np.ndarray | None, u: InputValues):

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..model.scene import Scene
 from ..model.variables import TABLES, InputValues, input_layout
+from . import ckernel
 from .constraints import ConstraintSet
 from .forces import AppliedForces
 from .planar import poses, rotate
@@ -48,6 +49,8 @@ class Equations:
         self._reaction_entries = self.pattern.entries(
             c.joint_rows[:, :, None], 3 * c.joint_bj[:, None, None] + np.arange(3)[None, None, :])
         self._joint_outputs = _joint_output_plan(scene, c)
+        # the C kernel (kernel "c"): eq. (14), steps and outputs in compiled code
+        self.ckernel = ckernel.Kernel(self) if self.kernel == "c" else None
 
     # ------------------------------------------------------------------ constraints
 
@@ -104,6 +107,10 @@ class Equations:
         ``gamma - 2 alpha (Psi_q q' - nu) - beta^2 Psi``.
         """
         u = self._u(u)
+        if self.ckernel is not None and baumgarte is None:
+            done = self.ckernel.accelerations(q, qd, self.motion_values(t, u), u.forces)
+            if done is not None:
+                return done
         F = self.applied(t, q, qd, u)
         if self.m == 0:
             return self.minv * F, np.zeros(0)
@@ -196,6 +203,10 @@ class Equations:
     def output_values(self, t, q, qd, qdd, lam, u: InputValues | None = None) -> np.ndarray:
         """Every output of ``model.variables.outputs(scene)`` at one instant, in that order."""
         u = self._u(u)
+        if self.ckernel is not None:
+            values = self.ckernel.outputs(q, qd, qdd, lam, self.motion_values(t, u), u.forces)
+            if values is not None:
+                return values
         Psi, data, nu, _ = self.constraint_values(t, q, qd, u)   # one evaluation for all
         J = self.pattern.jacobian(data, sparse=True)
         parts = [np.concatenate((q.reshape(-1, 3), qd.reshape(-1, 3)), axis=1).ravel(),

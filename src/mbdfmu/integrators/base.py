@@ -296,6 +296,24 @@ class Integrator:
         names = ("t", "q", "qd", "h", "stats", "audit") + self.state_fields
         return {k: encode(getattr(self, k)) for k in names}
 
+    def rollback_point(self) -> dict:
+        """``get_state()`` for a rollback within the process, cheaper: arrays copied, the
+        counters and the energy audit (flat: numbers and strings) copied shallowly,
+        anything else encoded; ``set_state`` restores it."""
+        state = {}
+        for name in ("t", "q", "qd", "h", "stats", "audit") + self.state_fields:
+            value = getattr(self, name)
+            kind = type(value)
+            if kind is np.ndarray:
+                state[name] = value.copy()
+            elif kind is Counters or kind is EnergyAudit:
+                copied = object.__new__(kind)
+                copied.__dict__.update(value.__dict__)
+                state[name] = copied
+            else:
+                state[name] = encode(value)
+        return state
+
     def set_state(self, state: dict) -> None:
         for k, v in state.items():
             setattr(self, k, decode(v))

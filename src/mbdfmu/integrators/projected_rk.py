@@ -16,6 +16,7 @@ from scipy.integrate import DOP853, RK45
 
 from ..equations.projection import project_positions, project_velocities
 from ..errors import SolverError
+from . import c_steps
 from .base import Integrator
 
 SAFETY = 0.9       # Multiply the optimal step by this, to be likely accepted.
@@ -108,6 +109,10 @@ class ProjectedRK(Integrator):
         return q, qd
 
     def _step_impl(self, h):
+        if self.equations.ckernel is not None:     # the same step in C (c_steps.py)
+            stepped = c_steps.prk_step(self, h, SAFETY, MIN_FACTOR, MAX_FACTOR, ENERGY_MIN_GAIN)
+            if stepped is not None:
+                return stepped
         t, n = self.t, self.q.size
         y = np.concatenate((self.q, self.qd))
         K = rk_stages(self._rhs_y, t, y, h, self.A, self.C, self.f, self.n_stages)

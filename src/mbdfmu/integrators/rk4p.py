@@ -16,6 +16,7 @@ import numpy as np
 from ..equations.projection import PROJECTION_MAX_ITER
 from ..equations.sparsity import RANK_TOLERANCE
 from ..errors import SolverError
+from . import c_steps
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
 from .projected_rk import ProjectedRK, rk_stages
 
@@ -70,6 +71,8 @@ class RK4P(ProjectedRK):
 
     def _advance_fixed(self, t_target: float) -> None:
         """The base class's loop, with runs of steps compiled in one call when possible."""
+        if self.equations.ckernel is not None and self.equations.m > 0:
+            return c_steps.advance_rk4p(self, t_target)    # the C kernel: any forces
         if not self.compiled_steps:
             return super()._advance_fixed(t_target)
         from .rk4p_compiled import StepStatus   # numba only when the compiled path runs

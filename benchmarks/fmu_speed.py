@@ -1,0 +1,343 @@
+"""What users run, in one run: the scene FMUs at their default settings stepped by fmpy and
+by libcosimpy at 1 ms and 10 ms communication steps, cold and warm, against the solver
+called directly and Exudyn's generalized-alpha on the same mechanism.
+
+Cases: the slider-crank (P4), P2 N = 2 (scenes/n_four_bar_2.toml), the hydraulic crane's
+mechanism (scenarios/hydraulic_crane/crane.toml, its actuator force set by the master at
+every step as a connected input would: a hold force plus a swing), and P1 (the pendulum,
+the other mechanism Exudyn models here).
+
+- cold: a fresh Python process extracts the FMU to a new folder (not timed), then
+  ``FMU2Slave`` (the binary loaded), instantiate, setup, initialization and the first
+  doStep are timed (wall clock); for libcosimpy, ``add_local_slave`` (it loads and
+  instantiates) and the first step.
+- warm, fmpy: ``FMU2Slave`` in this process, after 20 steps, a loop of doStep + getReal of
+  every output (+ setReal of the input where there is one): wall and CPU time per
+  communication step, and the real-time factor (simulated s per wall s); then doStep
+  alone and getReal alone, to show each call's cost.
+- warm, libcosimpy: ``execution.step(n)`` with a time-series observer on every output.
+- direct: ``Simulation.advance`` + ``output_vector`` per communication step, kernel "c"
+  (the FMU's) and "numpy" (what FMUs ran before).
+- Exudyn (P1, P2 N = 2): CPU time per 1 ms step of ``SolveDynamic`` at h = 1 ms
+  (``exudyn_compare.run_exudyn``), against the FMU's CPU time per 1 ms step in fmpy.
+
+Each warm figure is the median of ``--repeat`` runs, the runs interleaved.
+
+    python benchmarks/fmu_speed.py [--t-end 1.0] [--repeat 3] [--quick] [-o DIR]
+
+Writes ``fmu_speed.md``, ``fmu_speed.csv`` and ``fmu_speed.png`` into DIR (default
+docs/figures/performance).
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import csv  # noqa: E402
+import json  # noqa: E402
+import math  # noqa: E402
+import statistics  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+from fmpy import extract, read_model_description  # noqa: E402
+from fmpy.fmi2 import FMU2Slave  # noqa: E402
+
+import mbdfmu  # noqa: E402
+from mbdfmu.fmu_build.scene_fmu import build_fmu  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+CASES = {"slider-crank (P4)": ROOT / "scenes" / "slider_crank.toml",
+         "P2 N = 2": ROOT / "scenes" / "n_four_bar_2.toml",
+         "crane mechanism": ROOT / "scenarios" / "hydraulic_crane" / "crane.toml",
+         "P1 pendulum": ROOT / "scenes" / "pendulum.toml"}
+EXUDYN = {"P1 pendulum": "P1", "P2 N = 2": "P2N2"}      # exudyn_compare's problems
+STEPS = (1e-3, 1e-2)
+HOLD = 8420.0                  # N: the cylinder force that about holds the crane's boom
+
+
+def actuator(t: float) -> float:
+    """The crane's actuator force as the master sets it (N)."""
+    return HOLD * (1.0 + 0.05 * math.sin(2.0 * math.pi * t))
+
+
+def input_of(case: str) -> str | None:
+    return "cylinder.actuator" if case == "crane mechanism" else None
+
+
+# ------------------------------------------------------------------------------ cold
+
+COLD_FMPY = """
+import json, sys, time
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+path, h = sys.argv[1], float(sys.argv[2])
+md = read_model_description(path)
+folder = extract(path)
+t0 = time.perf_counter()
+s = FMU2Slave(guid=md.guid, unzipDirectory=folder, instanceName="cold",
+              modelIdentifier=md.coSimulation.modelIdentifier)
+s.instantiate()
+s.setupExperiment(startTime=0.0)
+s.enterInitializationMode()
+s.exitInitializationMode()
+t1 = time.perf_counter()
+s.doStep(0.0, h)
+t2 = time.perf_counter()
+print("RESULT", json.dumps({"instantiate_s": t1 - t0, "first_step_s": t2 - t1}))
+"""
+
+COLD_COSIM = """
+import json, sys, time
+from libcosimpy.CosimExecution import CosimExecution
+from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+from libcosimpy.CosimSlave import CosimLocalSlave
+log_output_level(CosimLogLevel.ERROR)
+path, h = sys.argv[1], float(sys.argv[2])
+execution = CosimExecution.from_step_size(step_size=round(h * 1e9))
+t0 = time.perf_counter()
+index = execution.add_local_slave(CosimLocalSlave(fmu_path=path, instance_name="cold"))
+t1 = time.perf_counter()
+assert index >= 0 and execution.step(1)
+t2 = time.perf_counter()
+print("RESULT", json.dumps({"instantiate_s": t1 - t0, "first_step_s": t2 - t1}))
+"""
+
+
+def cold(script: str, fmu: Path, h: float) -> dict:
+    """Instantiation and first step in a fresh process on a freshly extracted FMU."""
+    run = subprocess.run([sys.executable, "-c", script, str(fmu), repr(h)],
+                         capture_output=True, text=True, timeout=300)
+    if run.returncode != 0:
+        return {"error": (run.stderr.strip().splitlines() or ["failed"])[-1]}
+    line = [x for x in run.stdout.splitlines() if x.startswith("RESULT ")][-1]
+    return json.loads(line[len("RESULT "):])
+
+
+# ------------------------------------------------------------------------------ warm
+
+class FmpyRun:
+    """One instance in fmpy, initialized and stepped a little (imports, caches)."""
+
+    def __init__(self, fmu: Path, case: str, h: float):
+        md = read_model_description(fmu)
+        self.slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(fmu), instanceName="warm",
+                               modelIdentifier=md.coSimulation.modelIdentifier)
+        self.outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+        names = {v.name: v.valueReference for v in md.modelVariables}
+        self.input = names.get(input_of(case)) if input_of(case) else None
+        self.h, self.t = h, 0.0
+        s = self.slave
+        s.instantiate()
+        s.setupExperiment(startTime=0.0)
+        s.enterInitializationMode()
+        s.exitInitializationMode()
+        self.steps(20)
+
+    def steps(self, n: int, get: bool = True, step: bool = True) -> None:
+        s, h, outputs, vr = self.slave, self.h, self.outputs, self.input
+        for _ in range(n):
+            if vr is not None:
+                s.setReal([vr], [actuator(self.t)])
+            if step:
+                s.doStep(self.t, h)
+                self.t += h
+            if get:
+                s.getReal(outputs)
+
+    def timed(self, n: int, **kwargs) -> tuple[float, float]:
+        """(wall s, CPU s) per iteration of ``steps``."""
+        w, c = time.perf_counter(), time.process_time()
+        self.steps(n, **kwargs)
+        return (time.perf_counter() - w) / n, (time.process_time() - c) / n
+
+    def free(self):
+        self.slave.terminate()
+        self.slave.freeInstance()
+
+
+def cosim_run(fmu: Path, case: str, h: float, n: int) -> tuple[float, float]:
+    """(wall s, CPU s) per communication step of libcosim's ``execution.step``."""
+    from libcosimpy.CosimEnums import CosimVariableType
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+    from libcosimpy.CosimObserver import CosimObserver
+    from libcosimpy.CosimSlave import CosimLocalSlave
+
+    log_output_level(CosimLogLevel.ERROR)
+    md = read_model_description(fmu)
+    execution = CosimExecution.from_step_size(step_size=round(h * 1e9))
+    index = execution.add_local_slave(CosimLocalSlave(fmu_path=str(fmu), instance_name="warm"))
+    names = {v.name: v.valueReference for v in md.modelVariables}
+    if input_of(case):
+        execution.real_initial_value(index, names[input_of(case)], HOLD)
+    series = CosimObserver.create_time_series(buffer_size=n + 64)
+    execution.add_observer(series)
+    for v in md.modelVariables:
+        if v.causality == "output":
+            series.start_time_series(index, value_reference=v.valueReference,
+                                     variable_type=CosimVariableType.REAL)
+    execution.step(20)
+    w, c = time.perf_counter(), time.process_time()
+    assert execution.step(n)
+    return (time.perf_counter() - w) / n, (time.process_time() - c) / n
+
+
+def direct_run(scene_path: Path, case: str, h: float, n: int, kernel: str) -> tuple[float, float]:
+    """(wall s, CPU s) per communication step of the solver called directly."""
+    sim = mbdfmu.Simulation(mbdfmu.load_scene(scene_path), kernel=kernel)
+    name = input_of(case)
+    t = 0.0
+
+    def steps(count):
+        nonlocal t
+        for _ in range(count):
+            if name:
+                sim.set_input(name, actuator(t))
+            t += h
+            sim.advance(t)
+            sim.output_vector()
+    steps(20)
+    w, c = time.perf_counter(), time.process_time()
+    steps(n)
+    return (time.perf_counter() - w) / n, (time.process_time() - c) / n
+
+
+def exudyn_per_step(case: str, t_end: float) -> float | None:
+    """CPU s per 1 ms step of Exudyn's generalized-alpha on the case's mechanism."""
+    if case not in EXUDYN:
+        return None
+    try:
+        import exudyn_compare as ex
+    except ImportError:
+        return None
+    problem = ex.PROBLEMS[EXUDYN[case]]
+    scene = ex.load_problem_scene(problem)
+    ex.run_exudyn(problem, scene, step=1e-3, t_end=0.01)          # warm-up
+    row = ex.run_exudyn(problem, scene, step=1e-3, t_end=t_end)
+    return row["cpu_s"] / max(1, int(row["nsteps"] or 1))
+
+
+# ------------------------------------------------------------------------------ the run
+
+def measure(case: str, fmu: Path, h: float, args) -> dict:
+    n = max(1, int(round(args.t_end / h)))
+    row = {"case": case, "step_ms": h * 1e3, "method": "", "outputs": 0}
+    row.update({f"cold_fmpy_{k}": v for k, v in cold(COLD_FMPY, fmu, h).items()})
+    row.update({f"cold_cosim_{k}": v for k, v in cold(COLD_COSIM, fmu, h).items()})
+    samples: dict[str, list] = {}
+    for _ in range(args.repeat):
+        run = FmpyRun(fmu, case, h)
+        row["outputs"] = len(run.outputs)
+        samples.setdefault("fmpy", []).append(run.timed(n))
+        samples.setdefault("doStep", []).append(run.timed(n, get=False))
+        samples.setdefault("getReal", []).append(run.timed(n, step=False))
+        run.free()
+        samples.setdefault("cosim", []).append(cosim_run(fmu, case, h, n))
+        for kernel in ("c", "numpy"):
+            samples.setdefault(f"direct_{kernel}", []).append(
+                direct_run(CASES[case], case, h, n if kernel == "c" else max(1, n // 5), kernel))
+    for key, values in samples.items():
+        row[f"{key}_wall_us"] = statistics.median(v[0] for v in values) * 1e6
+        row[f"{key}_cpu_us"] = statistics.median(v[1] for v in values) * 1e6
+    row["rtf_fmpy"] = h / (row["fmpy_wall_us"] * 1e-6)
+    row["rtf_cosim"] = h / (row["cosim_wall_us"] * 1e-6)
+    sim = mbdfmu.Simulation(mbdfmu.load_scene(CASES[case]))
+    row["method"] = sim.method_name
+    if h == 1e-3:
+        exu = exudyn_per_step(case, args.t_end)
+        row["exudyn_cpu_us"] = exu * 1e6 if exu is not None else ""
+    return row
+
+
+def markdown(rows: list[dict], header: str) -> str:
+    lines = [header, "",
+             "| case | method | h (ms) | cold fmpy: instantiate + 1st doStep (s) | cold libcosim (s) "
+             "| fmpy µs/step (RTF) | doStep µs | getReal µs (outputs) | libcosim µs/step (RTF) "
+             "| direct, kernel c µs | direct, numpy µs | Exudyn µs per 1 ms |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+
+    def cold_text(prefix, r):
+        if f"{prefix}_error" in r:
+            return "failed: " + r[f"{prefix}_error"]
+        return f"{r[prefix + '_instantiate_s'] + r[prefix + '_first_step_s']:.3f}"
+    for r in rows:
+        exu = r.get("exudyn_cpu_us", "")
+        lines.append(
+            f"| {r['case']} | {r['method']} | {r['step_ms']:g} | {cold_text('cold_fmpy', r)} | "
+            f"{cold_text('cold_cosim', r)} | {r['fmpy_wall_us']:.1f} ({r['rtf_fmpy']:.1f}) | "
+            f"{r['doStep_wall_us']:.1f} | {r['getReal_wall_us']:.1f} ({r['outputs']}) | "
+            f"{r['cosim_wall_us']:.1f} ({r['rtf_cosim']:.1f}) | {r['direct_c_wall_us']:.1f} | "
+            f"{r['direct_numpy_wall_us']:.1f} | {'' if exu == '' else f'{exu:.1f}'} |")
+    return "\n".join(lines) + "\n"
+
+
+def chart(rows: list[dict], path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    ms = [r for r in rows if r["step_ms"] == 1.0]
+    keys = [("fmpy_wall_us", "FMU in fmpy"), ("cosim_wall_us", "FMU in libcosim"),
+            ("direct_c_wall_us", "solver directly (kernel c)"), ("exudyn_cpu_us", "Exudyn")]
+    fig, ax = plt.subplots(figsize=(8, 3.8))
+    width = 0.2
+    for k, (key, label) in enumerate(keys):
+        values = [r.get(key) if r.get(key) not in ("", None) else np.nan for r in ms]
+        ax.bar(np.arange(len(ms)) + (k - 1.5) * width, values, width, label=label)
+    ax.axhline(50.0, color="k", lw=0.8, ls="--", label="real-time factor 20 (50 µs)")
+    ax.set_xticks(np.arange(len(ms)), [r["case"] for r in ms])
+    ax.set_ylabel("µs per 1 ms communication step")
+    ax.set_yscale("log")
+    ax.legend(fontsize=8)
+    ax.set_title("What a 1 ms step costs: the FMU at its default settings")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--t-end", type=float, default=1.0, help="simulated s per warm run")
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--quick", action="store_true", help="1 ms only, 0.2 s, one repeat")
+    parser.add_argument("-o", "--output", default=str(ROOT / "docs" / "figures" / "performance"))
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.t_end, args.repeat = 0.2, 1
+    steps = STEPS[:1] if args.quick else STEPS
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        fmus = {case: build_fmu(path, output=Path(tmp) / f"case{k}.fmu")
+                for k, (case, path) in enumerate(CASES.items())}
+        for case, fmu in fmus.items():
+            for h in steps:
+                rows.append(measure(case, fmu, h, args))
+                print(json.dumps(rows[-1]), flush=True)
+    header = (f"`python benchmarks/fmu_speed.py --t-end {args.t_end:g} --repeat {args.repeat}`: "
+              f"median of {args.repeat}, wall clock per communication step (µs), the real-time "
+              "factor in brackets; Exudyn: CPU time per 1 ms step; cold: wall s in a fresh "
+              "process.")
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    text = markdown(rows, header)
+    print(text)
+    (out / "fmu_speed.md").write_text(text)
+    with open(out / "fmu_speed.csv", "w", newline="") as f:
+        fields = sorted({k for r in rows for k in r})
+        writer = csv.DictWriter(f, fieldnames=fields)
+        writer.writeheader()
+        writer.writerows(rows)
+    chart(rows, out / "fmu_speed.png")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

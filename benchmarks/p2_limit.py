@@ -1,0 +1,213 @@
+"""Work-precision of every method on P2 N = 2 against the physical limit: the exact
+one-degree-of-freedom reduction integrated by RK4 compiled the same way as the C kernel.
+
+P2 N = 2 (scenes/n_four_bar_2.toml) moves with one degree of freedom: the cranks stay
+parallel, and the crank angle follows ``Meff theta'' = -C cos(theta)``
+(``bench.closed_forms.n_four_bar_B0``). That ODE, integrated by classic RK4 in C (the C
+kernel's compiler and flags, ``ckernel.build.CFLAGS``), is the cheapest a solver of this
+mechanism can be: what is left between it and mbdfmu is the cost of the full (absolute)
+coordinates, the constraints and their projections.
+
+Every method runs with the C kernel (what FMUs run) from t = 0 to ``--t-end``; fixed-step
+methods over a sweep of steps, adaptive ones over a sweep of rtol (atol = rtol x 1e-2 x
+the mechanism's size, as ``mbdfmu bench``); error: B0's position at t_end against the
+DOP853 reduction at 1e-13 (m). CPU time (process), the median of ``--repeat`` for runs
+under 0.5 s. Target: the cheapest run reaching 1e-6 within 20 times the compiled
+reduction's cheapest run reaching 1e-6.
+
+    python benchmarks/p2_limit.py [--t-end 10] [--repeat 3] [--quick] [-o DIR]
+
+Writes ``p2_limit.md``, ``p2_limit.csv`` and ``p2_limit.png`` into DIR (default
+docs/figures/performance).
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import csv  # noqa: E402
+import ctypes  # noqa: E402
+import math  # noqa: E402
+import shutil  # noqa: E402
+import statistics  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+import mbdfmu  # noqa: E402
+from mbdfmu.bench.closed_forms import G, n_four_bar_B0  # noqa: E402
+from mbdfmu.equations.ckernel.build import CFLAGS  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+N, LEVEL, TARGET = 2, 1e-6, 20.0
+FIXED = {"rk4p": (2e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4),
+         "genalpha": (1e-2, 5e-3, 2e-3, 1e-3, 5e-4), "ali3p": (1e-2, 5e-3, 2e-3, 1e-3, 5e-4)}
+ADAPTIVE = {"dop853p": tuple(10.0 ** -k for k in range(4, 12)),
+            "rk45p": tuple(10.0 ** -k for k in range(4, 10))}
+REDUCED_STEPS = (5e-2, 2e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4)
+SHORT_RUN_S = 0.5
+
+REDUCED_C = r"""
+#include <math.h>
+/* classic RK4 on theta'' = -a cos(theta), n steps of h; theta, omega in place */
+void rk4_theta(double h, long n, double a, double *theta, double *omega) {
+    double th = *theta, w = *omega;
+    for (long k = 0; k < n; k++) {
+        double k1t = w, k1w = -a * cos(th);
+        double k2t = w + 0.5 * h * k1w, k2w = -a * cos(th + 0.5 * h * k1t);
+        double k3t = w + 0.5 * h * k2w, k3w = -a * cos(th + 0.5 * h * k2t);
+        double k4t = w + h * k3w, k4w = -a * cos(th + h * k3t);
+        th += h / 6.0 * (k1t + 2.0 * k2t + 2.0 * k3t + k4t);
+        w += h / 6.0 * (k1w + 2.0 * k2w + 2.0 * k3w + k4w);
+    }
+    *theta = th;
+    *omega = w;
+}
+"""
+
+
+def reduced_library(folder: Path):
+    """The reduced ODE's RK4, compiled with the C kernel's flags."""
+    source, lib = folder / "reduced.c", folder / "reduced.so"
+    source.write_text(REDUCED_C)
+    compiler = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
+    subprocess.run([compiler, *CFLAGS, "-o", str(lib), str(source), "-lm"], check=True)
+    rk4 = ctypes.CDLL(str(lib)).rk4_theta
+    rk4.argtypes = [ctypes.c_double, ctypes.c_long, ctypes.c_double,
+                    ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_double)]
+    return rk4
+
+
+def median_cpu(run, repeat: int):
+    """(result, CPU s): one run, or the median of ``repeat`` when it is short."""
+    times, result = [], None
+    for k in range(repeat):
+        start = time.process_time()
+        result = run()
+        times.append(time.process_time() - start)
+        if k == 0 and times[0] > SHORT_RUN_S:
+            break
+    return result, statistics.median(times)
+
+
+def reduced_rows(rk4, t_end: float, exact, repeat: int) -> list[dict]:
+    meff, c = (N + 1) / 3.0 + N, G * ((N + 1) / 2.0 + N)
+    rows = []
+    for h in REDUCED_STEPS:
+        n = int(round(t_end / h))
+
+        def run():
+            th, w = ctypes.c_double(math.pi / 2), ctypes.c_double(-1.0)
+            rk4(t_end / n, n, c / meff, ctypes.byref(th), ctypes.byref(w))
+            return th.value
+        theta, cpu = median_cpu(run, max(repeat, 5))
+        error = math.hypot(math.cos(theta) - exact[0], math.sin(theta) - exact[1])
+        rows.append(dict(method="reduced ODE, RK4 in C", setting=h, kind="step", cpu_s=cpu,
+                         error=error, status="ok", nsteps=n))
+    return rows
+
+
+def mbdfmu_row(scene, method, kind, setting, t_end, exact, repeat) -> dict:
+    size = max(1.0, max(abs(v) for b in scene.bodies for v in b.position))
+    options = dict(step=setting) if kind == "step" else dict(
+        rtol=setting, atol=setting * 1e-2 * size)
+
+    def run():
+        sim = mbdfmu.Simulation(scene, method=method, kernel="c", **options)
+        sim.advance(t_end)
+        return sim
+    try:
+        sim, cpu = median_cpu(run, repeat)
+    except mbdfmu.SolverError as exc:
+        return dict(method=method, setting=setting, kind=kind, cpu_s="", error="",
+                    status="failed", note=str(exc)[:160])
+    out = sim.outputs()
+    phi = out["crank0.phi"]
+    b0 = (out["crank0.x"] + 0.5 * math.cos(phi), out["crank0.y"] + 0.5 * math.sin(phi))
+    return dict(method=method, setting=setting, kind=kind, cpu_s=cpu, status="ok",
+                error=math.hypot(b0[0] - exact[0], b0[1] - exact[1]),
+                nsteps=sim.integrator.stats.nsteps)
+
+
+def cheapest(rows, method, level=LEVEL):
+    ok = [r for r in rows if r["method"] == method and r["status"] == "ok" and r["error"] <= level]
+    return min(ok, key=lambda r: r["cpu_s"]) if ok else None
+
+
+def chart(rows, path: Path, t_end: float) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for method in dict.fromkeys(r["method"] for r in rows):
+        ok = sorted((r for r in rows if r["method"] == method and r["status"] == "ok"),
+                    key=lambda r: r["cpu_s"])
+        style = dict(color="k", lw=2.0) if method.startswith("reduced") else {}
+        ax.loglog([r["cpu_s"] for r in ok], [r["error"] for r in ok], "o-", ms=3,
+                  label=method, **style)
+    ax.axhline(LEVEL, color="grey", lw=0.8, ls="--")
+    ax.set_xlabel("CPU time (s)")
+    ax.set_ylabel(f"B0 position error at t = {t_end:g} s (m)")
+    ax.set_title("P2 N = 2: every method (C kernel) against the compiled exact reduction")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--t-end", type=float, default=10.0)
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--quick", action="store_true", help="t_end 2 s, one repeat")
+    parser.add_argument("-o", "--output", default=str(ROOT / "docs" / "figures" / "performance"))
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.t_end, args.repeat = 2.0, 1
+    scene = mbdfmu.load_scene(ROOT / "scenes" / "n_four_bar_2.toml")
+    b0 = n_four_bar_B0([args.t_end], N)
+    exact = (float(b0["x"][-1]), float(b0["y"][-1]))
+    mbdfmu.Simulation(scene, kernel="c", method="rk4p").advance(0.01)     # warm-up
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = reduced_rows(reduced_library(Path(tmp)), args.t_end, exact, args.repeat)
+    for method, settings in [*FIXED.items(), *ADAPTIVE.items()]:
+        kind = "step" if method in FIXED else "rtol"
+        for setting in settings:
+            rows.append(mbdfmu_row(scene, method, kind, setting, args.t_end, exact, args.repeat))
+            print(rows[-1], flush=True)
+    limit = cheapest(rows, "reduced ODE, RK4 in C")
+    lines = [f"`python benchmarks/p2_limit.py --t-end {args.t_end:g} --repeat {args.repeat}`: "
+             f"CPU time of the cheapest run of each method reaching a B0 error of {LEVEL:g} at "
+             f"t = {args.t_end:g} s, and its ratio to the compiled reduction's.", "",
+             "| method | cheapest run to 1e-6 | error (m) | CPU s | ratio to the reduced ODE |",
+             "|---|---|---|---|---|"]
+    for method in dict.fromkeys(r["method"] for r in rows):
+        best = cheapest(rows, method)
+        if best is None:
+            lines.append(f"| {method} | none reaches {LEVEL:g} | | | |")
+            continue
+        ratio = best["cpu_s"] / limit["cpu_s"] if limit else float("nan")
+        lines.append(f"| {method} | {best['kind']} = {best['setting']:g} | {best['error']:.2g} | "
+                     f"{best['cpu_s']:.4g} | {ratio:.1f} |")
+    text = "\n".join(lines) + f"\n\nTarget: ratio at most {TARGET:g}.\n"
+    print(text)
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "p2_limit.md").write_text(text)
+    with open(out / "p2_limit.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=sorted({k for r in rows for k in r}))
+        writer.writeheader()
+        writer.writerows(rows)
+    chart(rows, out / "p2_limit.png", args.t_end)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

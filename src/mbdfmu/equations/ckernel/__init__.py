@@ -1,0 +1,302 @@
+"""The C kernel: eq. (14), the projections, whole steps of the projected explicit methods
+and the output vector, compiled from ``kernel.c`` (a translation of the numpy code of this
+layer, function by function: see its header) and called through ctypes.
+
+``Kernel(equations)`` lays a scene's index arrays, forces and output plan out once, in a
+C struct of pointers into arrays it keeps, with persistent buffers for arguments and
+results, so a call copies a few small vectors and crosses into C once. The library comes
+from ``use_library(path)`` (an FMU's shipped copy), else ``$MBDFMU_C_KERNEL``, else
+``build.compile_kernel()`` (the per-user cache; compiled on first use). The tests hold it
+to the numpy kernel (tests/test_ckernel.py).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ...model.scene import PointForce, RotationalSpringDamper, SpringDamper, Torque
+
+# Return codes of kernel.c (ST_*).
+OK, SINGULAR, PROJECTION, NOT_FINITE, SPRING, ENERGY, ERROR_NORM = range(7)
+FORCE_CODES = {PointForce: 0, Torque: 1, SpringDamper: 2, RotationalSpringDamper: 3}
+# Stages of the largest tableau a trial step may have (DOP853's 12, plus its last row).
+MAX_STAGES = 13
+# Times whose inputs one call can take (a run of 64 rk4p steps evaluates 3 times each).
+MAX_ROWS = 192
+ENV_LIBRARY = "MBDFMU_C_KERNEL"
+# Minimum-norm solves (singular configurations, redundant rows) in C, as sparsity.py does
+# them (lstsq's cut-off, iterated Tikhonov); False hands them to the numpy path instead,
+# which then follows whatever that path does.
+MIN_NORM_IN_C = True
+
+_P, _I = ctypes.c_void_p, ctypes.c_int64
+_FIELDS = (
+    "nb n m nf kc *c_rows *c_bi *c_bj *c_si *c_sj kl *l_rows *l_bi *l_bj *l_si *l_sj *l_u "
+    "*l_w ka *a_rows *a_bi *a_bj *a_w nconst *constants nraw *merge size nkeep *keep *rows "
+    "*cols npairs *pair_a *pair_b *pair_minv *band_index *perm kd *mass *minv *gravity "
+    "%rank_tol *f_const nforce *f_int *f_real nr *joint_rows *reaction_entries *joint_bj "
+    "*frame_body *reaction_joints *frame_angle *frame_point nj nplan *joint_plan ncoupler "
+    "*coupler_rows ndriver *driver_rows banded min_norm *work *memo").split()
+
+
+class Model(ctypes.Structure):
+    """kernel.c's ``Model``: counts (int64), pointers, one double (``%``)."""
+
+    _fields_ = [(f.strip("*%"), _P if f[0] == "*" else ctypes.c_double if f[0] == "%" else _I)
+                for f in _FIELDS]
+
+
+_library_path: str | None = None
+_library = None
+
+
+def use_library(path) -> None:
+    """Take the kernel from this compiled file (an FMU's shipped copy)."""
+    global _library_path, _library
+    _library_path, _library = str(path), None
+
+
+def library():
+    """The loaded kernel library (see the module docstring for where it comes from)."""
+    global _library
+    if _library is None:
+        path = _library_path or os.environ.get(ENV_LIBRARY)
+        if not path:
+            from .build import compile_kernel   # the compiler only when nothing was given
+            path = compile_kernel()
+        lib = ctypes.CDLL(str(Path(path)))
+        for name, restype in (("mbd_work_size", _I), ("mbd_memo_size", _I)):
+            getattr(lib, name).restype, getattr(lib, name).argtypes = restype, [_P, _I][:1 + (name == "mbd_work_size")]
+        _library = lib
+    return _library
+
+
+def available() -> bool:
+    """The kernel can be loaded (or compiled) here."""
+    try:
+        library()
+    except Exception:   # noqa: BLE001 - any reason means: not here
+        return False
+    return True
+
+
+def _ints(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.int64).ravel()
+
+
+def _floats(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float64).ravel()
+
+
+def force_table(applied) -> tuple[np.ndarray, np.ndarray]:
+    """The forces that depend on the state or inputs (``AppliedForces.state_forces``) as
+    kernel.c reads them: (type, body_i, body_j, input slot or -1) and eight reals each."""
+    ints, reals = [], []
+    slots = {name: s.start for name, s in applied.layout.forces.items()}
+    index = applied.index
+    for f in applied.state_forces:
+        real = np.zeros(8)
+        if isinstance(f, PointForce):
+            b = index[f.body]
+            ints.append((0, b, b, slots[f.name] if f.input else -1))
+            real[:4] = (*f.point, *((0.0, 0.0) if f.input else f.value))
+        elif isinstance(f, Torque):
+            b = index[f.body]
+            ints.append((1, b, b, slots[f.name]))
+        elif isinstance(f, SpringDamper):
+            ints.append((2, index[f.body_i], index[f.body_j],
+                         slots[f.name] if f.actuator_input else -1))
+            real[:7] = (*f.point_i, *f.point_j, f.stiffness, f.damping, f.rest_length)
+        else:
+            joint = applied.scene.joint(f.joint)
+            ints.append((3, index[joint.body_i], index[joint.body_j], -1))
+            real[:3] = (f.stiffness, f.damping, f.rest_angle)
+        reals.append(real)
+    return _ints(np.array(ints, dtype=np.int64).reshape(-1, 4)), _floats(np.array(reals).reshape(-1, 8))
+
+
+def model_arrays(eq) -> dict:
+    """Every array and count of ``Model`` for the ``Equations`` eq."""
+    c, p = eq.constraint_set, eq.pattern
+    co, li, an = c.coincidence, c.line, c.angle
+    f_int, f_real = force_table(eq.applied)
+    a = dict(nb=eq.nb, n=eq.n, m=eq.m, nf=eq.layout.size,
+             kc=co.n, c_rows=co.rows, c_bi=co.bi, c_bj=co.bj, c_si=co.si, c_sj=co.sj,
+             kl=li.n, l_rows=li.rows, l_bi=li.bi, l_bj=li.bj, l_si=li.si, l_sj=li.sj,
+             l_u=li.u, l_w=li.w, ka=an.n, a_rows=an.rows, a_bi=an.bi, a_bj=an.bj, a_w=an.w,
+             nconst=c._constants.size, constants=c._constants, nraw=p.merge.size,
+             merge=p.merge, size=p.size, nkeep=p.keep.size, keep=p.keep, rows=p.rows,
+             cols=p.cols, npairs=p.pair_a.size, pair_a=p.pair_a, pair_b=p.pair_b,
+             pair_minv=p.pair_minv, band_index=p.band_index, perm=p.perm, kd=p.kd,
+             mass=eq.mass, minv=eq.minv, gravity=eq.applied.gravity,
+             f_const=eq.applied.constant, nforce=f_int.size // 4, f_int=f_int, f_real=f_real,
+             nr=len(c.joint_rows), joint_rows=c.joint_rows,
+             reaction_entries=eq._reaction_entries, joint_bj=c.joint_bj,
+             frame_body=c.frame_body, reaction_joints=c.reaction_joints,
+             frame_angle=c.frame_angle, frame_point=c.frame_point, nj=len(eq.scene.joints),
+             nplan=eq._joint_outputs.size, joint_plan=eq._joint_outputs,
+             ncoupler=c.coupler_rows.size, coupler_rows=c.coupler_rows,
+             ndriver=c.driver_rows.size, driver_rows=c.driver_rows,
+             banded=int(p.banded), min_norm=int(MIN_NORM_IN_C))
+    return a
+
+
+class Buffers:
+    """The persistent arrays of one kernel, and their addresses (``p_<name>``): arguments
+    and results are copied in and out, so a call passes addresses known beforehand."""
+
+    def __init__(self, n: int, m: int, nf: int, nout: int):
+        sizes = dict(q=n, qd=n, motion=3 * m, uf=max(nf, 1), qdd=n, lam=max(m, 1),
+                     y=2 * n, f=2 * n, y_new=2 * n, f_new=2 * n, K=MAX_STAGES * 2 * n, err=1,
+                     audit=9, out=nout)
+        for name, size in sizes.items():
+            array = np.zeros(size)
+            setattr(self, name, array)
+            setattr(self, "p_" + name, array.ctypes.data)
+        # inputs at each time a run of steps evaluates: (c, c', c'') and the force inputs
+        self.motions = np.zeros((MAX_ROWS, 3 * m))
+        self.ufs = np.zeros((MAX_ROWS, max(nf, 1)))
+        self.p_motions, self.p_ufs = self.motions.ctypes.data, self.ufs.ctypes.data
+        self.done = np.zeros(1, dtype=np.int64)
+        self.p_done = self.done.ctypes.data
+
+
+class Kernel:
+    """The C kernel bound to one scene's ``Equations``; every method returns None where
+    kernel.c hands the case back to the numpy path (a singular Schur complement, a spring
+    of zero length), which then says or does what it always does."""
+
+    def __init__(self, eq):
+        from ..sparsity import RANK_TOLERANCE
+        lib = library()
+        self.n, self.m, self.nf = eq.n, eq.m, eq.layout.size
+        arrays = model_arrays(eq)
+        springs = sum(isinstance(f, SpringDamper) for f in eq.scene.forces)
+        self.nout = 6 * eq.nb + arrays["nplan"] + arrays["ndriver"] + 3 * springs + 4
+        model, self._arrays = Model(), []
+        for name, kind in Model._fields_:
+            if name in ("work", "memo", "rank_tol"):
+                continue
+            value = arrays[name]
+            if kind is _P:
+                value = np.asarray(value)
+                value = _ints(value) if value.dtype.kind in "iu" else _floats(value)
+                self._arrays.append(value)
+                value = value.ctypes.data
+            setattr(model, name, value)
+        model.rank_tol = RANK_TOLERANCE
+        self.model, self.address = model, ctypes.addressof(model)
+        self.work = np.zeros(lib.mbd_work_size(self.address, MAX_STAGES))
+        self.memo = np.zeros(lib.mbd_memo_size(self.address))
+        model.work, model.memo = self.work.ctypes.data, self.memo.ctypes.data
+        self.buf = Buffers(self.n, self.m, self.nf, self.nout)
+        self._tableaus: dict = {}
+        self.static_rows = 0          # rows of buf.motions holding a driverless scene's block
+        self._bind(lib)
+
+    def _bind(self, lib) -> None:
+        d = ctypes.c_double
+        signatures = {"mbd_accelerations": [_P] * 8, "mbd_outputs": [_P] * 8,
+                      "mbd_state_outputs": [_P] * 8,
+                      "mbd_project_positions": [_P, _P, _P, ctypes.c_double, _I],
+                      "mbd_project_velocities": [_P] * 5,
+                      "mbd_rk4p_steps": [_P, _P, _P, d, _I, _P, _I, _P, _I, d, _I, _P, d, d, _P],
+                      "mbd_prk_trial": [_P, _I, _P, _P, _P, _P, d, _P, _P, _P, _P, d, d, d, _I,
+                                        _P, _P, _P, _P]}
+        for name, argtypes in signatures.items():
+            function = getattr(lib, name)
+            function.argtypes, function.restype = argtypes, ctypes.c_int
+            setattr(self, "_" + name[4:], function)
+
+    def forget(self) -> None:
+        """Drop the kept evaluation (the next accelerations call computes anew)."""
+        self.memo[0] = 0.0
+
+    def _load(self, q, qd, motion, uf) -> None:
+        b, m = self.buf, self.m
+        b.q[:] = q
+        b.qd[:] = qd
+        b.motion[:m], b.motion[m:2 * m], b.motion[2 * m:] = motion
+        if uf is not None:
+            b.uf[:self.nf] = uf
+
+    def accelerations(self, q, qd, motion, uf):
+        """(q'', lam) of eq. (14); motion: (c, c', c'') of every row; uf: force inputs."""
+        b = self.buf
+        self._load(q, qd, motion, uf)
+        if self._accelerations(self.address, b.p_q, b.p_qd, b.p_motion, b.p_motion + 16 * self.m,
+                               b.p_uf, b.p_qdd, b.p_lam) != OK:
+            return None
+        return b.qdd.copy(), b.lam[:self.m].copy()
+
+    def outputs(self, q, qd, qdd, lam, motion, uf):
+        """The vector of ``Equations.output_values`` (a copy)."""
+        b = self.buf
+        self._load(q, qd, motion, uf)
+        b.lam[:self.m] = lam
+        if self._outputs(self.address, b.p_q, b.p_qd, b.p_qdd, b.p_lam, b.p_motion, b.p_uf,
+                         b.p_out) != OK:
+            return None
+        return b.out.copy()
+
+    def project(self, q, qd, motion, tol, max_iter):
+        """(q, q') projected onto the constraints (positions to ``tol``, then velocities;
+        ``projection.project_positions`` / ``project_velocities``), or None when the numpy
+        path must do it (no convergence, a singular Schur complement: it says why)."""
+        b, m = self.buf, self.m
+        self._load(q, qd, motion, None)
+        if self._project_positions(self.address, b.p_q, b.p_motion, tol, max_iter) != OK or \
+                self._project_velocities(self.address, b.p_q, b.p_qd, b.p_motion,
+                                         b.p_motion + 8 * m) != OK:
+            return None
+        return b.q.copy(), b.qd.copy()
+
+    def state_outputs(self, q, qd, motion, uf):
+        """The output vector at (q, q') with q'' and lam of eq. (14) at that state (those the
+        last step computed when it ended there): one call. None: the numpy path's case."""
+        b = self.buf
+        self._load(q, qd, motion, uf)
+        if self._state_outputs(self.address, b.p_q, b.p_qd, b.p_motion, b.p_uf, b.p_qdd, b.p_lam,
+                               b.p_out) != OK:
+            return None
+        return b.out.copy()
+
+    def rk4p_steps(self, q, qd, qdd, h, steps, tol, max_iter, audit, divergence, roundoff):
+        """``steps`` steps of rk4p (``mbd_rk4p_steps``) with the inputs the caller put in
+        ``buf.motions`` / ``buf.ufs``: rows 3k .. 3k + 2 at t, t + h/2, t + h of step k;
+        audit: the energy check's state (9 values, updated). Returns (q, q', q'', steps
+        done, status)."""
+        b, n = self.buf, self.n
+        b.y[:n], b.y[n:], b.f[:n], b.f[n:] = q, qd, qd, qdd
+        b.audit[:] = audit
+        status = self._rk4p_steps(self.address, b.p_y, b.p_f, h, steps, b.p_motions, 9 * self.m,
+                                  b.p_ufs, 3 * self.nf, tol, max_iter, b.p_audit, divergence,
+                                  roundoff, b.p_done)
+        return b.y[:n].copy(), b.y[n:].copy(), b.f[n:].copy(), int(b.done[0]), status
+
+    def tableau(self, key, A, B, E, E3) -> tuple:
+        """An embedded pair's arrays, kept with their addresses (once per ``key``)."""
+        if key not in self._tableaus:
+            arrays = [None if x is None else np.ascontiguousarray(x, dtype=float)
+                      for x in (A, B, E, E3)]
+            self._arrays += [x for x in arrays if x is not None]
+            self._tableaus[key] = (arrays[1].size, *(None if x is None else x.ctypes.data
+                                                     for x in arrays))
+        return self._tableaus[key]
+
+    def prk_trial(self, tableau, h, q, qd, f0, rtol, atol, tol, max_iter):
+        """The arithmetic of one step of an embedded pair (``mbd_prk_trial``) with the
+        inputs in ``buf.motions`` / ``buf.ufs`` (row s: stage s; row ns: t + h), from
+        (q, q') with f0 = y' there; tableau from ``tableau``. Returns (status, err, y_new,
+        f_new)."""
+        b, n = self.buf, self.n
+        b.y[:n], b.y[n:] = q, qd
+        b.f[:] = f0
+        status = self._prk_trial(self.address, *tableau, h, b.p_y, b.p_f, b.p_motions,
+                                 b.p_ufs, rtol, atol, tol, max_iter, b.p_y_new, b.p_f_new,
+                                 b.p_err, b.p_K)
+        return status, float(b.err[0]), b.y_new.copy(), b.f_new.copy()

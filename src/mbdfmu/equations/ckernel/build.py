@@ -1,0 +1,64 @@
+"""Compiling the C kernel (``kernel.c`` with its two headers) into a shared library.
+
+``compile_kernel()`` builds it once per content (sources, compiler, flags: a SHA-256 names
+the file) into the per-user cache (``$MBDFMU_CACHE_DIR``, else ``$XDG_CACHE_HOME/mbdfmu``,
+else ``~/.cache/mbdfmu``) and returns its path; ``mbdfmu build`` ships that file in the FMU,
+so nothing is compiled when an FMU is loaded. ``KernelBuildError`` says in one line why it
+could not be built (no compiler, a compiler error).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+SOURCES = ("kernel.c", "solve.h", "stepping.h", "outputs.h")
+# -O2 without -ffast-math: the kernel must round like the numpy code it translates.
+CFLAGS = ("-O2", "-shared", "-fPIC", "-std=gnu11", "-fno-fast-math", "-Wall")
+
+
+class KernelBuildError(RuntimeError):
+    """The kernel could not be compiled (one line: what to install or fix)."""
+
+
+def source_digest() -> str:
+    """SHA-256 of the kernel's sources: the name a built library carries."""
+    h = hashlib.sha256()
+    for name in SOURCES:
+        h.update(name.encode() + b"\0" + (HERE / name).read_bytes())
+    return h.hexdigest()
+
+
+def cache_dir() -> Path:
+    if os.environ.get("MBDFMU_CACHE_DIR"):
+        return Path(os.environ["MBDFMU_CACHE_DIR"])
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "mbdfmu"
+
+
+def compile_kernel(folder: str | os.PathLike | None = None) -> Path:
+    """The compiled kernel, built now or found in ``folder`` (default ``cache_dir()``)."""
+    names = [os.environ["CC"]] if os.environ.get("CC") else ["gcc", "cc", "clang"]
+    compiler = next(filter(None, map(shutil.which, names)), None)
+    if compiler is None:
+        raise KernelBuildError(f"no C compiler found (looked for {', '.join(names)}): the "
+                               "numpy kernel runs instead")
+    version = subprocess.run([compiler, "--version"], capture_output=True, text=True).stdout
+    key = hashlib.sha256(f"{source_digest()}\n{compiler}\n{version}\n{CFLAGS}".encode())
+    target = Path(folder or cache_dir()) / f"mbdfmu-kernel-{key.hexdigest()[:24]}.so"
+    if target.is_file():
+        return target
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=target.parent) as tmp:
+        built = Path(tmp) / target.name
+        run = subprocess.run([compiler, *CFLAGS, "-o", str(built), str(HERE / SOURCES[0]), "-lm"],
+                             capture_output=True, text=True)
+        if run.returncode != 0:
+            first = (run.stderr.strip().splitlines() or ["(no output)"])[0]
+            raise KernelBuildError(f"compiling the C kernel failed: {first}")
+        os.replace(built, target)      # atomic: a concurrent build never sees half a file
+    return target

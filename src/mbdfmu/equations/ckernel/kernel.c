@@ -1,0 +1,425 @@
+/*
+ * kernel.c: the C kernel of mbdfmu's equations (compiled by ckernel/build.py, called through
+ * ctypes by ckernel/__init__.py). A line-by-line translation of the numpy code:
+ *
+ *   terms()          constraints.py ConstraintSet._values_numpy (joints.py's three row
+ *                    primitives, rows summing weighted terms, formulation.md eqs. 5-7, 24)
+ *   forces()         forces.py AppliedForces.__call__ (eq. 12)
+ *   schur_solve()    sparsity.py JacobianPattern.schur_solve's Cholesky branch (eq. 15),
+ *                    the banded factorisation of compiled.py
+ *   accelerations()  dynamics.py Equations.accelerations (eq. 14)
+ *   project_*()      projection.py project_positions / project_velocities (eqs. 18-19)
+ *   mbd_rk4p_steps   rk4p.py's step (rk4_step, _project, the next q'') for runs of steps,
+ *                    with rk4p_compiled.py's energy check for constant forces
+ *   mbd_prk_trial    projected_rk.py ProjectedRK._step_impl's arithmetic: stages, error
+ *                    norm, projections, the next q'' (the decisions stay in Python)
+ *   mbd_outputs      dynamics.py Equations.output_values (reactions eqs. 16-17, 28)
+ *
+ * Where the numpy path has a minimum-norm fallback (a singular Schur complement) this
+ * kernel returns ST_SINGULAR and the caller redoes the work on the numpy path; a spring of
+ * zero length returns ST_SPRING and the numpy path raises its error. Nothing allocates:
+ * scratch space is the caller's `work` (mbd_work_size doubles).
+ */
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+
+typedef int64_t I;
+
+enum { ST_OK = 0, ST_SINGULAR = 1, ST_PROJECTION = 2, ST_NOT_FINITE = 3, ST_SPRING = 4,
+       ST_ENERGY = 5, ST_ERROR_NORM = 6 };
+enum { F_POINT = 0, F_TORQUE = 1, F_SPRING = 2, F_TORSION = 3 };
+/* slots of the energy check's running state (rk4p_compiled.AuditField) */
+enum { A_ACTIVE, A_E0, A_V0, A_KINETIC_MAX, A_POTENTIAL_SWING, A_MAGNITUDE, A_CHECKS,
+       A_WORST, A_LAST_ENERGY };
+#define MIN_SPRING_LENGTH 1e-12
+
+typedef struct {
+    I nb, n, m, nf;
+    I kc; const I *c_rows, *c_bi, *c_bj; const double *c_si, *c_sj;
+    I kl; const I *l_rows, *l_bi, *l_bj; const double *l_si, *l_sj, *l_u, *l_w;
+    I ka; const I *a_rows, *a_bi, *a_bj; const double *a_w;
+    I nconst; const double *constants;
+    I nraw; const I *merge; I size; I nkeep; const I *keep, *rows, *cols;
+    I npairs; const I *pair_a, *pair_b; const double *pair_minv; const I *band_index, *perm;
+    I kd;
+    const double *mass, *minv, *gravity;
+    double rank_tol;
+    const double *f_const; I nforce; const I *f_int; const double *f_real;
+    /* outputs: reactions and the output plan */
+    I nr; const I *joint_rows, *reaction_entries, *joint_bj, *frame_body, *reaction_joints;
+    const double *frame_angle, *frame_point;
+    I nj, nplan; const I *joint_plan; I ncoupler; const I *coupler_rows;
+    I ndriver; const I *driver_rows;
+    I banded, min_norm;   /* S in band storage (else dense); minimum-norm solves here */
+    double *work;
+    double *memo;   /* the last evaluation of eq. (14): its arguments and results (memo_size) */
+} Model;
+
+/* ---- row primitives (joints.py) ------------------------------------------------------ */
+
+/* A_b (vx, vy) with body b's cos and sin (cs, sn: per body, the ground's last). */
+static inline void rotated(const double *cs, const double *sn, I b, double vx, double vy,
+                           double *x, double *y) {
+    *x = cs[b] * vx - sn[b] * vy;
+    *y = sn[b] * vx + cs[b] * vy;
+}
+
+/* psi (m) = terms - cval; raw (nraw) = the terms' Jacobian values (constants first, then
+ * the coincidence and line blocks, constraints.py's layout); gamma (m) without c'' when
+ * qde is given. qe, qde: (n + 3), the ground's three zeros last. */
+static void terms(const Model *M, const double *qe, const double *qde, const double *cval,
+                  double *psi, double *raw, double *gamma, double *cs) {
+    I k0 = M->nconst, kc = M->kc, kl = M->kl;
+    double *sn = cs + M->nb + 1;     /* cos and sin of every body's angle, once (planar.poses) */
+    for (I b = 0; b <= M->nb; b++) { cs[b] = cos(qe[3 * b + 2]); sn[b] = sin(qe[3 * b + 2]); }
+    memcpy(raw, M->constants, (size_t)k0 * sizeof(double));
+    for (I r = 0; r < M->m; r++) { psi[r] = 0.0; if (gamma) gamma[r] = 0.0; }
+    for (I k = 0; k < kc; k++) {
+        I i = M->c_bi[k], j = M->c_bj[k], r0 = M->c_rows[2 * k], r1 = M->c_rows[2 * k + 1];
+        double aix, aiy, ajx, ajy;
+        rotated(cs, sn, i, M->c_si[2 * k], M->c_si[2 * k + 1], &aix, &aiy);
+        rotated(cs, sn, j, M->c_sj[2 * k], M->c_sj[2 * k + 1], &ajx, &ajy);
+        psi[r0] = qe[3 * i] + aix - qe[3 * j] - ajx;
+        psi[r1] = qe[3 * i + 1] + aiy - qe[3 * j + 1] - ajy;
+        raw[k0 + k] = -aiy;
+        raw[k0 + kc + k] = aix;
+        raw[k0 + 2 * kc + k] = ajy;
+        raw[k0 + 3 * kc + k] = -ajx;
+        if (gamma) {
+            double wi2 = qde[3 * i + 2] * qde[3 * i + 2], wj2 = qde[3 * j + 2] * qde[3 * j + 2];
+            gamma[r0] = aix * wi2 - ajx * wj2;
+            gamma[r1] = aiy * wi2 - ajy * wj2;
+        }
+    }
+    I k1 = k0 + 4 * kc;
+    for (I k = 0; k < kl; k++) {
+        I i = M->l_bi[k], j = M->l_bj[k], row = M->l_rows[k];
+        double aix, aiy, ajx, ajy, ux, uy, w = M->l_w[k];
+        rotated(cs, sn, i, M->l_si[2 * k], M->l_si[2 * k + 1], &aix, &aiy);
+        rotated(cs, sn, j, M->l_sj[2 * k], M->l_sj[2 * k + 1], &ajx, &ajy);
+        rotated(cs, sn, i, M->l_u[2 * k], M->l_u[2 * k + 1], &ux, &uy);
+        double dx = qe[3 * j] + ajx - qe[3 * i] - aix, dy = qe[3 * j + 1] + ajy - qe[3 * i + 1] - aiy;
+        double ud = ux * dx + uy * dy;
+        psi[row] += w * ud;
+        raw[k1 + k] = w * -ux;
+        raw[k1 + kl + k] = w * -uy;
+        raw[k1 + 2 * kl + k] = w * ((-uy * dx + ux * dy) - (-ux * aiy + uy * aix));
+        raw[k1 + 3 * kl + k] = w * ux;
+        raw[k1 + 4 * kl + k] = w * uy;
+        raw[k1 + 5 * kl + k] = w * (-ux * ajy + uy * ajx);
+        if (gamma) {
+            double wi = qde[3 * i + 2], wj = qde[3 * j + 2];
+            double ddx = qde[3 * j] - wj * ajy - qde[3 * i] + wi * aiy;
+            double ddy = qde[3 * j + 1] + wj * ajx - qde[3 * i + 1] - wi * aix;
+            double g = wi * wi * ud - 2.0 * wi * (-uy * ddx + ux * ddy)
+                       + (ux * (ajx * wj * wj - aix * wi * wi) + uy * (ajy * wj * wj - aiy * wi * wi));
+            gamma[row] += w * g;
+        }
+    }
+    for (I k = 0; k < M->ka; k++)
+        psi[M->a_rows[k]] += M->a_w[k] * (qe[3 * M->a_bj[k] + 2] - qe[3 * M->a_bi[k] + 2]);
+    for (I r = 0; r < M->m; r++) psi[r] -= cval[r];
+}
+
+/* data (size): the terms merged (repeated entries summed, sparsity.JacobianPattern.merged);
+ * values (nkeep): data's entries in moving bodies' columns. */
+static void merged(const Model *M, const double *raw, double *data, double *values) {
+    if (M->size == M->nraw) memcpy(data, raw, (size_t)M->nraw * sizeof(double));
+    else {
+        memset(data, 0, (size_t)M->size * sizeof(double));
+        for (I k = 0; k < M->nraw; k++) data[M->merge[k]] += raw[k];
+    }
+    for (I k = 0; k < M->nkeep; k++) values[k] = data[M->keep[k]];
+}
+
+static void jac_mul(const Model *M, const double *values, const double *x, double *out) {
+    memset(out, 0, (size_t)M->m * sizeof(double));
+    for (I k = 0; k < M->nkeep; k++) out[M->rows[k]] += values[k] * x[M->cols[k]];
+}
+
+static void jac_t_mul(const Model *M, const double *values, const double *y, double *out) {
+    memset(out, 0, (size_t)M->n * sizeof(double));
+    for (I k = 0; k < M->nkeep; k++) out[M->cols[k]] += values[k] * y[M->rows[k]];
+}
+
+static int all_finite_values(const double *x, I k) {
+    for (I i = 0; i < k; i++) if (!isfinite(x[i])) return 0;
+    return 1;
+}
+
+#include "solve.h"
+
+/* ---- applied forces (forces.py) --------------------------------------------------------- */
+
+static inline void body_point(const Model *M, const double *q, I b, double px, double py,
+                              double *x, double *y, double *ax, double *ay) {
+    if (b >= M->nb) { *x = 0.0; *y = 0.0; *ax = px; *ay = py; return; }
+    double c = cos(q[3 * b + 2]), s = sin(q[3 * b + 2]);
+    *x = q[3 * b]; *y = q[3 * b + 1];
+    *ax = c * px - s * py;
+    *ay = s * px + c * py;
+}
+
+/* Length, rate, unit vector and arms of spring item k (AppliedForces.spring_geometry). */
+static int spring_geometry(const Model *M, I k, const double *q, const double *qd,
+                           double g[8]) {
+    const I *fi = M->f_int + 4 * k;
+    const double *fr = M->f_real + 8 * k;
+    I bi = fi[1], bj = fi[2], nb = M->nb;
+    double xi, yi, aix, aiy, xj, yj, ajx, ajy;
+    body_point(M, q, bi, fr[0], fr[1], &xi, &yi, &aix, &aiy);
+    body_point(M, q, bj, fr[2], fr[3], &xj, &yj, &ajx, &ajy);
+    double dx = xj + ajx - xi - aix, dy = yj + ajy - yi - aiy, length = hypot(dx, dy);
+    if (length < MIN_SPRING_LENGTH) return ST_SPRING;
+    double ux = dx / length, uy = dy / length, z[3] = {0.0, 0.0, 0.0};
+    const double *vi = bi < nb ? qd + 3 * bi : z, *vj = bj < nb ? qd + 3 * bj : z;
+    double vx = vj[0] - vj[2] * ajy - vi[0] + vi[2] * aiy;
+    double vy = vj[1] + vj[2] * ajx - vi[1] - vi[2] * aix;
+    g[0] = length; g[1] = ux * vx + uy * vy; g[2] = ux; g[3] = uy;
+    g[4] = aix; g[5] = aiy; g[6] = ajx; g[7] = ajy;
+    return ST_OK;
+}
+
+static double spring_tension(const Model *M, I k, double length, double rate, const double *uf) {
+    const double *fr = M->f_real + 8 * k;
+    double tension = fr[4] * (length - fr[6]) + fr[5] * rate;
+    if (M->f_int[4 * k + 3] >= 0) tension -= uf[M->f_int[4 * k + 3]];
+    return tension;
+}
+
+static int forces(const Model *M, const double *q, const double *qd, const double *uf, double *F) {
+    I nb = M->nb;
+    memcpy(F, M->f_const, (size_t)M->n * sizeof(double));
+    for (I k = 0; k < M->nforce; k++) {
+        const I *fi = M->f_int + 4 * k;
+        const double *fr = M->f_real + 8 * k;
+        if (fi[0] == F_POINT) {
+            I b = fi[1];
+            double fx = fi[3] >= 0 ? uf[fi[3]] : fr[2], fy = fi[3] >= 0 ? uf[fi[3] + 1] : fr[3];
+            double x, y, ax, ay;
+            body_point(M, q, b, fr[0], fr[1], &x, &y, &ax, &ay);
+            F[3 * b] += fx; F[3 * b + 1] += fy; F[3 * b + 2] += ax * fy - ay * fx;
+        } else if (fi[0] == F_TORQUE) {
+            F[3 * fi[1] + 2] += uf[fi[3]];
+        } else if (fi[0] == F_SPRING) {
+            double g[8];
+            if (spring_geometry(M, k, q, qd, g) != ST_OK) return ST_SPRING;
+            double tension = spring_tension(M, k, g[0], g[1], uf);
+            double fx = -tension * g[2], fy = -tension * g[3];
+            I bi = fi[1], bj = fi[2];
+            if (bj < nb) { F[3 * bj] += fx; F[3 * bj + 1] += fy; F[3 * bj + 2] += g[6] * fy - g[7] * fx; }
+            if (bi < nb) { F[3 * bi] -= fx; F[3 * bi + 1] -= fy; F[3 * bi + 2] -= g[4] * fy - g[5] * fx; }
+        } else {
+            I bi = fi[1], bj = fi[2];
+            double phi_i = bi < nb ? q[3 * bi + 2] : 0.0, w_i = bi < nb ? qd[3 * bi + 2] : 0.0;
+            double phi_j = bj < nb ? q[3 * bj + 2] : 0.0, w_j = bj < nb ? qd[3 * bj + 2] : 0.0;
+            double torque = -fr[0] * (phi_j - phi_i - fr[2]) - fr[1] * (w_j - w_i);
+            if (bj < nb) F[3 * bj + 2] += torque;
+            if (bi < nb) F[3 * bi + 2] -= torque;
+        }
+    }
+    return ST_OK;
+}
+
+/* ---- scratch space ----------------------------------------------------------------------- */
+
+/* scratch of schur_solve: two dense m x m or two bands */
+static I solve_size(const Model *M) {
+    I band = (M->kd + 1) * M->m;
+    return 2 * (M->banded ? band : (M->m * M->m > band ? M->m * M->m : band));
+}
+
+typedef struct {
+    double *qe, *qde, *psi, *raw, *data, *values, *gamma, *rhs, *lam, *x, *band, *tmp, *F,
+           *Fm, *nv, *cs, *qv;
+} Scratch;
+
+static Scratch scratch(const Model *M, double *w) {
+    Scratch s;
+    I n = M->n, m = M->m;
+    s.qe = w; w += n + 3;
+    s.qde = w; w += n + 3;
+    s.psi = w; w += m;
+    s.raw = w; w += M->nraw;
+    s.data = w; w += M->size + 1;
+    s.values = w; w += M->nkeep;
+    s.gamma = w; w += m;
+    s.rhs = w; w += m;
+    s.lam = w; w += m;
+    s.x = w; w += m;
+    s.band = w; w += solve_size(M);
+    s.tmp = w; w += 3 * m;
+    s.F = w; w += n;
+    s.Fm = w; w += n;
+    s.nv = w; w += n;
+    s.cs = w; w += 2 * (M->nb + 1);
+    s.qv = w;
+    return s;
+}
+
+/* doubles of scratch space the kernel needs, with room for the steppers' stages */
+I mbd_work_size(const Model *M, I stages) {
+    I n = M->n, m = M->m;
+    return 2 * (n + 3) + 9 * m + M->nraw + M->size + 1 + M->nkeep + solve_size(M) + 4 * n
+           + 2 * (M->nb + 1) + 16 + (stages + 4) * 2 * n;
+}
+
+static void extend(const Model *M, const double *q, double *qe) {
+    memcpy(qe, q, (size_t)M->n * sizeof(double));
+    qe[M->n] = qe[M->n + 1] = qe[M->n + 2] = 0.0;
+}
+
+/* ---- eq. (14) ------------------------------------------------------------------------------ */
+
+static int accelerations(const Model *M, Scratch *s, const double *q, const double *qd,
+                         const double *cval, const double *cdd, const double *uf,
+                         double *qdd, double *lam) {
+    I n = M->n, m = M->m;
+    int st = forces(M, q, qd, uf, s->F);
+    if (st != ST_OK) return st;
+    if (m == 0) {
+        for (I k = 0; k < n; k++) qdd[k] = M->minv[k] * s->F[k];
+        return ST_OK;
+    }
+    extend(M, q, s->qe);
+    extend(M, qd, s->qde);
+    terms(M, s->qe, s->qde, cval, s->psi, s->raw, s->gamma, s->cs);
+    merged(M, s->raw, s->data, s->values);
+    for (I k = 0; k < n; k++) s->Fm[k] = M->minv[k] * s->F[k];
+    jac_mul(M, s->values, s->Fm, s->rhs);
+    for (I r = 0; r < m; r++) s->rhs[r] -= s->gamma[r] + cdd[r];
+    st = schur_solve(M, s->values, s->rhs, lam, s->band, s->tmp);
+    if (st != ST_OK) return st;
+    jac_t_mul(M, s->values, lam, s->nv);
+    for (I k = 0; k < n; k++) qdd[k] = M->minv[k] * (s->F[k] - s->nv[k]);
+    return ST_OK;
+}
+
+/* ---- the last evaluation, kept: outputs read the q'' and lam of the step's end --------------- */
+
+I mbd_memo_size(const Model *M) { return 1 + 3 * M->n + 3 * M->m + M->nf + M->m; }
+
+static void memo_store(const Model *M, const double *q, const double *qd, const double *cval,
+                       const double *cdd, const double *uf, const double *qdd, const double *lam) {
+    I n = M->n, m = M->m;
+    double *p = M->memo + 1;
+    memcpy(p, q, (size_t)n * sizeof(double)); p += n;
+    memcpy(p, qd, (size_t)n * sizeof(double)); p += n;
+    memcpy(p, cval, (size_t)m * sizeof(double)); p += m;
+    memcpy(p, cdd, (size_t)m * sizeof(double)); p += m;
+    memcpy(p, uf, (size_t)M->nf * sizeof(double)); p += M->nf;
+    memcpy(p, qdd, (size_t)n * sizeof(double)); p += n;
+    memcpy(p, lam, (size_t)m * sizeof(double));
+    M->memo[0] = 1.0;
+}
+
+/* 1 when (q, qd, c, c'', uf) are bit for bit those of the kept evaluation. */
+static int memo_hit(const Model *M, const double *q, const double *qd, const double *cval,
+                    const double *cdd, const double *uf) {
+    I n = M->n, m = M->m;
+    const double *p = M->memo + 1;
+    if (M->memo[0] == 0.0) return 0;
+    if (memcmp(p, q, (size_t)n * sizeof(double))) return 0;
+    p += n;
+    if (memcmp(p, qd, (size_t)n * sizeof(double))) return 0;
+    p += n;
+    if (memcmp(p, cval, (size_t)m * sizeof(double))) return 0;
+    p += m;
+    if (memcmp(p, cdd, (size_t)m * sizeof(double))) return 0;
+    p += m;
+    return memcmp(p, uf, (size_t)M->nf * sizeof(double)) == 0;
+}
+
+/* q'' (n) and lam (m) of eq. (14); the kept results when the arguments are the same. */
+int mbd_accelerations(const Model *M, const double *q, const double *qd, const double *cval,
+                      const double *cdd, const double *uf, double *qdd, double *lam) {
+    I n = M->n, m = M->m;
+    if (memo_hit(M, q, qd, cval, cdd, uf)) {
+        const double *p = M->memo + 1 + 2 * n + 2 * m + M->nf;
+        memcpy(qdd, p, (size_t)n * sizeof(double));
+        memcpy(lam, p + n, (size_t)m * sizeof(double));
+        return ST_OK;
+    }
+    Scratch s = scratch(M, M->work);
+    int st = accelerations(M, &s, q, qd, cval, cdd, uf, qdd, lam);
+    if (st == ST_OK) memo_store(M, q, qd, cval, cdd, uf, qdd, lam);
+    return st;
+}
+
+int mbd_forces(const Model *M, const double *q, const double *qd, const double *uf, double *F) {
+    return forces(M, q, qd, uf, F);
+}
+
+/* Psi (m), data (size: Psi_q's merged values, ground columns included) and, with qd,
+ * gamma (m) without c''. */
+void mbd_constraints(const Model *M, const double *q, const double *qd, const double *cval,
+                     double *psi, double *data, double *gamma) {
+    Scratch s = scratch(M, M->work);
+    extend(M, q, s.qe);
+    if (qd) extend(M, qd, s.qde);
+    terms(M, s.qe, qd ? s.qde : NULL, cval, psi, s.raw, qd ? gamma : NULL, s.cs);
+    merged(M, s.raw, data, s.values);
+}
+
+/* ---- projections (eqs. 18-19) ------------------------------------------------------------------ */
+
+static int project_positions(const Model *M, Scratch *s, double *q, const double *cval,
+                             double tol, I max_iter) {
+    I n = M->n, m = M->m;
+    for (I it = 0; it <= max_iter; it++) {
+        extend(M, q, s->qe);
+        terms(M, s->qe, NULL, cval, s->psi, s->raw, NULL, s->cs);
+        merged(M, s->raw, s->data, s->values);
+        double err = 0.0;
+        for (I r = 0; r < m; r++) {
+            if (!isfinite(s->psi[r])) return ST_NOT_FINITE;
+            if (fabs(s->psi[r]) > err) err = fabs(s->psi[r]);
+        }
+        if (err <= tol) return ST_OK;
+        if (it == max_iter) break;
+        int st = schur_solve(M, s->values, s->psi, s->x, s->band, s->tmp);
+        if (st != ST_OK) return st;
+        jac_t_mul(M, s->values, s->x, s->nv);
+        for (I k = 0; k < n; k++) q[k] -= M->minv[k] * s->nv[k];
+    }
+    return ST_PROJECTION;
+}
+
+/* q' onto Psi_q q' = nu at q (whose Jacobian values are in s->values). */
+static int project_velocities(const Model *M, Scratch *s, double *qd, const double *cd) {
+    I n = M->n, m = M->m;
+    jac_mul(M, s->values, qd, s->rhs);
+    for (I r = 0; r < m; r++) s->rhs[r] -= cd[r];
+    int st = schur_solve(M, s->values, s->rhs, s->x, s->band, s->tmp);
+    if (st != ST_OK) return st;
+    jac_t_mul(M, s->values, s->x, s->nv);
+    for (I k = 0; k < n; k++) qd[k] -= M->minv[k] * s->nv[k];
+    return ST_OK;
+}
+
+/* Both projections at motion (c, c', c'') = motion[0..2m): q, qd in place. */
+static int project(const Model *M, Scratch *s, double *q, double *qd, const double *motion,
+                   double tol, I max_iter) {
+    if (M->m == 0) return ST_OK;
+    int st = project_positions(M, s, q, motion, tol, max_iter);
+    return st != ST_OK ? st : project_velocities(M, s, qd, motion + M->m);
+}
+
+int mbd_project_positions(const Model *M, double *q, const double *cval, double tol, I max_iter) {
+    Scratch s = scratch(M, M->work);
+    return project_positions(M, &s, q, cval, tol, max_iter);
+}
+
+int mbd_project_velocities(const Model *M, const double *q, double *qd, const double *cval,
+                           const double *cd) {
+    Scratch s = scratch(M, M->work);
+    if (M->m == 0) return ST_OK;
+    extend(M, q, s.qe);
+    terms(M, s.qe, NULL, cval, s.psi, s.raw, NULL, s.cs);
+    merged(M, s.raw, s.data, s.values);
+    return project_velocities(M, &s, qd, cd);
+}
+
+#include "stepping.h"
+#include "outputs.h"

@@ -1,0 +1,111 @@
+/*
+ * outputs.h (part of kernel.c): every output of a scene at one instant in one call, the
+ * vector of dynamics.Equations.output_values from q'' and lam the step already computed.
+ */
+
+/* Reactions of each joint on its body_j in its frame (Equations.reactions, eqs. 16-17,
+ * 28) into out (nj, 3), NaN for couplers, then the coupler efforts -lam. */
+static void joint_values(const Model *M, const double *q, const double *lam,
+                         const double *data, double *out) {
+    I nb = M->nb, m = M->m;
+    for (I k = 0; k < 3 * M->nj; k++) out[k] = NAN;
+    for (I k = 0; k < M->nr; k++) {
+        double gen[3];
+        for (int b = 0; b < 3; b++) {
+            double g = 0.0;
+            for (int a = 0; a < 2; a++) {
+                I row = M->joint_rows[2 * k + a];
+                I e = M->reaction_entries[6 * k + 3 * a + b];
+                double l = row < m ? lam[row] : 0.0, d = e < M->size ? data[e] : 0.0;
+                g += d * l;
+            }
+            gen[b] = -g;
+        }
+        I bj = M->joint_bj[k], fb = M->frame_body[k];
+        double c = bj < nb ? cos(q[3 * bj + 2]) : 1.0, s = bj < nb ? sin(q[3 * bj + 2]) : 0.0;
+        double px = M->frame_point[2 * k], py = M->frame_point[2 * k + 1];
+        double ax = c * px - s * py, ay = s * px + c * py;
+        double torque = gen[2] - (ax * gen[1] - ay * gen[0]);
+        double theta = (fb < nb ? q[3 * fb + 2] : 0.0) + M->frame_angle[k];
+        double co = cos(theta), si = sin(theta);
+        I j = M->reaction_joints[k];
+        out[3 * j] = co * gen[0] + si * gen[1];
+        out[3 * j + 1] = -si * gen[0] + co * gen[1];
+        out[3 * j + 2] = torque;
+    }
+    for (I k = 0; k < M->ncoupler; k++) out[3 * M->nj + k] = -lam[M->coupler_rows[k]];
+}
+
+/* Potential energy of gravity and springs (AppliedForces.potential_energy). */
+static double potential(const Model *M, const double *q) {
+    double e = 0.0;
+    for (I k = 0; k < M->n; k++) e += M->gravity[k] * q[k];
+    e = -e;
+    for (I k = 0; k < M->nforce; k++) {
+        const I *fi = M->f_int + 4 * k;
+        const double *fr = M->f_real + 8 * k;
+        if (fi[0] == F_SPRING) {
+            double xi, yi, aix, aiy, xj, yj, ajx, ajy;
+            body_point(M, q, fi[1], fr[0], fr[1], &xi, &yi, &aix, &aiy);
+            body_point(M, q, fi[2], fr[2], fr[3], &xj, &yj, &ajx, &ajy);
+            double stretch = hypot(xj + ajx - xi - aix, yj + ajy - yi - aiy) - fr[6];
+            e += 0.5 * fr[4] * stretch * stretch;
+        } else if (fi[0] == F_TORSION) {
+            double pi = fi[1] < M->nb ? q[3 * fi[1] + 2] : 0.0;
+            double pj = fi[2] < M->nb ? q[3 * fi[2] + 2] : 0.0;
+            double d = pj - pi - fr[2];
+            e += 0.5 * fr[0] * d * d;
+        }
+    }
+    return e;
+}
+
+/* The output vector (model.variables.outputs order): body states, joint outputs, driver
+ * efforts, spring states, kinetic and potential energy, |Psi|, |Psi_q q' - nu|. motion:
+ * c, c', c'' (3 m) at t. ST_SPRING for a spring of zero length. */
+int mbd_outputs(const Model *M, const double *q, const double *qd, const double *qdd,
+                const double *lam, const double *motion, const double *uf, double *out) {
+    Scratch s = scratch(M, M->work);
+    I nb = M->nb, n = M->n, m = M->m, o = 0;
+    (void)qdd;
+    for (I b = 0; b < nb; b++) {
+        for (int c = 0; c < 3; c++) out[o++] = q[3 * b + c];
+        for (int c = 0; c < 3; c++) out[o++] = qd[3 * b + c];
+    }
+    extend(M, q, s.qe);
+    terms(M, s.qe, NULL, motion, s.psi, s.raw, NULL, s.cs);
+    merged(M, s.raw, s.data, s.values);
+    double *joints = s.qv;
+    joint_values(M, q, lam, s.data, joints);
+    for (I k = 0; k < M->nplan; k++) out[o++] = joints[M->joint_plan[k]];
+    for (I k = 0; k < M->ndriver; k++) out[o++] = -lam[M->driver_rows[k]];
+    for (I k = 0; k < M->nforce; k++) {
+        if (M->f_int[4 * k] != F_SPRING) continue;
+        double g[8];
+        if (spring_geometry(M, k, q, qd, g) != ST_OK) return ST_SPRING;
+        out[o++] = g[0];
+        out[o++] = g[1];
+        out[o++] = spring_tension(M, k, g[0], g[1], uf);
+    }
+    double kinetic = 0.0, psi2 = 0.0, v2 = 0.0;
+    for (I k = 0; k < n; k++) kinetic += qd[k] * (M->mass[k] * qd[k]);
+    out[o++] = 0.5 * kinetic;
+    out[o++] = potential(M, q);
+    jac_mul(M, s.values, qd, s.rhs);
+    for (I r = 0; r < m; r++) {
+        double v = s.rhs[r] - motion[m + r];
+        psi2 += s.psi[r] * s.psi[r];
+        v2 += v * v;
+    }
+    out[o++] = sqrt(psi2);
+    out[o++] = sqrt(v2);
+    return ST_OK;
+}
+
+/* The outputs at a state: q'' and lam of eq. (14) (the kept evaluation when the step
+ * ended here, else computed), then mbd_outputs. qdd (n), lam (m): filled. */
+int mbd_state_outputs(const Model *M, const double *q, const double *qd, const double *motion,
+                      const double *uf, double *qdd, double *lam, double *out) {
+    int st = mbd_accelerations(M, q, qd, motion, motion + 2 * M->m, uf, qdd, lam);
+    return st != ST_OK ? st : mbd_outputs(M, q, qd, qdd, lam, motion, uf, out);
+}

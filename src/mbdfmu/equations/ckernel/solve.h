@@ -1,0 +1,213 @@
+/*
+ * solve.h (part of kernel.c): (J M^-1 J^T) x = b as sparsity.py solves it.
+ *
+ * Below BANDED_MIN_ROWS rows (M->banded 0) numpy factorises S dense by Cholesky in the
+ * rows' own order (solve_spd's potrf), above it in band storage in reverse Cuthill-McKee
+ * order (JacobianPattern.schur_solve's pbtrf); either is trusted when its pivots say S is
+ * well conditioned (_well_conditioned). Here the band answers first at any size (the
+ * same numbers to round-off, cheaper), the dense form where the band's pivots are not. Otherwise the minimum-norm least-squares solution:
+ * dense, the eigenvalues of S by cyclic Jacobi rotations with those at or below
+ * rank_tol times the largest dropped (lstsq's cut-off on the singular values of symmetric
+ * S); banded, iterated Tikhonov regularisation (JacobianPattern._min_norm). With
+ * M->min_norm 0 the minimum-norm cases are handed back (ST_SINGULAR) to the numpy path.
+ */
+
+#define TIKHONOV_STEPS 3
+#define JACOBI_SWEEPS 60
+/* off-diagonal size (relative to S's norm) below which Jacobi rotations stop */
+#define JACOBI_OFF 1e-17
+
+/* Cholesky of the band L[d * m + j] = S[j + d, j] in place; pivots' range in *dmin, *dmax;
+ * 0 when S is not positive definite. */
+static int band_cholesky(double *L, I m, I kd, double *dmin, double *dmax) {
+    *dmax = 0.0;
+    *dmin = INFINITY;
+    for (I j = 0; j < m; j++) {
+        double s = L[j];
+        for (I k = (j - kd > 0 ? j - kd : 0); k < j; k++) s -= L[(j - k) * m + k] * L[(j - k) * m + k];
+        if (!(s > 0.0)) return 0;
+        double d = sqrt(s);
+        L[j] = d;
+        *dmax = fmax(*dmax, d);
+        *dmin = fmin(*dmin, d);
+        I end = j + kd + 1 < m ? j + kd + 1 : m;
+        for (I i = j + 1; i < end; i++) {
+            double t = L[(i - j) * m + j];
+            for (I k = (i - kd > 0 ? i - kd : 0); k < j; k++) t -= L[(i - k) * m + k] * L[(j - k) * m + k];
+            L[(i - j) * m + j] = t / d;
+        }
+    }
+    return 1;
+}
+
+/* L L^T y = y in place for a band factor. */
+static void band_substitute(const double *L, I m, I kd, double *y) {
+    for (I i = 0; i < m; i++) {
+        double s = y[i];
+        for (I k = (i - kd > 0 ? i - kd : 0); k < i; k++) s -= L[(i - k) * m + k] * y[k];
+        y[i] = s / L[i];
+    }
+    for (I i = m - 1; i >= 0; i--) {
+        double s = y[i];
+        I end = i + kd + 1 < m ? i + kd + 1 : m;
+        for (I k = i + 1; k < end; k++) s -= L[(k - i) * m + i] * y[k];
+        y[i] = s / L[i];
+    }
+}
+
+/* Minimum-norm x of symmetric S x = b (m x m, destroyed; V: m x m scratch). */
+static void jacobi_min_norm(const Model *M, double *S, I m, const double *b, double *x,
+                            double *V) {
+    for (I i = 0; i < m * m; i++) V[i] = 0.0;
+    for (I i = 0; i < m; i++) V[i * m + i] = 1.0;
+    for (int sweep = 0; sweep < JACOBI_SWEEPS; sweep++) {
+        double off = 0.0, total = 0.0;
+        for (I p = 0; p < m; p++)
+            for (I q = 0; q < m; q++) {
+                double a = S[p * m + q] * S[p * m + q];
+                total += a;
+                if (p != q) off += a;
+            }
+        if (!(off > JACOBI_OFF * JACOBI_OFF * total)) break;
+        for (I p = 0; p < m - 1; p++)
+            for (I q = p + 1; q < m; q++) {
+                double apq = S[p * m + q];
+                if (fabs(apq) <= JACOBI_OFF * sqrt(total)) continue;   /* below round-off */
+                double theta = (S[q * m + q] - S[p * m + p]) / (2.0 * apq);
+                double t = (theta >= 0.0 ? 1.0 : -1.0) / (fabs(theta) + sqrt(theta * theta + 1.0));
+                double c = 1.0 / sqrt(t * t + 1.0), s = t * c;
+                for (I k = 0; k < m; k++) {          /* columns p, q */
+                    double akp = S[k * m + p], akq = S[k * m + q];
+                    S[k * m + p] = c * akp - s * akq;
+                    S[k * m + q] = s * akp + c * akq;
+                }
+                for (I k = 0; k < m; k++) {          /* rows p, q */
+                    double apk = S[p * m + k], aqk = S[q * m + k];
+                    S[p * m + k] = c * apk - s * aqk;
+                    S[q * m + k] = s * apk + c * aqk;
+                }
+                for (I k = 0; k < m; k++) {
+                    double vkp = V[k * m + p], vkq = V[k * m + q];
+                    V[k * m + p] = c * vkp - s * vkq;
+                    V[k * m + q] = s * vkp + c * vkq;
+                }
+            }
+    }
+    double largest = 0.0;
+    for (I i = 0; i < m; i++) largest = fmax(largest, fabs(S[i * m + i]));
+    for (I k = 0; k < m; k++) x[k] = 0.0;
+    for (I i = 0; i < m; i++) {
+        double lambda = S[i * m + i];
+        if (!(fabs(lambda) > M->rank_tol * largest)) continue;
+        double c = 0.0;
+        for (I k = 0; k < m; k++) c += V[k * m + i] * b[k];
+        c /= lambda;
+        for (I k = 0; k < m; k++) x[k] += c * V[k * m + i];
+    }
+}
+
+static int dense_solve(const Model *M, const double *values, const double *b, double *x,
+                       double *work) {
+    I m = M->m;
+    double *S = work, *U = work + m * m;
+    memset(S, 0, (size_t)(m * m) * sizeof(double));
+    for (I p = 0; p < M->npairs; p++) {
+        I ra = M->rows[M->pair_a[p]], rb = M->rows[M->pair_b[p]];
+        double w = values[M->pair_a[p]] * values[M->pair_b[p]] * M->pair_minv[p];
+        S[ra * m + rb] += w;
+        if (ra != rb) S[rb * m + ra] += w;
+    }
+    /* Cholesky S = U^T U in the rows' order (potrf 'U'), U's rows kept in U */
+    double dmax = 0.0, dmin = INFINITY;
+    int ok = 1;
+    memcpy(U, S, (size_t)(m * m) * sizeof(double));
+    for (I j = 0; j < m && ok; j++) {
+        double s = U[j * m + j];
+        for (I k = 0; k < j; k++) s -= U[k * m + j] * U[k * m + j];
+        if (!(s > 0.0)) { ok = 0; break; }
+        double d = sqrt(s);
+        U[j * m + j] = d;
+        dmax = fmax(dmax, d);
+        dmin = fmin(dmin, d);
+        for (I i = j + 1; i < m; i++) {
+            double t = U[j * m + i];
+            for (I k = 0; k < j; k++) t -= U[k * m + j] * U[k * m + i];
+            U[j * m + i] = t / d;
+        }
+    }
+    if (ok && dmin > sqrt(M->rank_tol) * dmax) {
+        for (I i = 0; i < m; i++) {                 /* U^T y = b */
+            double s = b[i];
+            for (I k = 0; k < i; k++) s -= U[k * m + i] * x[k];
+            x[i] = s / U[i * m + i];
+        }
+        for (I i = m - 1; i >= 0; i--) {            /* U x = y */
+            double s = x[i];
+            for (I k = i + 1; k < m; k++) s -= U[i * m + k] * x[k];
+            x[i] = s / U[i * m + i];
+        }
+        return ST_OK;
+    }
+    if (!M->min_norm || !all_finite_values(S, m * m) || !all_finite_values(b, m)) return ST_SINGULAR;
+    jacobi_min_norm(M, S, m, b, x, U);
+    return ST_OK;
+}
+
+static int banded_solve(const Model *M, const double *values, const double *b, double *x,
+                        double *work, double *tmp) {
+    I m = M->m, kd = M->kd, size = (kd + 1) * m;
+    double *band = work, *L = work + size, dmin, dmax;
+    memset(band, 0, (size_t)size * sizeof(double));
+    for (I p = 0; p < M->npairs; p++)
+        band[M->band_index[p]] += values[M->pair_a[p]] * values[M->pair_b[p]] * M->pair_minv[p];
+    memcpy(L, band, (size_t)size * sizeof(double));
+    if (band_cholesky(L, m, kd, &dmin, &dmax) && dmin > sqrt(M->rank_tol) * dmax) {
+        for (I i = 0; i < m; i++) tmp[i] = b[M->perm[i]];
+        band_substitute(L, m, kd, tmp);
+        for (I i = 0; i < m; i++) x[M->perm[i]] = tmp[i];
+        return ST_OK;
+    }
+    if (!M->min_norm || !all_finite_values(band, size) || !all_finite_values(b, m)) return ST_SINGULAR;
+    double eps = 0.0;                               /* iterated Tikhonov (_min_norm) */
+    for (I j = 0; j < m; j++) eps = fmax(eps, fabs(band[j]));
+    eps = M->rank_tol * (eps > 0.0 ? eps : 1.0);
+    memcpy(L, band, (size_t)size * sizeof(double));
+    for (I j = 0; j < m; j++) L[j] += eps;
+    if (!band_cholesky(L, m, kd, &dmin, &dmax)) return ST_SINGULAR;
+    double *xp = tmp + m, *r = tmp + 2 * m;
+    for (I i = 0; i < m; i++) xp[i] = 0.0;
+    for (int it = 0; it < TIKHONOV_STEPS; it++) {
+        for (I i = 0; i < m; i++) r[i] = b[M->perm[i]];
+        for (I j = 0; j < m; j++) {                 /* r -= S xp (band storage) */
+            r[j] -= band[j] * xp[j];
+            for (I d = 1; d <= kd && j + d < m; d++) {
+                r[j + d] -= band[d * m + j] * xp[j];
+                r[j] -= band[d * m + j] * xp[j + d];
+            }
+        }
+        band_substitute(L, m, kd, r);
+        for (I i = 0; i < m; i++) xp[i] += r[i];
+    }
+    for (I i = 0; i < m; i++) x[M->perm[i]] = xp[i];
+    return ST_OK;
+}
+
+/* x with (J M^-1 J^T) x = b: ST_OK, or ST_SINGULAR where the numpy path must answer.
+ * Below BANDED_MIN_ROWS the band (cheaper at any size) answers where its pivots are
+ * well conditioned, and the dense form decides only where they are not. */
+static int schur_solve(const Model *M, const double *values, const double *b, double *x,
+                       double *work, double *tmp) {
+    if (M->banded) return banded_solve(M, values, b, x, work, tmp);
+    I m = M->m, kd = M->kd, size = (kd + 1) * m;
+    double *L = work, dmin, dmax;
+    memset(L, 0, (size_t)size * sizeof(double));
+    for (I p = 0; p < M->npairs; p++)
+        L[M->band_index[p]] += values[M->pair_a[p]] * values[M->pair_b[p]] * M->pair_minv[p];
+    if (band_cholesky(L, m, kd, &dmin, &dmax) && dmin > sqrt(M->rank_tol) * dmax) {
+        for (I i = 0; i < m; i++) tmp[i] = b[M->perm[i]];
+        band_substitute(L, m, kd, tmp);
+        for (I i = 0; i < m; i++) x[M->perm[i]] = tmp[i];
+        return ST_OK;
+    }
+    return dense_solve(M, values, b, x, work);
+}

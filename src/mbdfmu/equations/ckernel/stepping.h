@@ -1,0 +1,151 @@
+/*
+ * stepping.h (part of kernel.c): whole steps of the projected explicit methods.
+ *
+ * y = (q, q') (2n); the right-hand side is (q', q''(t, q, q')) with q'' from eq. (14).
+ * `motion` arrays hold c, c', c'' of every row (3 m) and `uf` the force inputs (nf) at each
+ * time a step evaluates; the caller computes them from its input signals.
+ */
+
+/* y' = (q', q'') at y with the inputs of one instant. */
+static int rhs(const Model *M, Scratch *s, const double *y, const double *motion,
+               const double *uf, double *f, double *lam) {
+    I n = M->n, m = M->m;
+    memcpy(f, y + n, (size_t)n * sizeof(double));
+    return accelerations(M, s, y, y + n, motion, motion + 2 * m, uf, f + n, lam);
+}
+
+static int all_finite(const double *x, I k) {
+    for (I i = 0; i < k; i++) if (!isfinite(x[i])) return 0;
+    return 1;
+}
+
+/* One classic RK4 step with projection (rk4p.py RK4P._step_impl): y (2n) and f = y'(t)
+ * in place. motions: (3, 3 m) at t, t + h/2, t + h; ufs: (3, nf) likewise. */
+static int rk4p_step(const Model *M, Scratch *s, double *y, double *f, double h,
+                     const double *motions, const double *ufs, double tol, I max_iter,
+                     double *K, double *ys) {
+    static const double A[4][3] = {{0, 0, 0}, {0.5, 0, 0}, {0.0, 0.5, 0}, {0.0, 0.0, 1.0}};
+    static const double B[4] = {1.0 / 6.0, 2.0 / 6.0, 2.0 / 6.0, 1.0 / 6.0};
+    static const int ROW[4] = {0, 1, 1, 2};
+    I n2 = 2 * M->n, m = M->m, nf = M->nf;
+    memcpy(K, f, (size_t)n2 * sizeof(double));
+    for (int st = 1; st < 4; st++) {
+        for (I k = 0; k < n2; k++) {
+            double a = 0.0;
+            for (int j = 0; j < st; j++) a += K[j * n2 + k] * A[st][j];
+            ys[k] = y[k] + h * a;
+        }
+        int r = rhs(M, s, ys, motions + ROW[st] * 3 * m, ufs + ROW[st] * nf, K + st * n2, s->lam);
+        if (r != ST_OK) return r;
+    }
+    for (I k = 0; k < n2; k++) {
+        double a = 0.0;
+        for (int j = 0; j < 4; j++) a += K[j * n2 + k] * B[j];
+        ys[k] = y[k] + h * a;
+    }
+    if (!all_finite(ys, n2)) return ST_NOT_FINITE;
+    int r = project(M, s, ys, ys + M->n, motions + 6 * m, tol, max_iter);
+    if (r != ST_OK) return r;
+    r = rhs(M, s, ys, motions + 6 * m, ufs + 2 * nf, K, s->lam);
+    if (r != ST_OK) return r;
+    if (!all_finite(K + M->n, M->n)) return ST_NOT_FINITE;
+    memo_store(M, ys, ys + M->n, motions + 6 * m, motions + 8 * m, ufs + 2 * nf, K + M->n, s->lam);
+    memcpy(y, ys, (size_t)n2 * sizeof(double));
+    memcpy(f, K, (size_t)n2 * sizeof(double));
+    return ST_OK;
+}
+
+/* rk4p_compiled._energy_check: energies 1/2 q'M q' - F.q for constant F. */
+static int energy_check(const Model *M, const double *q, const double *qd, double *audit,
+                        double divergence_fraction, double roundoff) {
+    double kinetic = 0.0, fq = 0.0;
+    for (I k = 0; k < M->n; k++) { kinetic += M->mass[k] * qd[k] * qd[k]; fq += M->f_const[k] * q[k]; }
+    kinetic *= 0.5;
+    double energy = kinetic - fq;
+    audit[A_KINETIC_MAX] = fmax(audit[A_KINETIC_MAX], kinetic);
+    audit[A_POTENTIAL_SWING] = fmax(audit[A_POTENTIAL_SWING], fabs(energy - kinetic - audit[A_V0]));
+    audit[A_MAGNITUDE] = fmax(fmax(audit[A_MAGNITUDE], fabs(energy)), kinetic);
+    audit[A_LAST_ENERGY] = energy;
+    audit[A_CHECKS] += 1.0;
+    double error = fabs(energy - audit[A_E0]);
+    if (error <= roundoff * audit[A_MAGNITUDE] * audit[A_CHECKS]) return 1;
+    double allowance = divergence_fraction * fmax(audit[A_KINETIC_MAX], audit[A_POTENTIAL_SWING]);
+    double ratio = allowance > 0.0 ? error / allowance : INFINITY;
+    audit[A_WORST] = fmax(audit[A_WORST], ratio);
+    return ratio <= 1.0;
+}
+
+/* Steps of rk4p: y (2n), f in place; step k uses motions[k] (3, 3m) and ufs[k] (3, nf)
+ * (strides 0: the same for every step). The energy check after each step when
+ * audit[A_ACTIVE] (constant forces only). *done: steps taken. ST_SINGULAR, ST_PROJECTION,
+ * ST_SPRING: at step *done, nothing of it kept; ST_ENERGY, ST_NOT_FINITE: after it. */
+int mbd_rk4p_steps(const Model *M, double *y, double *f, double h, I nsteps,
+                   const double *motions, I motion_stride, const double *ufs, I uf_stride,
+                   double tol, I max_iter, double *audit, double divergence_fraction,
+                   double roundoff, I *done) {
+    Scratch s = scratch(M, M->work);
+    I n2 = 2 * M->n;
+    double *K = s.qv, *ys = K + 4 * n2;
+    *done = 0;
+    for (I k = 0; k < nsteps; k++) {
+        int r = rk4p_step(M, &s, y, f, h, motions + k * motion_stride, ufs + k * uf_stride,
+                          tol, max_iter, K, ys);
+        if (r != ST_OK) return r;   /* the caller redoes step *done on the numpy path */
+        *done = k + 1;
+        if (audit[A_ACTIVE] != 0.0 && !energy_check(M, y, y + M->n, audit, divergence_fraction, roundoff))
+            return ST_ENERGY;
+    }
+    return ST_OK;
+}
+
+/* The arithmetic of one step of an embedded pair with projection (ProjectedRK._step_impl):
+ * tableau A (ns x ns, row s uses its first s entries), B (ns), error weights E (ns + 1)
+ * and, for DOP853's combined estimate, E3 (ns + 1; NULL for a single estimate). Stage s
+ * evaluates at motions[s] / ufs[s] (s = 1..ns-1: t + C[s] h; s = ns: t + h).
+ * Returns ST_OK with y_new (2n, projected), f_new = y'(t + h, y_new) and *err; or
+ * ST_NOT_FINITE (y_new or its derivative not finite), ST_ERROR_NORM (*err >= 1),
+ * ST_PROJECTION (the position projection failed), ST_SINGULAR or ST_SPRING (the numpy path
+ * redoes the step). K: (ns + 1) x 2n scratch. */
+int mbd_prk_trial(const Model *M, I ns, const double *A, const double *B, const double *E,
+                  const double *E3, double h, const double *y, const double *f0,
+                  const double *motions, const double *ufs, double rtol, double atol,
+                  double tol, I max_iter, double *y_new, double *f_new, double *err, double *K) {
+    Scratch s = scratch(M, M->work);
+    I n = M->n, n2 = 2 * n, m = M->m, nf = M->nf;
+    double *ys = s.qv;
+    memcpy(K, f0, (size_t)n2 * sizeof(double));
+    for (I st = 1; st < ns; st++) {
+        for (I k = 0; k < n2; k++) {
+            double a = 0.0;
+            for (I j = 0; j < st; j++) a += K[j * n2 + k] * A[st * ns + j];
+            ys[k] = y[k] + h * a;
+        }
+        int r = rhs(M, &s, ys, motions + st * 3 * m, ufs + st * nf, K + st * n2, s.lam);
+        if (r != ST_OK) return r;
+    }
+    for (I k = 0; k < n2; k++) {
+        double a = 0.0;
+        for (I j = 0; j < ns; j++) a += K[j * n2 + k] * B[j];
+        y_new[k] = y[k] + h * a;
+    }
+    int r = rhs(M, &s, y_new, motions + ns * 3 * m, ufs + ns * nf, K + ns * n2, s.lam);
+    if (r == ST_SINGULAR || r == ST_SPRING) return r;
+    if (r != ST_OK || !all_finite(y_new, n2) || !all_finite(K + ns * n2, n2)) return ST_NOT_FINITE;
+    double e5 = 0.0, e3 = 0.0;
+    for (I k = 0; k < n2; k++) {
+        double scale = atol + rtol * fmax(fabs(y[k]), fabs(y_new[k])), a = 0.0, b = 0.0;
+        for (I j = 0; j <= ns; j++) { a += K[j * n2 + k] * E[j]; if (E3) b += K[j * n2 + k] * E3[j]; }
+        if (E3) { e5 += (a / scale) * (a / scale); e3 += (b / scale) * (b / scale); }
+        else e5 += (h * a / scale) * (h * a / scale);
+    }
+    if (!E3) *err = sqrt(e5 / (double)n2);
+    else if (e5 == 0.0 && e3 == 0.0) *err = 0.0;
+    else *err = fabs(h) * e5 / sqrt((e5 + 0.01 * e3) * (double)n2);
+    if (!(*err < 1.0)) return ST_ERROR_NORM;
+    r = project(M, &s, y_new, y_new + n, motions + ns * 3 * m, tol, max_iter);
+    if (r == ST_SINGULAR || r == ST_SPRING) return r;
+    if (r != ST_OK) return ST_PROJECTION;
+    r = rhs(M, &s, y_new, motions + ns * 3 * m, ufs + ns * nf, f_new, s.lam);
+    if (r == ST_OK) memo_store(M, y_new, y_new + n, motions + ns * 3 * m, motions + ns * 3 * m + 2 * m, ufs + ns * nf, f_new + n, s.lam);
+    return r;
+}

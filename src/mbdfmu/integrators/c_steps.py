@@ -1,0 +1,159 @@
+"""Steps of ``rk4p`` and of the projected embedded pairs in the C kernel (kernel "c").
+
+The arithmetic of a step (stages, error norm, projections, the next q'') runs in one C
+call (``equations.ckernel``); what a step decides stays here, line for line as in
+``RK4P._advance_fixed`` / ``ProjectedRK._step_impl`` (acceptance, step factors, the energy
+audit, counters). Input signals are evaluated in Python at every time a step needs them
+(once per run when they cannot change: no drivers, no force inputs). Whatever the kernel
+hands back (a singular Schur complement, a failed projection, a non-finite state, a
+spring of zero length) is redone by the Python step, which then does and says what it
+always does.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..equations import ckernel
+from ..equations.projection import PROJECTION_MAX_ITER
+from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
+
+# The energy check's running state as kernel.c reads it (rk4p_compiled.AuditField's order).
+AUDIT_FIELDS = ("active", "e0", "v0", "kinetic_max", "potential_swing", "magnitude", "checks",
+                "worst", "last_energy")
+# Steps per C call of an rk4p run: the work limits are checked between calls.
+RUN_LENGTH = 64
+_TABLEAUS: dict[type, tuple] = {}
+
+
+def stage_inputs(integrator, times) -> None:
+    """(c, c', c'') of every row and the force inputs at each of ``times``, from the
+    integrator's input signals, into the kernel's ``buf.motions`` and ``buf.ufs``."""
+    eq = integrator.equations
+    kernel, k = eq.ckernel, len(times)
+    motions, forces = kernel.buf.motions, kernel.buf.ufs
+    if not eq.scene.drivers:
+        if kernel.static_rows < k:      # offsets only: the same at every time, written once
+            motions[:k] = np.concatenate(eq.motion_values(0.0))
+            kernel.static_rows = k
+        if kernel.nf:
+            inputs = [integrator.inputs(t) for t in times]
+            forces[:k] = inputs[0].forces if all(u is inputs[0] for u in inputs) else \
+                [u.forces for u in inputs]
+        return
+    inputs = [integrator.inputs(t) for t in times] if eq.layout.drivers or kernel.nf else None
+    motions[:k] = eq.constraint_set.motion_block(times, inputs).reshape(k, -1)
+    if kernel.nf:
+        forces[:k] = [u.forces for u in inputs]
+
+
+NO_AUDIT = np.zeros(len(AUDIT_FIELDS))      # inactive: no energy check in the kernel
+
+
+def _audit_state(audit) -> list:
+    return [1.0] + [getattr(audit, name) for name in AUDIT_FIELDS[1:]]
+
+
+def _audit_back(audit, state) -> None:
+    for k, name in enumerate(AUDIT_FIELDS[1:], 1):
+        setattr(audit, name, int(state[k]) if name == "checks" else float(state[k]))
+
+
+def advance_rk4p(rk, t_target: float) -> None:
+    """``RK4P._advance_fixed`` with runs of steps in C (same grid, checks and counts)."""
+    eq = rk.equations
+    t0, n, h = rk.fixed_grid(t_target)
+    # the kernel checks energies 1/2 q'M q' - F.q only: other conservative scenes step one
+    # at a time with the Python audit after each step
+    in_c = rk.audit is None or eq.applied.is_constant
+    k = 0
+    while k < n:
+        count = min(RUN_LENGTH, n - k) if in_c else 1
+        done, status = _rk4p_run(rk, t0, h, k, count)
+        k += done
+        rk.t = t0 + k * h if k < n else t_target
+        rk.stats.nsteps += done
+        if status == ckernel.ENERGY:
+            rk._after_step()                         # says why
+        elif status != ckernel.OK:                   # this step on the Python path
+            rk._step_impl(h)
+            k += 1
+            rk.t = t0 + k * h if k < n else t_target
+            rk.stats.nsteps += 1
+            rk._after_step()
+        elif not in_c:
+            rk._after_step()
+        if rk.limit is not None:
+            rk.limit.check(rk.stats, rk.t, t_target)
+
+
+def _rk4p_run(rk, t0: float, h: float, k: int, count: int) -> tuple[int, int]:
+    """Steps k .. k + count - 1 of the grid t0 + j h in one C call: (steps done, status)."""
+    eq = rk.equations
+    if count == 1:
+        start = t0 + h * k
+        stage_inputs(rk, (start, start + 0.5 * h, start + h))
+    else:
+        starts = t0 + h * np.arange(k, k + count)
+        stage_inputs(rk, (starts[:, None] + np.array([0.0, 0.5 * h, h])).ravel())
+    constant = eq.applied.is_constant
+    audit = _audit_state(rk.audit) if constant and rk.audit is not None else NO_AUDIT
+    n = rk.q.size
+    q, qd, qdd, done, status = eq.ckernel.rk4p_steps(
+        rk.q, rk.qd, rk.f[n:], h, count, rk._projection_tol(), PROJECTION_MAX_ITER,
+        audit, ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF)
+    if rk.audit is not None and constant:
+        _audit_back(rk.audit, eq.ckernel.buf.audit)
+        if status == ckernel.ENERGY:      # _after_step checks this state again: count it once
+            rk.audit.checks -= 1
+    rk.q, rk.qd, rk.f = q, qd, np.concatenate((qd, qdd))
+    rk.stats.naccel += 4 * done
+    rk.stats.nprojections += done
+    return done, status
+
+
+def tableau(rk) -> tuple:
+    """(ns, A (ns, ns), B, E, E3 or None) of an embedded pair as the kernel takes them,
+    then the stages' time fractions with 1 appended (the step's end)."""
+    cls = type(rk)
+    if cls not in _TABLEAUS:
+        ns = rk.n_stages
+        A = np.zeros((ns, ns))
+        A[:, :rk.A.shape[1]] = rk.A[:ns]
+        E, E3 = (rk.E5, rk.E3) if hasattr(rk, "E5") else (rk.E, None)
+        _TABLEAUS[cls] = (A, rk.B, E, E3), np.append(rk.C[:ns], 1.0)
+    arrays, fractions = _TABLEAUS[cls]
+    return (*rk.equations.ckernel.tableau(cls, *arrays), fractions)
+
+
+def prk_step(rk, h: float, safety: float, min_factor: float, max_factor: float,
+             energy_min_gain: float):
+    """``ProjectedRK._step_impl`` with the step's arithmetic in C: (accepted, next step),
+    or None when the Python step must do it. The factors are projected_rk.py's."""
+    t, n = rk.t, rk.q.size
+    table = tableau(rk)
+    stage_inputs(rk, t + h * table[-1])        # row s: stage s, then t + h
+    status, err, y_new, f_new = rk.equations.ckernel.prk_trial(
+        table[:-1], h, rk.q, rk.qd, rk.f, rk.rtol, rk.atol, rk._projection_tol(),
+        PROJECTION_MAX_ITER)
+    if status in (ckernel.SINGULAR, ckernel.SPRING):
+        return None
+    rk.stats.naccel += rk.n_stages
+    exponent = -1.0 / (rk.order + 1)
+    if status == ckernel.NOT_FINITE:
+        return False, h * min_factor
+    if status == ckernel.ERROR_NORM:
+        return False, h * max(min_factor, safety * err ** exponent)
+    if status == ckernel.PROJECTION:
+        return False, h * 0.5
+    rk.stats.nprojections += 1
+    q, qd = y_new[:n], y_new[n:]
+    if rk.audit is not None:
+        energy_err = rk.audit.step_error(rk.equations, t + h, q, qd)
+        last, rk.energy_rejected = rk.energy_rejected, None
+        if not energy_err <= 1.0 and (last is None or energy_err < energy_min_gain * last):
+            rk.energy_rejected = energy_err
+            return False, h * max(min_factor, safety * energy_err ** exponent)
+    rk.q, rk.qd, rk.f = q, qd, f_new
+    rk.stats.naccel += 1
+    return True, h * (max_factor if err == 0 else min(max_factor, safety * err ** exponent))

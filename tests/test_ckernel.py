@@ -1,0 +1,206 @@
+"""The C kernel (kernel "c", what FMUs run) gives the numpy kernel's numbers to round-off:
+eq. 14, the outputs, whole steps of rk4p and of the embedded pairs, for every joint type,
+input-driven drivers and forces, springs and dampers; run states stay plain data and
+replay bit for bit. References are the numpy kernel and the dense augmented solve of
+eq. 14 (test_kernel.augmented_solve), never the C kernel's own output.
+"""
+
+from __future__ import annotations
+
+import tomllib
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import mbdfmu
+from mbdfmu.equations import Equations, ckernel
+from mbdfmu.equations.projection import assemble
+from mbdfmu.model import scene_from_dict
+
+from test_kernel import SCENES, augmented_solve, scene
+
+pytestmark = pytest.mark.skipif(not ckernel.available(), reason="no C compiler for the kernel")
+
+# Every kind of force and input on three bodies: a crank with a spring-damper whose actuator
+# is an input and a force input off its centre, a block on a guide moved by an input driver,
+# a bob on the block with a rotational spring-damper and a torque input.
+KITCHEN_SINK = """
+name = "KitchenSink"
+gravity = [0.0, -9.81]
+[[body]]
+name = "crank"
+mass = 1.0
+inertia = 0.1
+position = [0.5, 0.0]
+[[body]]
+name = "block"
+mass = 2.0
+inertia = 0.05
+position = [2.0, 0.0]
+[[body]]
+name = "bob"
+mass = 0.5
+inertia = 0.01
+position = [2.0, -0.5]
+angle = -1.5707963267948966
+[[joint]]
+name = "pin"
+type = "revolute"
+body_i = "ground"
+body_j = "crank"
+point_j = [-0.5, 0.0]
+[[joint]]
+name = "guide"
+type = "translational"
+body_i = "ground"
+axis_i = [1.0, 0.0]
+body_j = "block"
+[[joint]]
+name = "hinge"
+type = "revolute"
+body_i = "block"
+body_j = "bob"
+point_j = [-0.5, 0.0]
+[[driver]]
+name = "move"
+joint = "guide"
+motion = { type = "input", initial = 2.0 }
+[[force]]
+name = "cyl"
+type = "spring_damper"
+body_i = "crank"
+point_i = [0.5, 0.0]
+body_j = "block"
+point_j = [0.0, 0.1]
+stiffness = 200.0
+damping = 3.0
+rest_length = 1.0
+actuator_input = true
+[[force]]
+name = "tors"
+type = "rotational_spring_damper"
+joint = "hinge"
+stiffness = 5.0
+damping = 0.2
+rest_angle = 0.1
+[[force]]
+name = "push"
+type = "force"
+body = "crank"
+point = [0.3, 0.05]
+input = true
+[[force]]
+name = "twist"
+type = "torque"
+body = "bob"
+input = true
+"""
+ALL = SCENES + ["kitchen_sink", "pendulum_torque", "andrews"]
+
+
+def any_scene(name):
+    if name == "kitchen_sink":
+        return scene_from_dict(tomllib.loads(KITCHEN_SINK), source="kitchen_sink")
+    return scene(name)
+
+
+def random_inputs(system: Equations, rng) -> mbdfmu.model.variables.InputValues:
+    u = system.no_inputs
+    motions = u.motions + rng.normal(scale=0.05, size=u.motions.shape)
+    return type(u)(motions, rng.normal(scale=3.0, size=u.forces.shape))
+
+
+@pytest.mark.parametrize("name", ALL)
+@settings(max_examples=10, deadline=None)
+@given(data=st.data())
+def test_c_kernel_equals_numpy_kernel(name, data):
+    plain, fast = Equations(any_scene(name), kernel="numpy"), Equations(any_scene(name), kernel="c")
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**31)))
+    q0, _ = assemble(plain)
+    q = q0 + rng.normal(scale=0.01, size=q0.size)
+    qd = rng.normal(scale=2.0, size=q0.size)
+    u, t = random_inputs(plain, rng), data.draw(st.floats(0.0, 1.0))
+    qdd, lam = plain.accelerations(t, q, qd, u)
+    qdd_c, lam_c = fast.accelerations(t, q, qd, u)
+    # round-off of two Cholesky orders, amplified by S's condition (nearly redundant rows)
+    scale = max(1.0, np.abs(qdd).max())
+    np.testing.assert_allclose(qdd_c, qdd, rtol=1e-7, atol=1e-7 * scale)
+    np.testing.assert_allclose(lam_c, lam, rtol=1e-7, atol=1e-7 * max(1.0, np.abs(lam).max()))
+    y, y_c = plain.output_values(t, q, qd, qdd, lam, u), fast.output_values(t, q, qd, qdd, lam, u)
+    np.testing.assert_allclose(y_c, y, rtol=1e-12, atol=1e-12 * max(1.0, np.nanmax(np.abs(y))))
+
+
+def test_c_kernel_accelerations_match_the_dense_augmented_solve():
+    system = Equations(scene("slider_crank"), kernel="c")
+    q0, qd0 = assemble(system)
+    qdd_ref, lam_ref = augmented_solve(system, 0.01, q0, qd0)
+    qdd, lam = system.accelerations(0.01, q0, qd0)
+    np.testing.assert_allclose(qdd, qdd_ref, rtol=1e-8, atol=1e-8 * np.abs(qdd_ref).max())
+    np.testing.assert_allclose(lam, lam_ref, rtol=1e-8, atol=1e-8 * np.abs(lam_ref).max())
+
+
+def drive(sim: mbdfmu.Simulation, steps: int, h: float):
+    """Inputs that change every communication step (those the scene has), then a step."""
+    rows, t0 = [], sim.t
+    for k in range(steps):
+        t = t0 + k * h
+        for name in sim.input_names:
+            if name.endswith("position"):
+                sim.set_input(name, 2.0 + 0.1 * np.sin(5 * t))
+            else:
+                sim.set_input(name, 2.0 * np.cos(3 * t + len(name)))
+        sim.advance(t0 + (k + 1) * h)
+        rows.append(sim.output_vector())
+    return np.array(rows)
+
+
+@pytest.mark.parametrize("method", ["rk4p", "dop853p", "rk45p"])
+@pytest.mark.parametrize("name", ["kitchen_sink", "slider_crank", "andrews", "slider_force",
+                                  "rolling_disc", "gear_pair", "slot_rod", "mechanisms"])
+def test_c_steps_follow_the_numpy_steps(name, method):
+    """Whole steps in C, with inputs set between steps: the same run to round-off (adaptive
+    methods: their step sequence may part at round-off, so to a fraction of rtol)."""
+    runs = []
+    for kernel in ("numpy", "c"):
+        sim = mbdfmu.Simulation(any_scene(name), method=method, rtol=1e-8, atol=1e-10,
+                                step=5e-4, kernel=kernel)
+        runs.append((drive(sim, 40, 2e-3), vars(sim.integrator.stats)))
+    (plain, stats), (fast, stats_c) = runs
+    scale = np.maximum(1.0, np.nanmax(np.abs(plain), axis=0))
+    assert np.nanmax(np.abs(fast - plain) / scale) < (1e-9 if method == "rk4p" else 1e-6)
+    if method == "rk4p":
+        assert stats_c == stats      # the same counts of steps, evaluations, projections
+
+
+def test_c_kernel_runs_replay_bit_for_bit_from_a_saved_state():
+    sim = mbdfmu.Simulation(any_scene("kitchen_sink"), method="dop853p", kernel="c")
+    drive(sim, 5, 1e-3)
+    state = sim.get_state()
+    first = drive(sim, 10, 1e-3)
+    sim.set_state(state)
+    assert np.array_equal(drive(sim, 10, 1e-3), first)
+
+
+def test_minimum_norm_solves_are_the_numpy_kernels():
+    """Redundant rows (the parallelogram) and singular crossings (P2 N = 2's cranks pass
+    the horizontal near t = 0.79 s) take eq. 14's minimum-norm multipliers: the C kernel's
+    (Jacobi eigenvalues with lstsq's cut-off) are the numpy kernel's to round-off."""
+    for name, method, t_end in (("parallelogram", "rk4p", 0.05), ("n_four_bar_2", "rk4p", 1.0)):
+        plain, fast = (mbdfmu.simulate(scene(name), t_end=t_end, method=method, kernel=k,
+                                       output_interval=1e-2) for k in ("numpy", "c"))
+        for a, b in ((plain.q, fast.q), (plain.qd, fast.qd), (plain.lam, fast.lam)):
+            np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-9 * max(1.0, np.abs(a).max()))
+
+
+def test_without_minimum_norm_in_c_the_numpy_path_answers(monkeypatch):
+    """MIN_NORM_IN_C off: every singular solve goes back to the numpy path, whose answers
+    then come out exactly (the outputs, computed in C from them, to round-off)."""
+    monkeypatch.setattr(ckernel, "MIN_NORM_IN_C", False)
+    plain, fast = (mbdfmu.simulate(scene("parallelogram"), t_end=0.05, method="rk4p", kernel=k)
+                   for k in ("numpy", "c"))
+    for a, b in ((plain.q, fast.q), (plain.qd, fast.qd), (plain.qdd, fast.qdd),
+                 (plain.lam, fast.lam)):
+        assert np.array_equal(a, b)
+    np.testing.assert_allclose(fast.values, plain.values, rtol=1e-13, atol=1e-13)

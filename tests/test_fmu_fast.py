@@ -1,0 +1,83 @@
+"""The FMU's fast path: the shipped C kernel (and the numpy kernel, logged, without it),
+and fmi2GetReal served by the wrapper after a step, which must never serve a stale value:
+every other call reads through Python again (runtime/real_cache.py)."""
+
+from __future__ import annotations
+
+import ctypes
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import mbdfmu  # noqa: E402
+from mbdfmu.equations import ckernel  # noqa: E402
+from mbdfmu.fmu_build.scene_fmu import KERNEL_FILE  # noqa: E402
+from fmu_models.harness import DISCARD, OK, get_state  # noqa: E402
+from fmu_models.scenes import SCENES, scene_fmu, scene_host  # noqa: E402,F401
+
+pytestmark = pytest.mark.skipif(not ckernel.available(), reason="no C compiler for the kernel")
+H = 1e-3
+
+
+def without_kernel(path: Path, target: Path) -> Path:
+    """A copy of the FMU without its compiled kernel (as built where no compiler was)."""
+    with zipfile.ZipFile(path) as src, zipfile.ZipFile(target, "w") as dst:
+        for item in src.infolist():
+            if item.filename != f"resources/{KERNEL_FILE}":
+                dst.writestr(item, src.read(item.filename))
+    return target
+
+
+def run(h, names, steps, force=None):
+    out = []
+    for k in range(steps):
+        if force is not None:
+            assert h.set_real([h.vr[force]], [np.sin(20 * h.t)]) == OK
+        assert h.step(H) == OK, h.messages[-3:]
+        out.append(h.real(*names))
+    return np.array(out)
+
+
+def test_the_fmu_ships_its_kernel_and_runs_it(scene_fmu):
+    with zipfile.ZipFile(scene_fmu("slider_force")) as z:
+        assert f"resources/{KERNEL_FILE}" in z.namelist()
+
+
+def test_without_its_kernel_the_fmu_runs_numpy_and_says_so(scene_fmu, scene_host, tmp_path):
+    path = without_kernel(scene_fmu("slider_force"), tmp_path / "plain.fmu")
+    plain, fast = scene_host(path, "plain").init(), scene_host(scene_fmu("slider_force"), "c").init()
+    assert any("the numpy kernel runs" in m for _, _, m in plain.messages)
+    assert not any("numpy kernel" in m for _, _, m in fast.messages)
+    names = plain.outputs
+    got, expected = run(fast, names, 30, "push.fx"), run(plain, names, 30, "push.fx")
+    np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12)
+
+
+def test_get_real_after_a_step_never_serves_a_stale_value(scene_fmu, scene_host):
+    """Values served without Python equal Python's after steps, sets, state restores and
+    a reset; a get that names a non-Real variable is refused as before."""
+    h = scene_host(scene_fmu("slider_force")).init()
+    x = [h.vr["slider.x"]]
+    first = run(h, ["slider.x"], 5, "push.fx")
+    state = get_state(h)
+    later = run(h, ["slider.x"], 5, "push.fx")
+    assert later[-1, 0] != first[-1, 0]
+    assert h.status("fmi2SetFMUstate", state) == OK
+    assert h.get_real(*x) == (OK, [first[-1, 0]])          # the restored state's value
+    assert h.set_real([h.vr["push.fx"]], [0.5]) == OK
+    assert h.get_real(h.vr["push.fx"]) == (OK, [0.5])      # set values read back at once
+    assert h.get_real(10**6)[0] != OK                      # unknown reference: an error...
+    assert "fmi2GetReal" in h.messages[-1][2]              # ...said by the runtime
+
+
+def test_a_discarded_step_leaves_values_that_are_read_through_python(scene_fmu, scene_host):
+    h = scene_host(scene_fmu("slider_force"))
+    assert h.set_int("solver.max_steps_per_communication_step", 3) == OK
+    before = run(h.init(), ["slider.x"], 3, "push.fx")
+    assert h.status("fmi2DoStep", h.t, 1e6, 1) == DISCARD
+    assert h.real("slider.x") == [before[-1, 0]]
