@@ -28,7 +28,7 @@ def cmd_cosim(args) -> int:
         run = cosimulate(args.scenario, CosimSettings(
             master=args.master, algorithm=args.algorithm, step=args.step, t_end=args.t_end,
             variable_step=args.variable_step, rtol=args.rtol, start=args.start,
-            extrapolation=args.extrapolation),
+            extrapolation=args.extrapolation, jacobian=args.jacobian),
             work_dir=out / "fmus")
     r = run.result
     stats = ", ".join(f"{k} {v:g}" for k, v in r.stats.items())
@@ -61,6 +61,8 @@ def add_fmu_commands(sub, _command) -> None:
                           "mbdfmu cosim hydraulic_crane --algorithm jacobi --variable-step",
                           "mbdfmu cosim dc_motor_slider_crank --extrapolation 2",
                           "mbdfmu cosim hydraulic_crane --algorithm implicit --step 0.05",
+                          "mbdfmu cosim hydraulic_crane --algorithm implicit --jacobian "
+                          "directional --step 0.05",
                           "mbdfmu cosim prescribed_motion:derivatives --master ssp"),
                  description="Run a scenario of scenarios/ (NAME, NAME:VARIANT, a folder or a "
                  "connections file) with the fmpy master, fmpy's SSP runner or OSP libcosim.")
@@ -73,6 +75,9 @@ def add_fmu_commands(sub, _command) -> None:
     p.add_argument("--extrapolation", type=int, choices=[0, 1, 2], default=0,
                    help="inputs follow polynomials of this order over a step (fmpy; 0: "
                    "zero-order hold)")
+    p.add_argument("--jacobian", choices=["differences", "directional"], default="differences",
+                   help="implicit coupling: the interface Jacobian from finite differences of "
+                   "whole steps (default) or from the FMUs' directional derivatives")
     p.add_argument("--step", type=float, default=None, help="communication step (s)")
     p.add_argument("--t-end", type=float, default=None, help="end time (s)")
     p.add_argument("--variable-step", action="store_true",

@@ -282,7 +282,12 @@ def run_fmpy(scenario: Scenario, fmus: dict[str, Path],
     point (t0 included) as a ``Result`` (``stats``: steps, rejections, doStep calls)."""
     from .variable_step import run_variable_step   # the fixed-step runs do not need it
 
-    algorithm = algorithm_class(settings.algorithm_for(scenario))(scenario)
+    name = settings.algorithm_for(scenario)
+    if settings.jacobian != "differences" and name != "implicit":
+        raise CosimError(f'the interface Jacobian is the implicit coupling\'s; {scenario.name} '
+                         f'runs "{name}" (--algorithm implicit)')
+    algorithm = (Implicit(scenario, settings.jacobian) if name == "implicit"
+                 else algorithm_class(name)(scenario))
     h = float(settings.step or scenario.step)
     t_end = float(settings.t_end or scenario.t_end)
     # (the implicit master's first guess extrapolates with the outputs' first derivatives)
@@ -303,7 +308,8 @@ def run_fmpy(scenario: Scenario, fmus: dict[str, Path],
     if out.steps:
         stats.update(h_min=float(min(out.steps)), h_max=float(max(out.steps)))
     master = f"fmpy {algorithm.name}" + (" variable-step" if settings.variable_step else "") \
-        + (f" extrapolation {settings.extrapolation}" if settings.extrapolation else "")
+        + (f" extrapolation {settings.extrapolation}" if settings.extrapolation else "") \
+        + (f" {settings.jacobian} jacobian" if algorithm.name == "implicit" else "")
     return Result(time=np.array(out.times), names=list(system.record),
                   values=np.array(out.rows, dtype=float).reshape(len(out.times), -1),
                   units=system.units, method=master, stats=stats)
