@@ -26,6 +26,7 @@ import sys
 from pathlib import Path
 
 from .. import __version__
+from . import osp
 from .common import BuildError, digest, write_checked
 from .model_description import Capabilities, ModelInfo
 from .package import per_second
@@ -209,5 +210,14 @@ def build_companion(source, output=None, fmi_version: int = 2) -> Path:
     capabilities = Capabilities(can_interpolate_inputs=bool(cls.INTERPOLATES_INPUTS),
                                 max_output_derivative_order=2,
                                 provides_directional_derivative=bool(states))
+    declared = getattr(cls, "POWER_PORTS", {})
+    try:
+        ports = osp.checked_ports([osp.Port(name, *pair) for name, pair in declared.items()],
+                                  {v.name: v.unit for v in table}, f"{source}: POWER_PORTS")
+    except (osp.PortError, TypeError) as exc:
+        raise BuildError(str(exc) if isinstance(exc, osp.PortError) else
+                         f"{source}: POWER_PORTS must map a port name to (effort, flow) "
+                         "variable names") from None
     return write_checked(output, cls.__name__, table, model, info=info, default_experiment=None,
-                         capabilities=capabilities, fmi_version=fmi_version)
+                         capabilities=capabilities, fmi_version=fmi_version,
+                         extra_files=osp.extra_files(ports))

@@ -11,6 +11,7 @@ The .fmu (a zip) holds::
     resources/mbdfmu_fmi2_<hash>/        the runtime package (fmu_build/runtime)
     resources/model_<hash>.py            the model module (a Slave subclass)
     resources/...                        extra resources of the model
+    extra/...                            tool data (the OSP power ports, osp.py)
 
 ``mbdfmu.json``: ``format``, ``fmi_version``, ``model_identifier``, ``guid`` (FMI 3.0's
 instantiation token), ``python_library`` (the
@@ -226,12 +227,12 @@ def _zip(output: Path, members: dict[str, bytes]) -> None:
 
 def write_fmu(output, model_identifier: str, variables, model_module_source: str, *,
               model_class: str = "Model", model_name: str | None = None, description: str = "",
-              info: ModelInfo | None = None,
-              extra_resources=None, capabilities: Capabilities = Capabilities(),
+              info: ModelInfo | None = None, extra_resources=None,
+              capabilities: Capabilities = Capabilities(),
               default_experiment: DefaultExperiment | None = DefaultExperiment(),
               log_categories: dict[str, str] | None = None,
               python: PythonEnvironment | None = None, binary=None, cache_dir=None,
-              fmi_version: int = 2, annotations=None) -> Path:
+              fmi_version: int = 2, annotations=None, extra_files=None) -> Path:
     """Write an FMI 2.0 (``fmi_version`` 3: 3.0) co-simulation FMU to ``output`` and return
     its path.
 
@@ -243,9 +244,8 @@ def write_fmu(output, model_identifier: str, variables, model_module_source: str
     the model's own categories (name -> description); ``python``: the environment recorded
     for hosts without Python (default: this interpreter); ``binary``: a compiled wrapper
     (default: ``compile_wrapper(cache_dir, fmi_version)``); ``annotations``: tool name ->
-    XML element (model_description). The GUID is a digest of everything shipped, so the
-    same inputs give the same FMU, and a state serialized by one build loads into the same
-    build only."""
+    XML element (model_description); ``extra_files``: name under extra/ -> bytes. The GUID
+    digests everything shipped (same inputs, same FMU; a build's states load into it only)."""
     if fmi_version == 3:
         variables = fmi3_variables(variables, capabilities.can_interpolate_inputs)
     table = _check_inputs(model_identifier, variables, model_module_source)
@@ -262,7 +262,7 @@ def write_fmu(output, model_identifier: str, variables, model_module_source: str
         model_module_source.encode(), runtime_package.encode(), binary_bytes,
         json.dumps([sorted(extras), experiment, asdict(capabilities), log_categories,
                     asdict(info) if info else description, fmi_version, marked]).encode(),
-        *extras.values())[:32])
+        *extras.values(), *(k.encode() + v for k, v in sorted((extra_files or {}).items())))[:32])
     config = {"format": CONFIG_FORMAT, "fmi_version": fmi_version,
               "model_identifier": model_identifier, "guid": guid, **_python_config(python),
               "runtime_package": runtime_package, "model_module": model_module,
@@ -280,7 +280,8 @@ def write_fmu(output, model_identifier: str, variables, model_module_source: str
                "resources/mbdfmu_boot.py": (RUNTIME_DIR / BOOT_FILE).read_bytes(),
                f"resources/{model_module}.py": model_module_source.encode("utf-8")}
     members.update({f"resources/{runtime_package}/{k}": v for k, v in runtime.items()})
-    members.update({f"resources/{k}": v for k, v in extras.items()})
+    members.update({f"resources/{k}": v for k, v in extras.items()}
+                   | {f"extra/{k}": v for k, v in (extra_files or {}).items()})
     output = Path(output)
     _zip(output, members)
     return output

@@ -37,6 +37,7 @@ from ..model.scene import Body, SpringDamper
 from ..model.toml_table import load_toml, tomllib
 from ..model.variables import (GLOBAL_OUTPUTS, TABLES, input_layout, inputs, outputs,
                                parameters, selected_outputs)
+from . import osp
 from .common import BuildError, digest, fill_template, write_checked
 from .model_description import Capabilities, DefaultExperiment, ModelInfo
 from .runtime.variables import Variable
@@ -261,6 +262,8 @@ def build_fmu(scene_path, output=None, parameters: dict[str, float] | None = Non
                  **shipped_kernel()}
     capabilities = Capabilities(can_interpolate_inputs=True, max_output_derivative_order=2,
                                 provides_directional_derivative=True)
+    ports = osp.scene_ports(scene, set(outputs_))
     return write_checked(output, scene.name, table, source, info=info,
                          default_experiment=experiment, extra_resources=resources,
-                         capabilities=capabilities, fmi_version=fmi_version)
+                         capabilities=capabilities, fmi_version=fmi_version,
+                         extra_files=osp.extra_files(ports))

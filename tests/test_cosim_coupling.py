@@ -259,6 +259,54 @@ def test_ecco_runs_the_quarter_car_in_libcosim(built):
     assert np.all(np.isfinite(r[RESIDUAL]))
 
 
+@pytest.mark.parametrize("name", ["quarter_car", "hydraulic_crane"])
+def test_the_ecco_configuration_comes_from_the_fmus_power_ports(name, built, tmp_path):
+    """The bond found from the ports the FMUs declare (extra/OspModelDescription.xml) is the
+    one the scenario names by hand in [power_bonds]; the OspSystemStructure.xml written
+    for it marks those two connections, and libcosim runs ECCO from it."""
+    pytest.importorskip("libcosimpy")
+    import xml.etree.ElementTree as ET
+
+    from mbdfmu.cosim.ecco_config import NAMESPACE, find_bond
+    from mbdfmu.cosim.ecco_runner import RESIDUAL, run_ecco
+
+    scenario, fmus = built(name)
+    bond = find_bond(scenario, fmus)
+    assert bond.as_table() == {k: tuple(v) for k, v in scenario.power_bonds.items()}
+    path = tmp_path / "OspSystemStructure.xml"
+    r = run_ecco(scenario, fmus, step=2e-3, t_end=0.1, rtol=1e-2, atol=1e-2, structure=path)
+    marked = [c for c in ET.parse(path).getroot().iter(f"{{{NAMESPACE}}}VariableConnection")
+              if c.get("powerBond")]
+    ends = [tuple(f'{v.get("simulator")}.{v.get("name")}' for v in c) for c in marked]
+    assert ends == bond.connections()
+    assert r.time[-1] == pytest.approx(0.1, abs=2e-2)    # within its largest step (10 h)
+    assert np.all(np.isfinite(r[RESIDUAL]))
+
+
+def test_the_fmus_declare_their_power_ports(built):
+    from mbdfmu.fmu_build.osp import Port, read_ports
+
+    _, fmus = built("hydraulic_crane")
+    assert read_ports(fmus["mechanism"]) == [Port("cylinder", "cylinder.actuator",
+                                                  "cylinder.velocity", "N")]
+    assert read_ports(fmus["hydraulics"]) == [Port("rod", "force", "rate", "N")]
+    assert read_ports(fmus["command"]) == []
+    _, fmus = built("dc_motor_slider_crank")
+    assert Port("shaft", "torque", "speed", "N.m") in read_ports(fmus["motor"])
+
+
+def test_a_power_port_must_pair_an_effort_with_its_flow(tmp_path):
+    from mbdfmu.fmu_build.common import BuildError
+    from mbdfmu.fmu_build.companion import build_companion
+
+    source = (SCENARIOS / "hydraulic_crane" / "hydraulic_cylinder.py").read_text()
+    bad = tmp_path / "bad_cylinder.py"
+    bad.write_text(source.replace('POWER_PORTS = {"rod": ("force", "rate")}',
+                                  'POWER_PORTS = {"rod": ("force", "p_A")}'))
+    with pytest.raises(BuildError, match='power port "rod": "force" \\(N\\) and "p_A"'):
+        build_companion(bad, tmp_path / "bad.fmu")
+
+
 def test_a_power_bond_must_follow_the_connections(tmp_path):
     import shutil
 

@@ -18,6 +18,7 @@ from mbdfmu.fmu_build.runtime import companion as base
 
 class PIDController(base.CompanionSlave):
     STATE_INFO = {"z": ("m.s", "integral of the cart's position error x - x_ref")}
+    POWER_PORTS = {"cart": ("force", "v")}     # OSP power port (ECCO)
     DESCRIPTION = "PID on the cart position with PD feedback of the pole angle: force out"
     VARIABLES = (
         base.Var("kp_x", "parameter", "N/m", 16.956, "proportional gain, cart position"),

@@ -22,6 +22,7 @@ from mbdfmu.fmu_build.runtime import companion as base
 
 
 class DCMotor(base.CompanionSlave):
+    POWER_PORTS = {"shaft": ("torque", "speed")}     # OSP power port (ECCO)
     DESCRIPTION = "DC motor armature: voltage and speed in, torque out (exact over each step)"
     INTERPOLATES_INPUTS = True
     VARIABLES = (

@@ -32,6 +32,8 @@ def orifice(dp, dp_t):
 
 
 class HydraulicCylinder(base.CompanionSlave):
+    # the rod's force and the rate it acts on (OSP power port, ECCO)
+    POWER_PORTS = {"rod": ("force", "rate")}
     DESCRIPTION = ("Double-acting hydraulic cylinder with a proportional valve: "
                    "length, rate and valve in, force out")
     INTERPOLATES_INPUTS = True

@@ -47,6 +47,9 @@ def expm(a):
 
 
 class Oscillator(base.CompanionSlave):
+    # OSP power ports (ECCO): the external force on this mass and its velocity; the
+    # coupling force it exerts on the other mass and that mass's velocity
+    POWER_PORTS = {"mass": ("force", "v"), "coupling": ("coupling_force", "v_other")}
     DESCRIPTION = "Mass on a wall spring and damper, with an optional coupling spring to another mass"
     INTERPOLATES_INPUTS = True
     VARIABLES = (

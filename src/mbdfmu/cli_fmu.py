@@ -10,12 +10,16 @@ from .cli_options import Ticker, add_progress_option, add_set_option, parse_assi
 
 def cmd_build(args) -> int:
     from .fmu_build import build  # a scene (.toml) or a companion source (.py)
+    from .fmu_build.osp import write_beside
 
     with Ticker(args, "build"):
         path = build(args.scene, output=args.output,
                      parameters=parse_assignments(args.set) or None,
                      fmi_version=args.fmi_version)
     print(path)
+    ports = write_beside(Path(path))      # where OSP's tools look for the power ports
+    if ports:
+        print(ports)
     return 0
 
 
