@@ -242,3 +242,29 @@ def test_the_command_line_builds_fmi3_and_refuses_other_versions(tmp_path):
     assert read_model_description(str(tmp_path / "P.fmu")).fmiVersion == "3.0"
     with pytest.raises(BuildError, match="FMI 2.0 and 3.0"):
         build("pendulum", tmp_path / "Q.fmu", fmi_version=4)
+
+
+def test_fmi3_get_float64_after_a_step_never_serves_a_stale_value(pair):
+    """fmi3GetFloat64 is served from the values the slave published after a step (the C
+    side, as fmi2GetReal); every other call makes it read through Python again: after a
+    state restore and a set the values are the restored and the set ones, and the
+    independent variable time (not among the published values) is the instance's time."""
+    _, fmu3 = pair("slider_force")
+    h3 = Host3(fmu3).init()
+    first = []
+    for k in range(5):
+        h3.set(**{"push.fx": math.sin(20 * h3.t)})
+        assert h3.step(1e-3)[0] == OK
+        first.append(h3.get("slider.x")[0])
+    state = h3.fmu.getFMUState()
+    for k in range(5):
+        h3.set(**{"push.fx": 2.0})
+        assert h3.step(1e-3)[0] == OK
+    assert h3.get("slider.x")[0] != first[-1]
+    h3.fmu.setFMUState(state)
+    assert h3.get("slider.x")[0] == first[-1]          # the restored state's value
+    h3.set(**{"push.fx": 0.5})
+    assert h3.get("push.fx") == [0.5]                   # set values read back at once
+    assert h3.get("time") == [pytest.approx(0.005)]     # the restored state's time
+    assert h3.status(lambda f: f.getFloat64([10 ** 6])) == ERROR
+    assert "fmi3GetFloat64" in h3.last()[2]
