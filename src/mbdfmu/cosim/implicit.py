@@ -17,7 +17,9 @@ each FMU is (the hydraulic crane at 50 ms, where Jacobi fails from 2 ms).
 
 With ``jacobian="directional"`` the interface Jacobian comes instead from the FMUs'
 directional derivatives at t (``interface_jacobian.py``): one linearization per macro step,
-no extra steps; the iteration then converges linearly rather than quadratically.
+no extra steps; the iteration then converges linearly rather than quadratically, and where
+it converges slowly (the residual not halved) the step goes on with the differences
+(``stats["fallbacks"]``).
 
 The first guess is the outputs' Taylor extrapolation to t + h when the sources give
 output derivatives, else the outputs at t.
@@ -80,10 +82,10 @@ class Implicit:
             system.read_outputs(m, t + h, derivatives=False)
         return np.array([system.out[s] for s in self.sources])
 
-    def jacobian(self, system, saved, t, h, y0, guess, scale) -> np.ndarray:
+    def jacobian(self, system, saved, t, h, y0, guess, scale, directional) -> np.ndarray:
         """I - dG/dY by central differences (columns of outputs that feed nothing that
         steps with inputs are unit columns), or from directional derivatives at t."""
-        if self.directional:
+        if directional:
             if not self.checked:
                 interface_jacobian.check_members(system)
                 self.checked = True
@@ -122,8 +124,14 @@ class Implicit:
                 size = float(np.max(np.abs(residual) / scale))
                 if size <= TOLERANCE:
                     break
-                if jac is None or (size > 0.5 * previous and not self.directional):
-                    jac = self.jacobian(system, saved, t, h, y0, guess, scale)
+                if jac is None:
+                    jac = self.jacobian(system, saved, t, h, y0, guess, scale, self.directional)
+                elif size > 0.5 * previous:
+                    # slow: the differences of whole steps (the linearized step's Jacobian
+                    # would not change); counted apart
+                    jac = self.jacobian(system, saved, t, h, y0, guess, scale, False)
+                    if self.directional:
+                        system.counters["fallbacks"] = system.counters.get("fallbacks", 0) + 1
                 previous = size
                 guess = guess - np.linalg.solve(jac, residual)
             else:
