@@ -278,6 +278,26 @@ def test_the_ecco_configuration_comes_from_the_fmus_power_ports(name, built, tmp
     assert np.all(np.isfinite(r[RESIDUAL]))
 
 
+def test_ecco_needs_one_bond_of_the_fmus_ports(built):
+    """Displacement-displacement coupling connects no force to a velocity: no bond; a
+    scenario table that names another bond than the FMUs' is refused."""
+    from dataclasses import replace
+
+    from mbdfmu.cosim.ecco_config import check_scenario_table, find_bond
+
+    scenario, fmus = built("two_mass_oscillator:dd")
+    with pytest.raises(CosimError, match="needs exactly one power bond .* found 0; the FMUs' "
+                                         "ports: mass1: mass, coupling"):
+        find_bond(scenario, fmus)
+    scenario, fmus = built("two_mass_oscillator")
+    bond = find_bond(scenario, fmus)
+    assert bond.as_table() == {"mass2": ("force", "v"), "mass1": ("v_other", "coupling_force")}
+    wrong = replace(scenario, power_bonds={"mass2": ["force", "x"],
+                                           "mass1": ["v_other", "coupling_force"]})
+    with pytest.raises(CosimError, match="is not the bond the FMUs declare"):
+        check_scenario_table(wrong, bond)
+
+
 def test_the_fmus_declare_their_power_ports(built):
     from mbdfmu.fmu_build.osp import Port, read_ports
 
