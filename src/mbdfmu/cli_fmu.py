@@ -16,10 +16,8 @@ def cmd_build(args) -> int:
         path = build(args.scene, output=args.output,
                      parameters=parse_assignments(args.set) or None,
                      fmi_version=args.fmi_version)
+    write_beside(Path(path))      # <name>_OspModelDescription.xml: where OSP's tools look
     print(path)
-    ports = write_beside(Path(path))      # where OSP's tools look for the power ports
-    if ports:
-        print(ports)
     return 0
 
 
