@@ -128,12 +128,13 @@ class CoupledSystem:
         if h is not None and not zero:
             self.extrapolation.set_inputs(member, pairs, h, new)
 
-    def step_member(self, member: str, t: float, h: float) -> None:
+    def step_member(self, member: str, t: float, h: float, derivatives: bool = True) -> None:
+        """doStep(t, h) on ``member``, then read its connected outputs at t + h."""
         self.counters["doStep"] += 1
         status = self.members[member].do_step(t, h)
         if status > WARNING:
             raise Refused(member, status, self.members[member].reason(), STATUS.get(status, status))
-        self.read_outputs(member, t + h)
+        self.read_outputs(member, t + h, derivatives)
 
     def coupling_error(self, rtol: float, atol: float, nominal: dict | None = None) -> float:
         """Largest scaled difference between a held input and the output it stood for;
@@ -220,13 +221,10 @@ class Jacobi:
         if not first:  # the first step of a "zero" start keeps the zeros set at initialization
             for m in system.members:
                 system.write_inputs(m, h)
+        # inputs are all written before any member steps, so reading each member's outputs
+        # right after its step is still Jacobi
         for m in system.members:
-            system.counters["doStep"] += 1
-            status = system.members[m].do_step(t, h)
-            if status > WARNING:
-                raise Refused(m, status, system.members[m].reason(), STATUS.get(status, status))
-        for m in system.members:
-            system.read_outputs(m, t + h)
+            system.step_member(m, t, h)
 
 
 class GaussSeidel:

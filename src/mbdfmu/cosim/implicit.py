@@ -30,7 +30,6 @@ from __future__ import annotations
 import numpy as np
 
 from . import interface_jacobian
-from .member import STATUS, WARNING
 from .settings import Refused
 
 # Converged when every |Y - G(Y)| <= TOLERANCE * (scale of that output).
@@ -74,12 +73,7 @@ class Implicit:
             for dst, src in pairs:
                 system.used[f"{m}.{dst}"] = end[src]
         for m in system.members:
-            system.counters["doStep"] += 1
-            status = system.members[m].do_step(t, h)
-            if status > WARNING:
-                raise Refused(m, status, system.members[m].reason(), STATUS.get(status, status))
-        for m in system.members:
-            system.read_outputs(m, t + h, derivatives=False)
+            system.step_member(m, t, h, derivatives=False)
         return np.array([system.out[s] for s in self.sources])
 
     def jacobian(self, system, saved, t, h, y0, guess, scale, directional) -> np.ndarray:
