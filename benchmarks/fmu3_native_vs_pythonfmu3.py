@@ -19,6 +19,7 @@ Needs pythonfmu3 (``pip install pythonfmu3``), ecospy and a C compiler.
 from __future__ import annotations
 
 import argparse
+import importlib
 import csv
 import math
 import subprocess
@@ -37,14 +38,7 @@ import numpy as np
 from pythonfmu3 import Dimension, Fmi3Causality, Fmi3Initial, Fmi3Slave, Fmi3Variability, Float64
 
 
-def transition(m, k, c, h):
-    w0 = math.sqrt(k / m)
-    zeta = c / (2.0 * math.sqrt(k * m))
-    wd = w0 * math.sqrt(1.0 - zeta * zeta)
-    decay = math.exp(-zeta * w0 * h)
-    cos, sin = math.cos(wd * h), math.sin(wd * h)
-    return decay * np.array([[cos + zeta * w0 / wd * sin, sin / wd],
-                             [-w0 * w0 / wd * sin, cos - zeta * w0 / wd * sin]])
+#TRANSITION#
 
 
 class MassSpringPy3(Fmi3Slave):
@@ -81,6 +75,9 @@ class MassSpringPy3(Fmi3Slave):
         self.time = current_time + step_size
         return True
 '''
+# the toy's own exact step, so both runtimes step the same model
+PYTHONFMU3_SOURCE = PYTHONFMU3_SOURCE.replace(
+    "#TRANSITION#", importlib.import_module("fmu_models.toy").transition_source())
 
 RUN_ECOSPY = '''
 import sys
