@@ -201,12 +201,13 @@ def test_compiled_rk4p_steps_equal_the_general_steps(name):
 
 @needs_numba
 def test_compiled_rk4p_fails_where_the_general_path_fails_and_says_the_same():
-    # steps far too coarse: the position projection fails at the same step on both paths
+    # steps far too coarse: the run stops at the same step on both paths, for the same
+    # reason (the energy check of the stated accuracy, or the position projection)
     for name, h in (("pendulum", 1.0), ("n_four_bar_2", 0.7)):
         messages = {}
         for kernel in ("numba", "numpy"):
             sim = mbdfmu.Simulation(scene(name), method="rk4p", step=h, kernel=kernel)
-            with pytest.raises(SolverError, match="too large, position projection") as info:
+            with pytest.raises(SolverError, match=r"^t = .* s: rk4p: ") as info:
                 sim.advance(20.0)
             # the time and the failure; which joint is worst may differ by round-off in a
             # diverging Newton iteration
