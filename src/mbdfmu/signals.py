@@ -126,3 +126,29 @@ class SampledDriver(Plain):
         a = self.acceleration if self.acceleration is not None else a0
         p = self.positions[-1]
         return p + v * tau + 0.5 * a * tau * tau, v + a * tau, a
+
+
+class TaylorInput(Plain):
+    """Force inputs that follow their Taylor polynomial from ``t0``:
+    ``sum_k coefficients[k] (t - t0)^k / k!`` (an FMU's input with its derivatives)."""
+
+    plain_fields = ("t0", "coefficients")
+
+    def __init__(self, t0: float, value):
+        self.t0 = float(t0)
+        self.coefficients = np.atleast_2d(np.asarray(value, dtype=float)).copy()
+
+    def set_derivative(self, index: int, order: int, value: float) -> None:
+        """The ``order``-th time derivative of component ``index`` at ``t0``."""
+        missing = order + 1 - len(self.coefficients)
+        if missing > 0:
+            self.coefficients = np.vstack([self.coefficients,
+                                           np.zeros((missing, self.coefficients.shape[1]))])
+        self.coefficients[order, index] = float(value)
+
+    def __call__(self, t):
+        tau, term, total = t - self.t0, 1.0, np.zeros(self.coefficients.shape[1])
+        for k, c in enumerate(self.coefficients):
+            total = total + c * term
+            term = term * tau / (k + 1)
+        return total

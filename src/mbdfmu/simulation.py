@@ -20,45 +20,20 @@ from .equations.projection import (ASSEMBLY_TOL, PROJECTION_MAX_ITER, assemble,
 from .errors import InputError, SettingError, SolverError
 from .integrators import make_integrator
 from .integrators.base import WorkLimit
+from .integrators.events import EventRunner, check_method, event_kernel
 from .integrators.settings import SolverSettings, settings_from_scene
 from .model.reader import load_scene
-from .model.scene import Scene
+from .model.scene import Scene, has_events
 from .model.variables import InputValues, inputs, outputs
-from .plain import Plain, decode, encode
+from .plain import decode, encode
 from .result import Result
-from .signals import DriverTable, Held, LinearTable, SampledDriver
+from .signals import DriverTable, Held, LinearTable, SampledDriver, TaylorInput
 
 # After an input jump the state is re-projected to this many times the assembly tolerance.
 REINITIALIZE_TOL_FACTOR = 100
 DRIVER_FIELDS = ("position", "velocity", "acceleration")
 # Time step (s) of the central differences of output_time_derivatives.
 DELTA = 2e-4
-
-
-class TaylorInput(Plain):
-    """Force inputs that follow their Taylor polynomial from ``t0``:
-    ``sum_k coefficients[k] (t - t0)^k / k!`` (an FMU's input with its derivatives)."""
-
-    plain_fields = ("t0", "coefficients")
-
-    def __init__(self, t0: float, value):
-        self.t0 = float(t0)
-        self.coefficients = np.atleast_2d(np.asarray(value, dtype=float)).copy()
-
-    def set_derivative(self, index: int, order: int, value: float) -> None:
-        """The ``order``-th time derivative of component ``index`` at ``t0``."""
-        missing = order + 1 - len(self.coefficients)
-        if missing > 0:
-            self.coefficients = np.vstack([self.coefficients,
-                                           np.zeros((missing, self.coefficients.shape[1]))])
-        self.coefficients[order, index] = float(value)
-
-    def __call__(self, t):
-        tau, term, total = t - self.t0, 1.0, np.zeros(self.coefficients.shape[1])
-        for k, c in enumerate(self.coefficients):
-            total = total + c * term
-            term = term * tau / (k + 1)
-        return total
 
 
 class Simulation:
@@ -78,6 +53,7 @@ class Simulation:
         self.settings = (settings or settings_from_scene(scene)).updated(
             method=method, step=step, rtol=rtol, atol=atol, options=method_options,
             output_interval=output_interval)
+        kernel, self.kernel_note = event_kernel(scene, kernel)   # stops, friction: numpy
         self.equations = Equations(scene, kernel=kernel)
         layout = self.equations.layout
         self.input_names = [v.name for v in inputs(scene)]
@@ -92,9 +68,16 @@ class Simulation:
         # what assembly changed of the scene's initial values, for the user to see
         self.warnings = assembly_changes(self.equations, initial_estimates(self.equations),
                                          (q0, qd0))
+        self.events = (EventRunner(scene, kernel, t0, q0, qd0, self.inputs_at)
+                       if has_events(scene) else None)      # its mode's equations, state
+        if self.events is not None:
+            q0, qd0 = self.events.q, self.events.qd
         self.integrator = make_integrator(
-            None, self.equations, t0, q0, qd0, self.settings, inputs=self.inputs_at,
+            None, self.events.equations if self.events else self.equations, t0, q0, qd0,
+            self.settings, inputs=self.inputs_at,
             output_interval=self.settings.output_interval_for(scene.simulation.t_end))
+        if self.events is not None:
+            check_method(self.integrator, scene)
         self._cache = None
 
     @property
@@ -207,13 +190,14 @@ class Simulation:
 
     def _reinitialize(self) -> None:
         """After inputs change: the state is made consistent with the new driver positions."""
-        tol = ASSEMBLY_TOL * self.equations.length_scale * REINITIALIZE_TOL_FACTOR
-        u, kernel = self.inputs_at(self.t), self.equations.ckernel
+        eq = self.equations if self.events is None else self.events.equations
+        tol = ASSEMBLY_TOL * eq.length_scale * REINITIALIZE_TOL_FACTOR
+        u, kernel = self.inputs_at(self.t), eq.ckernel
         done = None if kernel is None else kernel.project(
-            self.q, self.qd, self.equations.motion_values(self.t, u), tol, PROJECTION_MAX_ITER)
+            self.q, self.qd, eq.motion_values(self.t, u), tol, PROJECTION_MAX_ITER)
         if done is None:
-            q, _ = project_positions(self.equations, self.t, self.q, tol=tol, u=u)
-            done = q, project_velocities(self.equations, self.t, q, self.qd, u)
+            q, _ = project_positions(eq, self.t, self.q, tol=tol, u=u)
+            done = q, project_velocities(eq, self.t, q, self.qd, u)
         self.integrator.reset_state(*done)
         self._inputs_changed = False
 
@@ -225,11 +209,17 @@ class Simulation:
         # Only the integrator and the flag change while stepping (inputs do not), so that
         # is all the rollback keeps.
         snapshot, inputs_changed = self.integrator.rollback_point(), self._inputs_changed
+        saved = self.events.get_state() if self.events is not None else None
         try:
             if self._inputs_changed:
                 self._reinitialize()
-            self.integrator.advance(t_target, limit)
+            if self.events is None:
+                self.integrator.advance(t_target, limit)
+            else:
+                self.events.advance(self.integrator, t_target, limit)
         except SolverError:
+            if self.events is not None:
+                self.events.restore(self.integrator, saved)
             self.integrator.set_state(snapshot)
             self._inputs_changed = inputs_changed
             raise
@@ -243,12 +233,18 @@ class Simulation:
         state is first made consistent with new driver positions, as ``advance`` would."""
         if self._inputs_changed:
             self._reinitialize()
+        if self._cache is None and self.events is not None:
+            self._cache = self.events.accelerations(self.t, self.q, self.qd, self.equations.m)
         if self._cache is None:
             self._cache = self.equations.accelerations(self.t, self.q, self.qd,
                                                        self.inputs_at(self.t))
         return self._cache
 
     def output_vector(self) -> np.ndarray:
+        if self.events is not None:
+            if self._inputs_changed:
+                self._reinitialize()
+            return self.events.output_vector(self.t, self.q, self.qd, self.output_names)
         kernel = self.equations.ckernel
         if kernel is not None and not self._inputs_changed:   # one call, q'' kept from the step
             u = self.inputs_at(self.t)
@@ -269,12 +265,15 @@ class Simulation:
         """Everything needed to continue bit for bit (integrator, inputs, flags), as plain
         data (``plain.py``)."""
         return {"integrator": self.integrator.get_state(), "drivers": encode(self._drivers),
-                "forces": encode(self._forces), "inputs_changed": self._inputs_changed}
+                "forces": encode(self._forces), "inputs_changed": self._inputs_changed,
+                "modes": None if self.events is None else self.events.get_state()}
 
     def set_state(self, state: dict) -> None:
         self.integrator.set_state(state["integrator"])
         self._drivers, self._forces = decode(state["drivers"]), decode(state["forces"])
         self._inputs_changed = bool(state["inputs_changed"])
+        if self.events is not None and state.get("modes") is not None:
+            self.events.restore(self.integrator, state["modes"])
         self._cache = self._held = None
 
 
@@ -393,4 +392,6 @@ def simulate(scene: Scene | str | Path, t_end: float | None = None, method=None,
     return Result(time=times, names=list(sim.output_names), values=np.array(rows),
                   q=np.array(qs), qd=np.array(qds), qdd=np.array(qdds), lam=np.array(lams),
                   units=dict(sim.units), method=sim.method_name, method_reason=sim.method_reason,
-                  stats=vars(sim.integrator.stats).copy(), warnings=list(sim.warnings))
+                  stats=vars(sim.integrator.stats).copy(),
+                  warnings=list(sim.warnings) + ([sim.kernel_note] if sim.kernel_note else []),
+                  events=list(sim.events.log) if sim.events is not None else [])
