@@ -162,6 +162,10 @@ class Model(Slave):
         self.sim, self.built = self.new_simulation(build), build
         for line in self.sim.warnings:          # initial values the assembly changed
             self.warn(f"initial conditions: {line}")
+        if self.sim.kernel_note:
+            self.log(self.sim.kernel_note)
+        self.logged_events = 0
+        self.log_events()
         self.push_inputs()
         self.pending = []
         self.publish()
@@ -207,7 +211,16 @@ class Model(Slave):
             raise Discard(f"at t = {time!r} s: {exc} (the FMU stays at t = {self.sim.t!r} s; "
                           "retry with a smaller step or other inputs)") from None
         self.pending = []
+        self.log_events()
         self.publish()
+
+    def log_events(self):
+        """Each transition of end stops and friction since the last call, one line each."""
+        events = self.sim.events
+        if events is not None:
+            for t, joint, what in events.log[self.logged_events:]:
+                self.log(f"t = {t!r} s: joint {joint} {what}")
+            self.logged_events = len(events.log)
 
     def save_state(self):
         if self.sim is None:
@@ -251,3 +264,4 @@ class Model(Slave):
         if self.sim is None or build != self.built:
             self.sim, self.built = self.new_simulation(build), build
         self.sim.set_state(tree["sim"])
+        self.logged_events = len(self.sim.events.log) if self.sim.events is not None else 0
