@@ -94,12 +94,14 @@ def friction_bound(eq: Equations, k: int, q: np.ndarray, lam: np.ndarray) -> flo
 
 
 class _PlusFriction:
-    """The scene's applied forces plus the sliding friction of the current evaluation."""
+    """The scene's applied forces plus the sliding friction of the current evaluation.
+
+    Never constant: rk4p then takes its steps one at a time, each watched for events."""
 
     is_constant = False
 
-    def __init__(self, base):
-        self.base, self.extra = base, None
+    def __init__(self, base, sliding: bool):
+        self.base, self.extra, self.sliding = base, None, sliding
 
     def __getattr__(self, name):
         return getattr(self.base, name)
@@ -111,8 +113,8 @@ class _PlusFriction:
     def depend_on_state(self) -> bool:
         return True
 
-    def nonconservative_reason(self) -> str:
-        return "Coulomb friction slides"
+    def nonconservative_reason(self) -> str | None:
+        return "Coulomb friction slides" if self.sliding else self.base.nonconservative_reason()
 
 
 class ModeEquations(Equations):
@@ -130,8 +132,7 @@ class ModeEquations(Equations):
         self.direction = np.array([float(d) for d in self.sliding.values()])
         self.last_friction = -self.direction * np.array(
             [scene.joints[k].friction.coulomb for k in self.sliding])
-        if self.sliding:
-            self.applied = _PlusFriction(self.applied)
+        self.applied = _PlusFriction(self.applied, bool(self.sliding))
 
     def accelerations(self, t, q, qd, u=None, *, baumgarte=None):
         if not self.sliding:

@@ -26,7 +26,7 @@ import numpy as np
 from ..equations.constraints import choose_kernel
 from ..equations.limits import velocity_jump
 from ..errors import SettingError, SolverError
-from ..model.limits import LOWER, SLIDE_DOWN, SLIDE_UP, STICK, UPPER, JointMode
+from ..model.limits import LOWER, SLIDE_DOWN, SLIDE_UP, STICK, UPPER, JointMode, slip_text
 from ..model.scene import Scene, has_events
 from .modes import ContactModes
 
@@ -152,8 +152,9 @@ class EventRunner(ContactModes):
             _, lam = eq.accelerations(t, q, qd, self.inputs(t))
             effort = -lam[eq.held_rows[k]]
             self.mode[k] = JointMode(SLIDE_DOWN if effort > 0 else SLIDE_UP)
-            self.log.append((float(t), j.name, f"slips ({self.mode[k].state})"))
+            self.log.append((float(t), j.name, f"slips: {slip_text(self.mode[k].state)}"))
         else:                            # a sliding joint's rate reaches zero: stick if it can
+            self.log.append((float(t), j.name, "stops sliding"))
             self.mode[k] = JointMode(STICK, c.value(q))
             self._settle(t, q, qd, "stops")
         q, qd = self._project(t, q, qd)
@@ -177,15 +178,12 @@ class EventRunner(ContactModes):
 
 
 def event_kernel(scene: Scene, kernel: str | None) -> tuple[str | None, str]:
-    """The kernel a scene runs on and a note when it is not the one asked for: scenes with
-    stops or friction run the numpy kernel (the compiled ones take runs of steps in one
-    call, which the events cannot stop)."""
-    if not has_events(scene):
+    """The kernel a scene runs on and a note when it is not the one asked for: the C kernel
+    takes whole steps in one call, which the events cannot watch; scenes with stops or
+    friction run on the numpy kernel instead (numba's stays: its steps are watched)."""
+    if not has_events(scene) or choose_kernel(kernel) != "c":
         return kernel, ""
-    chosen = choose_kernel(kernel)
-    note = "" if chosen == "numpy" else (f'kernel "{chosen}" does not handle joint limits '
-                                         "or friction: the numpy kernel runs")
-    return "numpy", note
+    return "numpy", 'kernel "c" does not handle joint limits or friction: the numpy kernel runs'
 
 
 def check_method(integrator, scene: Scene) -> None:

@@ -14,7 +14,7 @@ from ..equations.limits import Coordinate, ModeEquations, friction_bound
 from ..equations.projection import ASSEMBLY_TOL, project_positions, project_velocities
 from ..errors import SettingError, SolverError
 from ..model.limits import (FREE, HELD, LOWER, SLIDE_DOWN, SLIDE_UP, STICK, UPPER, JointMode,
-                            event_joints, mode_scene, sliding)
+                            event_joints, mode_scene, slip_text, sliding)
 from ..model.scene import Scene
 from ..model.variables import outputs
 
@@ -106,7 +106,7 @@ class ContactModes:
                     changed = True
                 elif state == STICK and abs(effort) > friction_bound(eq, k, q, lam):
                     self.mode[k] = JointMode(SLIDE_DOWN if effort > 0 else SLIDE_UP)
-                    self.log.append((float(t), name, f"slips ({self.mode[k].state})"))
+                    self.log.append((float(t), name, f"slips: {slip_text(self.mode[k].state)}"))
                     changed = True
                 elif why:
                     self.log.append((float(t), name, {LOWER: "rests against its lower stop",

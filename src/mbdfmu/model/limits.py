@@ -45,6 +45,11 @@ def mode_scene(scene: Scene, mode: dict[int, JointMode]) -> Scene:
     return dataclasses.replace(scene, drivers=scene.drivers + extra) if extra else scene
 
 
+def slip_text(state: str) -> str:
+    """A sliding state in a log line."""
+    return "its coordinate rising" if state == SLIDE_UP else "its coordinate falling"
+
+
 def sliding(mode: dict[int, JointMode]) -> dict[int, int]:
     """{joint index: +1 or -1} of the sliding joints that have friction."""
     return {k: (1 if m.state == SLIDE_UP else -1) for k, m in mode.items()
