@@ -97,3 +97,23 @@ def test_state_round_trip_continues_bit_for_bit():
     sim.set_state(state)
     sim.advance(0.5)
     np.testing.assert_array_equal(sim.output_vector(), first)
+
+
+def test_check_reports_stops_friction_and_their_rows(capsys, tmp_path):
+    from mbdfmu.cli import main
+
+    assert main(["check", str(ref.SCENES / "slider_stop.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "limits [0, 2] restitution 0.5" in out
+    assert "end stops on guide" in out and "at the start: guide free: 0 rows held" in out
+    # resting on its stop at the start: the stop's row is held, no degree of freedom left
+    text = (ref.SCENES / "slider_stop.toml").read_text()
+    path = tmp_path / "resting.toml"
+    path.write_text(text.replace("position = [0.5, 0.0]", "position = [0.0, 0.0]")
+                    .replace("velocity = [1.0, 0.0]", "velocity = [0.0, 0.0]"))
+    assert main(["check", str(path)]) == 0
+    assert "guide lower: 1 rows held, degrees of freedom 0" in capsys.readouterr().out
+    path.write_text(text.replace("restitution = 0.5", "restitution = -1"))
+    assert main(["check", str(path)]) != 0
+    err = capsys.readouterr().err.strip()
+    assert "restitution must be between 0 and 1" in err and "\n" not in err

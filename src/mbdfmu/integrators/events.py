@@ -26,7 +26,8 @@ import numpy as np
 from ..equations.constraints import choose_kernel
 from ..equations.limits import velocity_jump
 from ..errors import SettingError, SolverError
-from ..model.limits import LOWER, SLIDE_DOWN, SLIDE_UP, STICK, UPPER, JointMode, slip_text
+from ..model.limits import (HELD, LOWER, SLIDE_DOWN, SLIDE_UP, STICK, UPPER, JointMode,
+                            slip_text)
 from ..model.scene import Scene, has_events
 from .modes import ContactModes
 
@@ -184,6 +185,18 @@ def event_kernel(scene: Scene, kernel: str | None) -> tuple[str | None, str]:
     if not has_events(scene) or choose_kernel(kernel) != "c":
         return kernel, ""
     return "numpy", 'kernel "c" does not handle joint limits or friction: the numpy kernel runs'
+
+
+def event_summary(scene: Scene, q0, qd0, dof: int) -> str:
+    """``mbdfmu check``'s line on stops and friction: their rows and the mode at the start."""
+    runner = EventRunner(scene, "numpy", 0.0, q0, qd0, lambda t: None)
+    stops = [scene.joints[k].name for k in runner.joints if scene.joints[k].limits is not None]
+    rubs = [scene.joints[k].name for k in runner.joints if scene.joints[k].friction is not None]
+    held = sum(m.state in HELD for m in runner.mode.values())
+    start = ", ".join(f"{scene.joints[k].name} {m.state}" for k, m in runner.mode.items())
+    return (f"end stops on {', '.join(stops) or 'none'} (one row each while resting on a "
+            f"stop), friction on {', '.join(rubs) or 'none'} (one row each while sticking); "
+            f"at the start: {start}: {held} rows held, degrees of freedom {dof - held}")
 
 
 def check_method(integrator, scene: Scene) -> None:
