@@ -24,7 +24,8 @@ SLOW = [pytest.mark.slow,
         pytest.mark.skipif(not os.environ.get("MBDFMU_SLOW"), reason="long run; set MBDFMU_SLOW=1")]
 START = {"default": {}, "rtol 1e-10": {"solver.rtol": 1e-10, "solver.atol": 1e-10},
          "rk4p": {"solver.method": "rk4p"}}
-FAST = {("slider_stop", "default"), ("incline_stick", "rk4p"), ("incline_slide", "rtol 1e-10")}
+FAST = {("slider_stop", "default"), ("incline_stick", "rk4p"), ("incline_slide", "rtol 1e-10"),
+        ("crane_stop", "default")}
 EVENT_LINE = re.compile(r"^t = (\S+) s: joint (\w+) (.*)$")
 
 

@@ -38,7 +38,7 @@ EVENT_TIME_TOL = 1e-12
 # Secant / Illinois iterations allowed to locate one event.
 LOCATE_MAX_ITER = 200
 # An impact whose remaining bounces would all end within this time (s) rests at once.
-SETTLE_TIME = 1e-11
+SETTLE_TIME = 1e-10
 
 
 class EventFound(Exception):
@@ -100,20 +100,31 @@ class EventRunner(ContactModes):
 
     def _locate(self, integrator, start, key, a, ga, b, gb):
         """(time, rollback point) of the bracket's earlier end once ``b - a`` is within
-        ``EVENT_TIME_TOL``: Illinois (secant with halving of a retained end's value)."""
+        ``EVENT_TIME_TOL``: Illinois (secant with halving of a retained end's value); for a
+        stop's distance, whose slope is the coordinate's rate, the quadratic through the
+        earlier end's value and slope and the later end's value, aimed a quarter of the
+        tolerance past the last side found (so that the bracket closes from both sides)."""
         point, last = start, 0
         if ga < 0:
             return a, point       # already past it at the step's start: change at once
+        sa = self._slope(key, start["q"], start["qd"])
         for _ in range(LOCATE_MAX_ITER):
             if b - a <= max(EVENT_TIME_TOL, 4 * np.spacing(b)):
                 return a, point
-            t = b - gb * (b - a) / (gb - ga) if gb != ga else 0.5 * (a + b)
-            if not a < t < b:
+            if sa is not None and sa < 0 and ga <= -sa * 0.5 * EVENT_TIME_TOL:
+                return a, point   # moving in, its distance reached within the tolerance
+            t = _quadratic_root(a, ga, sa, b, gb) if sa is not None else None
+            if t is not None:
+                t += 0.25 * EVENT_TIME_TOL * last
+            elif gb != ga:
+                t = b - gb * (b - a) / (gb - ga)
+            if t is None or not a < t < b:
                 t = 0.5 * (a + b)
             state = self._state_at(integrator, start, t)
             g = self.values(integrator.t, integrator.q, integrator.qd)[key]
             if g >= 0:
                 a, ga, point = t, g, state
+                sa = self._slope(key, integrator.q, integrator.qd)
                 if last == 1:
                     gb *= 0.5
                 last = 1
@@ -124,6 +135,16 @@ class EventRunner(ContactModes):
                 last = -1
         raise SolverError(f"the event of joint {self.scene.joints[key[0]].name} could not be "
                           f"located within {EVENT_TIME_TOL:g} s", a)
+
+    def _slope(self, key, q, qd) -> float | None:
+        """The time derivative of a stop's distance (the coordinate's rate); None for the
+        other event functions."""
+        k, kind = key
+        if kind == "hit lower":
+            return self.coordinates[k].rate(q, qd)
+        if kind == "hit upper":
+            return -self.coordinates[k].rate(q, qd)
+        return None
 
     def _transition(self, integrator, key) -> None:
         k, kind = key
@@ -205,6 +226,20 @@ def check_method(integrator, scene: Scene) -> None:
         raise SettingError("method", f'method "{integrator.name}" does not locate the events '
                            f"of joint limits and friction: use one of {', '.join(EVENT_METHODS)}",
                            scene.source)
+
+
+def _quadratic_root(a, ga, sa, b, gb) -> float | None:
+    """The first root in (a, b) of the quadratic with value ga and slope sa at a, gb at b."""
+    h = b - a
+    c = (gb - ga - sa * h) / (h * h)
+    if abs(c) * h < 1e-14 * (abs(sa) + abs(gb - ga) / h):
+        return a - ga / sa if sa < 0 else None
+    disc = sa * sa - 4 * c * ga
+    if disc < 0:
+        return None
+    r = math.sqrt(disc)
+    inside = [a + tau for tau in ((-sa - r) / (2 * c), (-sa + r) / (2 * c)) if 0 < tau < h]
+    return min(inside) if inside else None
 
 
 def _fraction(g0: float, g1: float) -> float:
