@@ -9,6 +9,7 @@ to 1e-9 s (``event_checks.py``). The FMUs: test_limit_fmus.py.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -117,3 +118,54 @@ def test_check_reports_stops_friction_and_their_rows(capsys, tmp_path):
     assert main(["check", str(path)]) != 0
     err = capsys.readouterr().err.strip()
     assert "restitution must be between 0 and 1" in err and "\n" not in err
+
+
+def test_revolute_friction_and_stop_on_a_torqued_disc():
+    # a 2 kg disc (J = 0.5 kg m^2) on a ground bearing at its centre, torque 2 N.m, friction
+    # 0.5 + 0.1 x 0.05 m x |F| (|F| = m g: the bearing carries the weight), stop at 1 rad:
+    # slides with alpha = (2 - bound) / J, hits the stop at sqrt(2 / alpha) s and rests on it
+    # (restitution 0), the stop then holding the whole torque (-2 N.m) and friction 0
+    bound = 0.5 + 0.1 * 0.05 * 2.0 * ref.G
+    alpha = (2.0 - bound) / 0.5
+    scene = mbdfmu.model.scene_from_dict({
+        "name": "disc", "gravity": [0.0, -ref.G],
+        "body": [{"name": "disc", "mass": 2.0, "inertia": 0.5, "position": [0.0, 0.0]}],
+        "joint": [{"name": "bearing", "type": "revolute", "body_i": "ground", "body_j": "disc",
+                   "limits": [-1.0, 1.0],
+                   "friction": {"coulomb": 0.5, "coefficient": 0.1, "radius": 0.05}}],
+        "force": [{"name": "drive", "type": "torque", "body": "disc", "value": 2.0}]})
+    res = mbdfmu.simulate(scene, t_end=2.0, output_interval=0.05)
+    hit = math.sqrt(2.0 / alpha)
+    assert [e[2].split()[0] for e in res.events] == ["slips:", "hits"]
+    assert res.events[0][0] == 0.0 and abs(res.events[1][0] - hit) < 1e-9
+    t = res.time
+    np.testing.assert_allclose(res["disc.phi"], np.minimum(0.5 * alpha * t * t, 1.0), rtol=0,
+                               atol=1e-8)
+    moving = t < hit
+    np.testing.assert_allclose(res["bearing.friction"], np.where(moving, -bound, 0.0),
+                               rtol=1e-6)
+    np.testing.assert_allclose(res["bearing.limit"], np.where(moving, 0.0, -2.0), rtol=1e-6)
+    # below the bound it sticks: friction holds the torque
+    held = mbdfmu.simulate(dataclasses.replace(scene, forces=(dataclasses.replace(
+        scene.forces[0], value=0.4),)), t_end=0.5, output_interval=0.1)
+    assert [e[2] for e in held.events] == ["sticks"]
+    np.testing.assert_allclose(held["disc.phi"], 0.0, atol=1e-12)
+    np.testing.assert_allclose(held["bearing.friction"], -0.4, rtol=1e-9)
+
+
+def test_output_derivatives_follow_the_contact_mode():
+    # sliding down the incline: block.vx' = a cos 30, the friction constant; sticking on the
+    # stop side (incline_stick after its stop): every derivative zero
+    from mbdfmu.simulation import output_time_derivatives
+    from event_checks import C, G, S
+
+    sim = mbdfmu.Simulation(mbdfmu.load_scene(ref.SCENES / "incline_slide.toml"))
+    sim.advance(1.0)
+    first, _ = output_time_derivatives(sim)
+    d = dict(zip(sim.output_names, first))
+    assert d["block.vx"] == pytest.approx(G * (S - 0.2 * C) * C, rel=1e-6)
+    assert abs(d["ramp.friction"]) < 1e-6
+    sim = mbdfmu.Simulation(mbdfmu.load_scene(ref.SCENES / "incline_stick.toml"))
+    sim.advance(1.0)
+    first, second = output_time_derivatives(sim)
+    assert np.abs(first).max() < 1e-6 and np.abs(second).max() < 1e-3

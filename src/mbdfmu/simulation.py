@@ -68,16 +68,15 @@ class Simulation:
         # what assembly changed of the scene's initial values, for the user to see
         self.warnings = assembly_changes(self.equations, initial_estimates(self.equations),
                                          (q0, qd0))
-        self.events = (EventRunner(scene, kernel, t0, q0, qd0, self.inputs_at)
-                       if has_events(scene) else None)      # its mode's equations, state
-        if self.events is not None:
+        self.events = None                          # stops and friction: their contact mode
+        if has_events(scene):
+            self.events = EventRunner(scene, kernel, t0, q0, qd0, self.inputs_at)
             q0, qd0 = self.events.q, self.events.qd
         self.integrator = make_integrator(
             None, self.events.equations if self.events else self.equations, t0, q0, qd0,
             self.settings, inputs=self.inputs_at,
             output_interval=self.settings.output_interval_for(scene.simulation.t_end))
-        if self.events is not None:
-            check_method(self.integrator, scene)
+        check_method(self.integrator, scene)
         self._cache = None
 
     @property
@@ -296,6 +295,9 @@ def output_time_derivatives(sim: Simulation) -> tuple[np.ndarray, np.ndarray]:
         qs = q + d * qd + d * d / 2 * qdd + d ** 3 / 6 * jerk
         qds = qd + d * qdd + d * d / 2 * jerk
         u = sim.inputs_at(t + d)
+        if sim.events is not None:       # the current contact mode's equations and outputs
+            a = sim.events.equations.accelerations(t + d, qs, qds, u)[0]
+            return sim.events.output_vector(t + d, qs, qds, sim.output_names), a
         a, mult = eq.accelerations(t + d, qs, qds, u)
         return eq.output_values(t + d, qs, qds, a, mult, u), a
 

@@ -221,8 +221,9 @@ def event_summary(scene: Scene, q0, qd0, dof: int) -> str:
 
 
 def check_method(integrator, scene: Scene) -> None:
-    """Only methods that take single steps from any state can locate events."""
-    if integrator.name not in EVENT_METHODS:
+    """Only methods that take single steps from any state can locate events (the only ones
+    a scene with stops or friction may run)."""
+    if has_events(scene) and integrator.name not in EVENT_METHODS:
         raise SettingError("method", f'method "{integrator.name}" does not locate the events '
                            f"of joint limits and friction: use one of {', '.join(EVENT_METHODS)}",
                            scene.source)
