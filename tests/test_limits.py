@@ -169,3 +169,10 @@ def test_output_derivatives_follow_the_contact_mode():
     sim.advance(1.0)
     first, second = output_time_derivatives(sim)
     assert np.abs(first).max() < 1e-6 and np.abs(second).max() < 1e-3
+
+
+def test_a_body_held_at_rest_does_not_stall_dop853p():
+    # sticking, the block's rates are round-off: dop853p's error estimate must not become 0 / 0
+    res = mbdfmu.simulate(ref.SCENES / "incline_stick.toml", method="dop853p", rtol=1e-4,
+                          atol=1e-4)
+    CHECKS["incline_stick"](res.time, res)

@@ -166,6 +166,6 @@ class DOP853P(ProjectedRK):
         # Hairer's combined 5th/3rd order estimate, as in scipy's DOP853.
         err5 = np.linalg.norm((K.T @ self.E5) / scale) ** 2
         err3 = np.linalg.norm((K.T @ self.E3) / scale) ** 2
-        if err5 == 0.0 and err3 == 0.0:
+        if err5 == 0.0:     # also when 0.01 err3 underflows (a body held at rest): not 0 / 0
             return 0.0
         return float(abs(h) * err5 / math.sqrt((err5 + 0.01 * err3) * scale.size))
