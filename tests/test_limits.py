@@ -176,3 +176,10 @@ def test_a_body_held_at_rest_does_not_stall_dop853p():
     res = mbdfmu.simulate(ref.SCENES / "incline_stick.toml", method="dop853p", rtol=1e-4,
                           atol=1e-4)
     CHECKS["incline_stick"](res.time, res)
+
+
+def test_analysis_refuses_stops_and_friction_in_one_line():
+    with pytest.raises(MbdfmuError) as info:
+        mbdfmu.equilibrium(ref.SCENES / "incline_stick.toml")
+    assert "do not handle joint limits or friction" in str(info.value)
+    assert "\n" not in str(info.value)
