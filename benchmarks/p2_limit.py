@@ -51,7 +51,8 @@ N, LEVEL, TARGET = 2, 1e-6, 20.0
 FIXED = {"rk4p": (2e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4),
          "genalpha": (1e-2, 5e-3, 2e-3, 1e-3, 5e-4), "ali3p": (1e-2, 5e-3, 2e-3, 1e-3, 5e-4)}
 ADAPTIVE = {"dop853p": tuple(10.0 ** -k for k in range(4, 12)),
-            "rk45p": tuple(10.0 ** -k for k in range(4, 10))}
+            "rk45p": tuple(10.0 ** -k for k in range(4, 10)),
+            "minimal": tuple(10.0 ** -k for k in range(4, 12))}
 REDUCED_STEPS = (5e-2, 2e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4)
 SHORT_RUN_S = 0.5
 

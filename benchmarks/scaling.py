@@ -37,7 +37,7 @@ import numpy as np  # noqa: E402
 
 import mbdfmu  # noqa: E402
 from mbdfmu.bench import closed_forms as references  # noqa: E402
-from mbdfmu.scene import scene_from_dict  # noqa: E402
+from mbdfmu.model.reader import scene_from_dict  # noqa: E402
 from mbdfmu.scenes.generate_n_four_bar import scene_text  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]

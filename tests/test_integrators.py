@@ -232,6 +232,35 @@ def test_auto_takes_genalpha_for_a_stiff_spring_and_damps_it(tmp_path):
     np.testing.assert_allclose(res["bob.y"], ex["y"], atol=2e-4)
 
 
+def test_auto_sends_a_stiff_spring_to_genalpha_at_an_fmu_step_within_tolerance(tmp_path):
+    # at a 1 ms output interval the spring's period (63 µs) is not 1 % of it: the rule that
+    # catches it compares dop853p's stable step with the step rtol needs on the motion
+    sc = scene_from_text(tmp_path, STIFF_SPRING_PENDULUM)
+    sim = mbdfmu.Simulation(sc, output_interval=1e-3)
+    assert sim.method_name == "auto->genalpha"
+    assert "stability" in sim.method_reason and 'force "rod"' in sim.method_reason
+    res = mbdfmu.simulate(sc, 0.02, output_interval=1e-3)
+    # the spring stretches at most m g / k = 1e-9 m: the rigid pendulum, to the tolerance
+    ex = ref.simple_pendulum(res.time, J=1e-6)
+    tol = 1e-6 * 1.0 + 1e-8     # default rtol x 1 m + atol
+    assert np.max(np.hypot(res["bob.x"] - ex["x"], res["bob.y"] - ex["y"])) < tol
+
+
+def test_auto_resolves_a_stretched_stiff_spring_whose_oscillation_shows(tmp_path):
+    # stretched by 1 mm at t0 without gravity: x = 1 + 1e-3 cos(w t), w = sqrt(k / m), an
+    # oscillation far above the tolerance, so damping it would be a wrong result
+    text = (STIFF_SPRING_PENDULUM.replace("[0.0, -9.81]", "[0.0, 0.0]")
+            .replace("position = [1.0, 0.0]", "position = [1.001, 0.0]")
+            .replace("stiffness = 1.0e10", "stiffness = 1.0e6"))
+    sc = scene_from_text(tmp_path, text)
+    sim = mbdfmu.Simulation(sc, output_interval=1e-3)
+    assert sim.method_name == "auto->dop853p"
+    res = mbdfmu.simulate(sc, 0.02, output_interval=1e-3)
+    expected = 1.0 + 1e-3 * np.cos(1e3 * res.time)
+    np.testing.assert_allclose(res["bob.x"], expected, atol=2e-6)
+    np.testing.assert_allclose(res["bob.y"], 0.0, atol=1e-12)
+
+
 def test_choose_method_is_the_rule_set_without_running():
     system = Equations(scene("n_four_bar_2"))
     q, _ = assemble(system)

@@ -29,7 +29,8 @@ def make_integrator(method, equations, t0: float, q0: np.ndarray, qd0: np.ndarra
     if cls is Auto:
         interval = output_interval or settings.output_interval or 1.0
         u = inputs(t0) if inputs is not None else None
-        cls, reason = choose_method(equations, t0, np.asarray(q0, dtype=float), interval, u)
+        cls, reason = choose_method(equations, t0, np.asarray(q0, dtype=float), interval, u,
+                                    rtol=settings.rtol)
     integrator = cls(equations, t0, q0, qd0, step=settings.step_for(cls), rtol=settings.rtol,
                      atol=settings.atol, inputs=inputs, **settings.options)
     integrator.picked_by = AUTO if reason else ""

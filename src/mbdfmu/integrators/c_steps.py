@@ -37,9 +37,13 @@ def stage_inputs(integrator, times) -> None:
             motions[:k] = np.concatenate(eq.motion_values(0.0))
             kernel.static_rows = k
         if kernel.nf:
-            inputs = [integrator.inputs(t) for t in times]
-            forces[:k] = inputs[0].forces if all(u is inputs[0] for u in inputs) else \
-                [u.forces for u in inputs]
+            # the same object at both ends is the held inputs' cache (Simulation.inputs_at
+            # returns it at every t or at none): one value for the whole step
+            first, last = integrator.inputs(times[0]), integrator.inputs(times[-1])
+            if first is last:
+                forces[:k] = first.forces
+            else:
+                forces[:k] = [integrator.inputs(t).forces for t in times]
         return
     inputs = [integrator.inputs(t) for t in times] if eq.layout.drivers or kernel.nf else None
     motions[:k] = eq.constraint_set.motion_block(times, inputs).reshape(k, -1)
@@ -130,14 +134,24 @@ def prk_step(rk, h: float, safety: float, min_factor: float, max_factor: float,
              energy_min_gain: float):
     """``ProjectedRK._step_impl`` with the step's arithmetic in C: (accepted, next step),
     or None when the Python step must do it. The factors are projected_rk.py's."""
-    t, n = rk.t, rk.q.size
     table = tableau(rk)
-    stage_inputs(rk, t + h * table[-1])        # row s: stage s, then t + h
+    stage_inputs(rk, rk.t + h * table[-1])     # row s: stage s, then t + h
     status, err, y_new, f_new = rk.equations.ckernel.prk_trial(
         table[:-1], h, rk.q, rk.qd, rk.f, rk.rtol, rk.atol, rk._projection_tol(),
         PROJECTION_MAX_ITER)
     if status in (ckernel.SINGULAR, ckernel.SPRING):
         return None
+    return decide(rk, h, status, err, y_new, f_new, safety, min_factor, max_factor,
+                  energy_min_gain)
+
+
+def decide(rk, h, status, err, y_new, f_new, safety, min_factor, max_factor,
+           energy_min_gain, end_evaluated: bool = False) -> tuple[bool, float]:
+    """What ``ProjectedRK._step_impl`` decides on a trial step's outcome: accept it (q, q',
+    f updated) or reject it, and the next step. ``end_evaluated``: the trial's last stage
+    was already y' at the accepted end (minimal coordinates), not one more evaluation."""
+    t, n = rk.t, rk.q.size
+    rk.trial_status = status
     rk.stats.naccel += rk.n_stages
     exponent = -1.0 / (rk.order + 1)
     if status == ckernel.NOT_FINITE:
@@ -155,5 +169,21 @@ def prk_step(rk, h: float, safety: float, min_factor: float, max_factor: float,
             rk.energy_rejected = energy_err
             return False, h * max(min_factor, safety * energy_err ** exponent)
     rk.q, rk.qd, rk.f = q, qd, f_new
-    rk.stats.naccel += 1
+    rk.stats.naccel += 0 if end_evaluated else 1
     return True, h * (max_factor if err == 0 else min(max_factor, safety * err ** exponent))
+
+
+def mc_step(rk, h: float, safety: float, min_factor: float, max_factor: float,
+            energy_min_gain: float):
+    """``minimal.MinimalCoordinates``'s step with its arithmetic in C (``mbd_mc_trial``):
+    (accepted, next step), or None when the Python step must do it."""
+    table = tableau(rk)
+    stage_inputs(rk, rk.t + h * table[-1])
+    kernel = rk.equations.ckernel
+    status, err, y_new, f_new = kernel.mc_trial(
+        kernel.partition(rk.independent), table[:-1], h, rk.q, rk.qd, rk.f, rk.rtol, rk.atol,
+        rk._projection_tol(), PROJECTION_MAX_ITER)
+    if status in (ckernel.SINGULAR, ckernel.SPRING):
+        return None
+    return decide(rk, h, status, err, y_new, f_new, safety, min_factor, max_factor,
+                  energy_min_gain, end_evaluated=True)

@@ -15,10 +15,16 @@ named method (scipy keeps the choice outside the solver classes too):
    matrix stays non-singular there while eq. (14) has no unique multipliers. Rank that
    stays lost as the mechanism moves is redundancy, not a singular configuration.
 2. A spring or damper much faster than the output interval (period 2 pi sqrt(m / k) or time
-   constant m / c below STIFF_FRACTION of it, with m the lightest body it acts on):
-   ``genalpha``, implicit, which damps what the output cannot show instead of resolving it
-   with tiny explicit steps; ``ali3p`` if the constraints are also redundant (genalpha's
-   matrix would be singular).
+   constant m / c below STIFF_FRACTION of it, with m the lightest body it acts on), or much
+   faster than the step the accuracy needs (``_accuracy_step``: an explicit method's stable
+   step, about half that period, STIFF_STEP_RATIO times below the step dop853p would take
+   for rtol on the motion at t0, so that stability, not accuracy, would set its cost and
+   that cost would grow as sqrt(k)): ``genalpha``, implicit, whose cost per simulated
+   second does not depend on k, and which damps what the output cannot show instead of
+   resolving it with tiny explicit steps; ``ali3p`` if the constraints are also redundant
+   (genalpha's matrix would be singular). A spring stretched at t0 makes the motion's own
+   time scale short (its acceleration enters it), so its visible oscillation stays with
+   dop853p, which resolves it.
 3. Otherwise ``dop853p``: adaptive, high order, coordinate projection. Consistent redundant
    constraints stay here (eq. 14's minimum-norm multipliers handle them), and so does a
    huge mass ratio (beyond MASS_RATIO): its fast transients are physical and must be
@@ -52,6 +58,10 @@ NEAR_SINGULAR = 1e-6
 MOVE_FRACTION = 1e-3
 # A spring period (or damper time constant) below this fraction of the output interval is stiff.
 STIFF_FRACTION = 0.01
+# Stiff when an explicit method's stable step is this many times below its accuracy step.
+STIFF_STEP_RATIO = 10.0
+# Order of the explicit method whose accuracy step is estimated (dop853p's 8).
+EXPLICIT_ORDER = 8
 # Body mass ratio above which the reason warns of fast transients (P6's light cart).
 MASS_RATIO = 1e4
 
@@ -78,6 +88,35 @@ def _fastest_force(equations) -> tuple[float, str] | None:
     return fastest
 
 
+def _accuracy_step(equations, t0: float, q0: np.ndarray, u, rtol: float) -> float:
+    """The step (s) an order-8 method needs for ``rtol`` on the motion at t0, or inf.
+
+    The motion's time scale is the shorter of sqrt(L / a) and L / v, with L the mechanism's
+    size and a, v the largest acceleration (gravity included) and speed of a body point at
+    t0; a local error ~ (h / T)^9 below rtol gives h = T rtol^(1/9).
+    """
+    scene = equations.scene
+    qd0 = np.array([[*b.velocity, b.angular_velocity] for b in scene.bodies],
+                   dtype=float).ravel()
+    size = equations.length_scale
+    try:
+        if equations.m:
+            qd0 = project_velocities(equations, t0, q0, qd0, u)
+        qdd0 = equations.accelerations(t0, q0, qd0, u)[0]
+    except SolverError:
+        return math.inf
+
+    def largest(v):
+        v = np.asarray(v, dtype=float).reshape(-1, 3)
+        return float(max(np.max(np.abs(v[:, :2]), initial=0.0),
+                         size * np.max(np.abs(v[:, 2]), initial=0.0)))
+
+    accel = max(largest(qdd0), math.hypot(*scene.gravity))
+    speed = largest(qd0)
+    scales = ([math.sqrt(size / accel)] if accel > 0 else []) + ([size / speed] if speed > 0 else [])
+    return min(scales) * rtol ** (1.0 / (EXPLICIT_ORDER + 1)) if scales else math.inf
+
+
 def _rank_after_moving(equations, t0: float, q0: np.ndarray, u) -> int:
     """Rank of Psi_q a little way along the motion from q0 (along q', or q'' from rest).
 
@@ -100,9 +139,10 @@ def _rank_after_moving(equations, t0: float, q0: np.ndarray, u) -> int:
 
 
 def choose_method(equations, t0: float, q0: np.ndarray, output_interval: float,
-                  u=None) -> tuple[type[Integrator], str]:
+                  u=None, rtol: float = 1e-6) -> tuple[type[Integrator], str]:
     """The method for this scene and the reason, by the rules of this module; ``u`` the
-    inputs at t0 and ``output_interval`` (s) the time between the outputs the run reports."""
+    inputs at t0, ``output_interval`` (s) the time between the outputs the run reports and
+    ``rtol`` the run's relative tolerance."""
     notes = []
     redundant = ()
     if equations.m:
@@ -126,9 +166,17 @@ def choose_method(equations, t0: float, q0: np.ndarray, output_interval: float,
                          "are handled by eq. 14's minimum-norm multipliers")
     fastest = _fastest_force(equations)
     interval = output_interval
+    stiff = ""
     if fastest is not None and fastest[0] < STIFF_FRACTION * interval:
         stiff = (f'force "{fastest[1]}" acts on a time scale of {fastest[0]:.2g} s, far below '
                  f"the output interval {interval:.2g} s (stiff)")
+    elif fastest is not None:
+        needed = _accuracy_step(equations, t0, q0, u, rtol)
+        if STIFF_STEP_RATIO * fastest[0] / 2 < needed:
+            stiff = (f'force "{fastest[1]}" acts on a time scale of {fastest[0]:.2g} s: an '
+                     f"explicit method would be held to steps near {fastest[0] / 2:.2g} s by "
+                     f"stability where rtol = {rtol:g} needs about {needed:.2g} s (stiff)")
+    if stiff:
         if redundant:
             return ALI3P, (stiff + " and the constraints are redundant: implicit ali3p, whose "
                            "iteration matrix stays non-singular")

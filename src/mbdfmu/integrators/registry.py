@@ -7,12 +7,14 @@ from .ali3p import ALI3P
 from .base import Integrator
 from .baumgarte import Baumgarte
 from .genalpha import GeneralizedAlpha
+from .minimal import MinimalCoordinates
 from .projected_rk import DOP853P, RK45P
 from .rk4p import RK4P
 from .taylor import Taylor
 
 METHODS: dict[str, type[Integrator]] = {
-    cls.name: cls for cls in (DOP853P, RK45P, RK4P, Taylor, Baumgarte, GeneralizedAlpha, ALI3P)}
+    cls.name: cls for cls in (DOP853P, RK45P, RK4P, Taylor, Baumgarte, GeneralizedAlpha, ALI3P,
+                                MinimalCoordinates)}
 AUTO = "auto"
 METHOD_NAMES = (AUTO, *METHODS)
 SUMMARIES = {AUTO: "picks per scene: rk4p without degrees of freedom, ali3p for "

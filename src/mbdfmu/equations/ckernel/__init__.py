@@ -175,6 +175,9 @@ class Kernel:
         lib = library()
         self.n, self.m, self.nf = eq.n, eq.m, eq.layout.size
         arrays = model_arrays(eq)
+        self._weights = (np.asarray(eq.minv, dtype=float), np.asarray(arrays["cols"])[
+            np.asarray(arrays["pair_a"])])
+        self._partition: tuple | None = None
         springs = sum(isinstance(f, SpringDamper) for f in eq.scene.forces)
         self.nout = 6 * eq.nb + arrays["nplan"] + arrays["ndriver"] + 3 * springs + 4
         model, self._arrays = Model(), []
@@ -206,7 +209,9 @@ class Kernel:
                       "mbd_project_velocities": [_P] * 5,
                       "mbd_rk4p_steps": [_P, _P, _P, d, _I, _P, _I, _P, _I, d, _I, _P, d, d, _P],
                       "mbd_prk_trial": [_P, _I, _P, _P, _P, _P, d, _P, _P, _P, _P, d, d, d, _I,
-                                        _P, _P, _P, _P]}
+                                        _P, _P, _P, _P],
+                      "mbd_mc_trial": [_P, _P, _I, _P, _P, _P, _P, d, _P, _P, _P, _P, d, d, d,
+                                       _I, _P, _P, _P, _P]}
         for name, argtypes in signatures.items():
             function = getattr(lib, name)
             function.argtypes, function.restype = argtypes, ctypes.c_int
@@ -299,4 +304,30 @@ class Kernel:
         status = self._prk_trial(self.address, *tableau, h, b.p_y, b.p_f, b.p_motions,
                                  b.p_ufs, rtol, atol, tol, max_iter, b.p_y_new, b.p_f_new,
                                  b.p_err, b.p_K)
+        return status, float(b.err[0]), b.y_new.copy(), b.f_new.copy()
+
+    def partition(self, independent: np.ndarray) -> int:
+        """The model of minimal coordinates with ``independent`` (bool, n) held: this one
+        with zero weight on them in the projections, so that a projection solves for the
+        dependent coordinates alone. Kept until the mask changes; returns its address."""
+        key = np.asarray(independent, dtype=bool).tobytes()
+        if self._partition is None or self._partition[0] != key:
+            minv, pair_cols = self._weights
+            weights = np.where(np.frombuffer(key, dtype=bool), 0.0, minv)
+            pair = np.ascontiguousarray(weights[pair_cols])
+            model = Model()
+            ctypes.pointer(model)[0] = self.model          # a copy of every field
+            model.minv, model.pair_minv = weights.ctypes.data, pair.ctypes.data
+            self._partition = (key, model, weights, pair)
+        return ctypes.addressof(self._partition[1])
+
+    def mc_trial(self, partition, tableau, h, q, qd, f0, rtol, atol, tol, max_iter):
+        """``prk_trial`` in minimal coordinates (``mbd_mc_trial``) with the model of
+        ``partition``: (status, err, y_new, f_new)."""
+        b, n = self.buf, self.n
+        b.y[:n], b.y[n:] = q, qd
+        b.f[:] = f0
+        status = self._mc_trial(self.address, partition, *tableau, h, b.p_y, b.p_f,
+                                b.p_motions, b.p_ufs, rtol, atol, tol, max_iter, b.p_y_new,
+                                b.p_f_new, b.p_err, b.p_K)
         return status, float(b.err[0]), b.y_new.copy(), b.f_new.copy()

@@ -149,3 +149,56 @@ int mbd_prk_trial(const Model *M, I ns, const double *A, const double *B, const 
     if (r == ST_OK) memo_store(M, y_new, y_new + n, motions + ns * 3 * m, motions + ns * 3 * m + 2 * m, ufs + ns * nf, f_new + n, s.lam);
     return r;
 }
+
+/* One trial step of an embedded pair in minimal coordinates (integrators/minimal.py): the
+ * tableau advances every component, but only the independent ones (z, z') are kept: at each
+ * stage and at t + h the dependent coordinates are solved from Psi = 0 and Psi_q q' = nu
+ * with (z, z') held, by Newton started from the tableau's values (project() with P: this
+ * model with zero weights on the independent coordinates, so only dependent ones move);
+ * the error norm is over (z, z') alone. Returns as mbd_prk_trial; ST_PROJECTION when a
+ * Newton solve does not converge (the caller re-chooses the partition or halves the step). */
+int mbd_mc_trial(const Model *M, const Model *P, I ns, const double *A, const double *B,
+                 const double *E, const double *E3, double h, const double *y,
+                 const double *f0, const double *motions, const double *ufs, double rtol,
+                 double atol, double tol, I max_iter, double *y_new, double *f_new,
+                 double *err, double *K) {
+    Scratch s = scratch(M, M->work);
+    I n = M->n, n2 = 2 * n, m = M->m, nf = M->nf;
+    double *ys = s.qv;
+    memcpy(K, f0, (size_t)n2 * sizeof(double));
+    for (I st = 1; st <= ns; st++) {
+        const double *coef = st < ns ? A + st * ns : B;
+        double *target = st < ns ? ys : y_new;
+        I terms_used = st < ns ? st : ns;
+        for (I k = 0; k < n2; k++) {
+            double a = 0.0;
+            for (I j = 0; j < terms_used; j++) a += K[j * n2 + k] * coef[j];
+            target[k] = y[k] + h * a;
+        }
+        if (!all_finite(target, n2)) return ST_NOT_FINITE;
+        int r = project(P, &s, target, target + n, motions + st * 3 * m, tol, max_iter);
+        if (r == ST_SINGULAR || r == ST_SPRING) return r;
+        if (r != ST_OK) return ST_PROJECTION;
+        r = rhs(M, &s, target, motions + st * 3 * m, ufs + st * nf, K + st * n2, s.lam);
+        if (r == ST_SINGULAR || r == ST_SPRING) return r;
+        if (r != ST_OK || !all_finite(K + st * n2, n2)) return ST_NOT_FINITE;
+    }
+    double e5 = 0.0, e3 = 0.0;
+    I count = 0;
+    for (I k = 0; k < n2; k++) {
+        if (P->minv[k % n] != 0.0) continue;          /* dependent: not integrated */
+        double scale = atol + rtol * fmax(fabs(y[k]), fabs(y_new[k])), a = 0.0, b = 0.0;
+        for (I j = 0; j <= ns; j++) { a += K[j * n2 + k] * E[j]; if (E3) b += K[j * n2 + k] * E3[j]; }
+        if (E3) { e5 += (a / scale) * (a / scale); e3 += (b / scale) * (b / scale); }
+        else e5 += (h * a / scale) * (h * a / scale);
+        count++;
+    }
+    if (count == 0) *err = 0.0;
+    else if (!E3) *err = sqrt(e5 / (double)count);
+    else if (e5 == 0.0 && e3 == 0.0) *err = 0.0;
+    else *err = fabs(h) * e5 / sqrt((e5 + 0.01 * e3) * (double)count);
+    if (!(*err < 1.0)) return ST_ERROR_NORM;
+    memcpy(f_new, K + ns * n2, (size_t)n2 * sizeof(double));
+    memo_store(M, y_new, y_new + n, motions + ns * 3 * m, motions + ns * 3 * m + 2 * m, ufs + ns * nf, f_new + n, s.lam);
+    return ST_OK;
+}

@@ -1,0 +1,114 @@
+"""A stiff spring under ``auto``: cost per simulated second against the stiffness.
+
+The mechanism is P1 with its rod replaced by a spring of stiffness k (rest length 1 m)
+between ground and a 1 kg bob released horizontally at rest: the stiff limit of the
+rigid pendulum. For k >= 1e8 N/m the spring's stretch (at most m g / k, 1e-7 m) is a tenth
+of the default tolerance or less, so the rigid pendulum's closed form
+(``bench.closed_forms.pendulum``) is the reference to that accuracy.
+
+Each k runs from t = 0 to ``--t-end`` (default 20 ms, issue 13's target) with outputs every
+``--interval`` (default 1 ms, an FMU's communication step), under ``auto`` (whose stiff
+rule sends it to an implicit method) and under ``dop853p`` (explicit: what auto took
+before, its stable step shrinks as 1 / sqrt(k)). CPU time (process), best of ``--repeat``
+in alternating order; error: the largest distance of the bob from the closed form over
+the run's outputs, against the tolerance rtol x 1 m + atol of the default settings.
+Target: k = 1e10 under auto in under 0.2 s of CPU time with the error within tolerance.
+
+    python benchmarks/stiff.py [--t-end 0.02] [--interval 0.001] [--repeat 5] [-o DIR]
+
+Writes ``stiff.md`` and ``stiff.csv`` into DIR (default docs/figures/performance).
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import csv  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+import mbdfmu  # noqa: E402
+from mbdfmu.bench.closed_forms import pendulum  # noqa: E402
+from mbdfmu.integrators.settings import DEFAULT_ATOL, DEFAULT_RTOL  # noqa: E402
+from mbdfmu.model.reader import scene_from_dict  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+STIFFNESSES = (1e8, 1e9, 1e10, 1e11, 1e12)
+METHODS = ("auto", "dop853p")
+TARGET_K, TARGET_CPU = 1e10, 0.2
+
+
+def spring_pendulum(k: float):
+    return scene_from_dict({
+        "name": "StiffSpringPendulum", "gravity": [0.0, -9.81],
+        "body": [{"name": "bob", "mass": 1.0, "inertia": 1e-6, "position": [1.0, 0.0]}],
+        "force": [{"name": "rod", "type": "spring_damper", "body_i": "ground",
+                   "point_i": [0.0, 0.0], "body_j": "bob", "point_j": [0.0, 0.0],
+                   "stiffness": k, "damping": 0.0, "rest_length": 1.0}]})
+
+
+def run(k: float, method: str, t_end: float, interval: float):
+    scene = spring_pendulum(k)
+    start = time.process_time()
+    res = mbdfmu.simulate(scene, t_end=t_end, method=method, output_interval=interval)
+    cpu = time.process_time() - start
+    ex = pendulum(res.time, L=1.0, m=1.0, J=1e-6)
+    err = float(np.max(np.hypot(res["bob.x"] - ex["x"], res["bob.y"] - ex["y"])))
+    return cpu, err, res.method, res.stats.get("nsteps", 0)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--t-end", type=float, default=0.02)
+    ap.add_argument("--interval", type=float, default=1e-3)
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("-o", "--out", type=Path, default=ROOT / "docs/figures/performance")
+    args = ap.parse_args(argv)
+    tol = DEFAULT_RTOL * 1.0 + DEFAULT_ATOL
+    run(1e10, "auto", args.t_end, args.interval)        # imports and the kernel's first load
+    best = {}
+    for _ in range(args.repeat):
+        for k in STIFFNESSES:
+            for method in METHODS:
+                cpu, err, name, steps = run(k, method, args.t_end, args.interval)
+                old = best.get((k, method))
+                best[(k, method)] = (min(cpu, old[0]) if old else cpu, err, name, steps)
+    rows = []
+    for k in STIFFNESSES:
+        for method in METHODS:
+            cpu, err, name, steps = best[(k, method)]
+            rows.append({"k (N/m)": f"{k:g}", "method": name, "steps": steps,
+                         "CPU s": f"{cpu:.4g}", "CPU s per simulated s": f"{cpu / args.t_end:.3g}",
+                         "error (m)": f"{err:.2g}", "within tolerance": "yes" if err <= tol else "no"})
+    head = (f"`python benchmarks/stiff.py --t-end {args.t_end:g} --interval {args.interval:g} "
+            f"--repeat {args.repeat}`: spring pendulum (1 kg, rest length 1 m), t = 0..{args.t_end:g} s, "
+            f"outputs every {args.interval:g} s, default settings (rtol = {DEFAULT_RTOL:g}, "
+            f"atol = {DEFAULT_ATOL:g}: tolerance {tol:.3g} m); CPU time best of {args.repeat}; "
+            "error against the rigid pendulum's closed form.\n")
+    cols = list(rows[0])
+    table = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    table += ["| " + " | ".join(str(r[c]) for c in cols) + " |" for r in rows]
+    target = best[(TARGET_K, "auto")]
+    verdict = (f"\nTarget (k = {TARGET_K:g} under auto, CPU under {TARGET_CPU:g} s, error within "
+               f"tolerance): {target[2]} {target[0]:.4g} s, error {target[1]:.2g} m: "
+               + ("met" if target[0] < TARGET_CPU and target[1] <= tol else "not met") + ".\n")
+    text = head + "\n" + "\n".join(table) + "\n" + verdict
+    print(text)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "stiff.md").write_text(text)
+    with open(args.out / "stiff.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=cols)
+        writer.writeheader()
+        writer.writerows(rows)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
