@@ -9,10 +9,15 @@ cleanly (status 0) and the results agree with ``mbdfmu simulate`` at the same po
 (numpy kernel, as in the FMU): the largest difference relative to max(1, |value|) over all
 outputs, 1e-9 required (Ecos' command line writes 6 decimals: 1e-6 there).
 
-    python benchmarks/fmu_hosts_matrix.py [-o DIR] [--scenes a,b] [--write-docs]
+    python benchmarks/fmu_hosts_matrix.py [-o DIR] [--scenes a,b] [--fmi-version 3] [--write-docs]
 
 writes DIR/fmu_hosts_matrix.csv and prints the markdown table; ``--write-docs`` puts it into
-docs/fmu.md between its ``hosts-matrix`` markers. ``run HOST FMU T H OUT`` is one Python
+docs/fmu.md between its ``hosts-matrix`` markers (``hosts-matrix-fmi3`` for FMI 3.0).
+
+With ``--fmi-version 3`` the FMUs are FMI 3.0 and the hosts those that load FMI 3.0 (fmpy,
+ecospy, Ecos' command line); two more columns give the largest difference of the FMI 3.0
+FMU's results from the FMI 2.0 FMU's of the same scene in fmpy and in ecospy, 1e-12
+required. ``run HOST FMU T H OUT`` is one Python
 host's run (the command of a libcosim or ecospy cell).
 """
 
@@ -21,6 +26,7 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+import re
 import subprocess
 import sys
 import tempfile
@@ -33,6 +39,8 @@ sys.path[:0] = [str(ROOT / "tests")]
 
 STEPS = 50
 TOLERANCE = {"ecos CLI": 1e-6}
+FMI3_HOSTS = ("fmpy", "ecospy", "ecos CLI")
+SAME_AS_FMI2 = {"= FMI 2.0 (fmpy)": "fmpy_run", "= FMI 2.0 (ecospy)": "ecospy_run"}
 COMMANDS = {
     "fmpy": "fmpy simulate {fmu} --stop-time {T} --output-interval {h} --output-file out.csv",
     "libcosim": "python benchmarks/fmu_hosts_matrix.py run libcosim {fmu} {T} {h} out.csv",
@@ -103,7 +111,9 @@ def run_one(host: str, fmu: str, t_end: float, h: float, out: str) -> int:
 def read_columns(path: Path) -> dict[str, np.ndarray]:
     """A CSV of any host as columns by variable name (Ecos' "a::x[REAL]" becomes "x")."""
     lines = path.read_text().splitlines()
-    header = [n.strip().strip('"').split("::")[-1].split("[")[0] for n in lines[0].split(",")]
+    # (FMI 3.0 names such as der(u,2) hold a comma: split outside parentheses)
+    header = [n.strip().strip('"').split("::")[-1].split("[")[0]
+              for n in re.split(r",(?![^(]*\))", lines[0])]
     rows = [[x.strip() for x in line.split(",")] for line in lines[1:] if line.strip()]
     out = {}
     for i, name in enumerate(header):
@@ -171,40 +181,60 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("-o", "--out", type=Path, default=None)
     parser.add_argument("--scenes", default=None, help="comma-separated stems (default: all)")
+    parser.add_argument("--fmi-version", type=int, choices=[2, 3], default=2)
     parser.add_argument("--write-docs", action="store_true")
     args = parser.parse_args(argv)
+    v3 = args.fmi_version == 3
     out = args.out or Path(tempfile.mkdtemp(prefix="fmu_matrix_"))
     stems = args.scenes.split(",") if args.scenes else sorted(
         p.stem for p in (ROOT / "scenes").glob("*.toml"))
-    host_names = [h for h in COMMANDS if h != "checker" or hosts.CHECKER.exists()]
+    host_names = [h for h in COMMANDS if (h != "checker" or hosts.CHECKER.exists())
+                  and (not v3 or h in FMI3_HOSTS)]
     rows = []
     for stem in stems:
         scene = mbdfmu.load_scene(ROOT / "scenes" / f"{stem}.toml")
         h = 10.0 ** math.floor(math.log10(scene.simulation.t_end / 500))
         t_end = STEPS * h
-        fmu = build_fmu(ROOT / "scenes" / f"{stem}.toml", out / f"{stem}.fmu")
+        fmu = build_fmu(ROOT / "scenes" / f"{stem}.toml", out / f"{stem}.fmu",
+                        fmi_version=args.fmi_version)
         expected = mbdfmu.simulate(scene, t_end=t_end, output_interval=h, kernel="numpy")
         row = {"scene": stem, "T": t_end, "h": h}
         for host in host_names:
             r = cell(host, fmu, t_end, h, out / stem / host.replace(" ", "_"), expected)
             row[host] = mark(host, r, len(expected.time))
             print(stem, host, r, flush=True)
+        if v3:
+            row.update(same_as_fmi2(stem, fmu, out, t_end, h))
         rows.append(row)
     with open(out / "fmu_hosts_matrix.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    table = markdown(rows, host_names)
+    table = markdown(rows, host_names, list(SAME_AS_FMI2) if v3 else [])
     print(table)
     if args.write_docs:
-        write_docs(table)
+        write_docs(table, "hosts-matrix-fmi3" if v3 else "hosts-matrix")
     return 0
 
 
-def markdown(rows: list[dict], host_names: list[str]) -> str:
-    lines = ["| scene | T (s) | h (s) | " + " | ".join(host_names) + " |",
-             "|---|---|---|" + "---|" * len(host_names)]
-    lines += [f"| {r['scene']} | {r['T']:g} | {r['h']:g} | " + " | ".join(r[h] for h in host_names)
+def same_as_fmi2(stem: str, fmu3: Path, out: Path, t_end: float, h: float) -> dict:
+    """The FMI 3.0 FMU's results against the FMI 2.0 FMU's, in fmpy and in ecospy."""
+    from fmu_models import fmi3_host
+    from mbdfmu.fmu_build.scene_fmu import build_fmu
+    fmu2 = build_fmu(ROOT / "scenes" / f"{stem}.toml", out / f"{stem}_fmi2.fmu")
+    cells = {}
+    for column, runner in SAME_AS_FMI2.items():
+        run = getattr(fmi3_host, runner)
+        error = fmi3_host.largest_difference(run(fmu2, t_end, h), run(fmu3, t_end, h))
+        cells[column] = f"{'✔' if error <= 1e-12 else '✘'} {error:.0e}"
+    return cells
+
+
+def markdown(rows: list[dict], host_names: list[str], same: list[str] = ()) -> str:
+    columns = host_names + list(same)
+    lines = ["| scene | T (s) | h (s) | " + " | ".join(columns) + " |",
+             "|---|---|---|" + "---|" * len(columns)]
+    lines += [f"| {r['scene']} | {r['T']:g} | {r['h']:g} | " + " | ".join(r[h] for h in columns)
               + " |" for r in rows]
     lines += ["", "Each cell: ✔ when the FMU loaded, gave every point, the process exited with "
               "status 0 (the checker also: 0 warnings, 0 errors) and the largest difference "
@@ -212,13 +242,19 @@ def markdown(rows: list[dict], host_names: list[str]) -> str:
               "has 6 decimals). The command of a cell, with `{fmu}` = `<scene>.fmu` from "
               "`mbdfmu build scenes/<scene>.toml`:", ""]
     lines += [f"- {host}: `{COMMANDS[host]}`" for host in host_names]
+    if same:
+        lines += ["", "FMI 3.0 (`mbdfmu build --fmi-version 3`): the last columns give the "
+                  "largest difference of the FMI 3.0 FMU's results from the FMI 2.0 FMU's in "
+                  "that host, relative to max(1, |value|); ✔ within 1e-12."]
     return "\n".join(lines) + "\n"
 
 
-def write_docs(table: str) -> None:
+def write_docs(table: str, marker: str) -> None:
     doc = ROOT / "docs" / "fmu.md"
     text = doc.read_text()
-    start, end = "<!-- hosts-matrix: start -->\n", "<!-- hosts-matrix: end -->"
+    start, end = f"<!-- {marker}: start -->\n", f"<!-- {marker}: end -->"
+    if start not in text:
+        text += f"\n{start}{end}\n"
     before, _, rest = text.partition(start)
     _, _, after = rest.partition(end)
     doc.write_text(before + start + table + end + after)

@@ -15,6 +15,7 @@ Needs pythonfmu 0.7 (``pip install pythonfmu``) and a C compiler.
 from __future__ import annotations
 
 import argparse
+import importlib
 import csv
 import sys
 import tempfile
@@ -33,14 +34,7 @@ import numpy as np
 from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Real
 
 
-def transition(m, k, c, h):
-    w0 = math.sqrt(k / m)
-    zeta = c / (2.0 * math.sqrt(k * m))
-    wd = w0 * math.sqrt(1.0 - zeta * zeta)
-    decay = math.exp(-zeta * w0 * h)
-    cos, sin = math.cos(wd * h), math.sin(wd * h)
-    return decay * np.array([[cos + zeta * w0 / wd * sin, sin / wd],
-                             [-w0 * w0 / wd * sin, cos - zeta * w0 / wd * sin]])
+#TRANSITION#
 
 
 class MassSpringPy(Fmi2Slave):
@@ -67,6 +61,9 @@ class MassSpringPy(Fmi2Slave):
         self.x, self.v = float(self.state[0]), float(self.state[1])
         return True
 '''
+# the toy's own exact step, so both runtimes step the same model
+PYTHONFMU_SOURCE = PYTHONFMU_SOURCE.replace(
+    "#TRANSITION#", importlib.import_module("fmu_models.toy").transition_source())
 
 
 def build_both(folder: Path) -> dict[str, Path]:

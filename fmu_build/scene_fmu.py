@@ -1,5 +1,5 @@
-"""Turn a scene into an FMI 2.0 co-simulation FMU on the native runtime:
-``build_fmu(scene_path, output=None, parameters=None)``.
+"""Turn a scene into an FMI 2.0 (or 3.0) co-simulation FMU on the native runtime:
+``build_fmu(scene_path, output=None, parameters=None, fmi_version=2)``.
 
 The FMU (``package.write_fmu``) holds the native wrapper, the runtime package, and under
 ``resources/``:
@@ -35,8 +35,9 @@ from ..integrators.settings import settings_from_scene
 from ..model.reader import resolve_scene_path, scene_from_dict
 from ..model.scene import Body, SpringDamper
 from ..model.toml_table import load_toml, tomllib
-from ..model.variables import (GLOBAL_OUTPUTS, TABLES, input_layout, inputs, parameters,
-                               selected_outputs)
+from ..model.variables import (GLOBAL_OUTPUTS, TABLES, input_layout, inputs, outputs,
+                               parameters, selected_outputs)
+from . import osp
 from .common import BuildError, digest, fill_template, write_checked
 from .model_description import Capabilities, DefaultExperiment, ModelInfo
 from .runtime.variables import Variable
@@ -99,12 +100,56 @@ def kinematic_outputs(scene) -> set[str]:
     return names | {v.name for v in GLOBAL_OUTPUTS}
 
 
+# A body's continuous states (its coordinates q, then velocities q'), each velocity the
+# derivative of its coordinate, and the accelerations (derivatives of the velocities).
+COORDINATES, VELOCITIES = ("x", "y", "phi"), ("vx", "vy", "omega")
+ACCELERATIONS = (("ax", "m/s2", "x acceleration of {b}'s centre of mass"),
+                 ("ay", "m/s2", "y acceleration of {b}'s centre of mass"),
+                 ("alpha", "rad/s2", "angular acceleration of {b}"))
+
+
+def state_names(scene) -> tuple[list[str], list[str]]:
+    """(states, their derivatives) in FMI's order: per body x, y, phi, vx, vy, omega with
+    derivatives vx, vy, omega, ax, ay, alpha (``ModelStructure/Derivatives``)."""
+    states, derivatives = [], []
+    for b in scene.bodies:
+        states += [f"{b.name}.{c}" for c in COORDINATES + VELOCITIES]
+        derivatives += [f"{b.name}.{c}" for c in VELOCITIES + tuple(a[0] for a in ACCELERATIONS)]
+    return states, derivatives
+
+
+def _with_states(scene, rows: list[dict]) -> list[dict]:
+    """``rows`` with the continuous states exposed for directional derivatives (docs/fmu.md):
+    the body state outputs become states (``derivative`` attributes), states the scene does
+    not output and the accelerations are calculated locals (depending on every known);
+    outputs that are not states depend on every state and on no input (no direct
+    feedthrough)."""
+    states, derivatives = state_names(scene)
+    of = dict(zip(derivatives, states))
+    named = {r["name"]: r for r in rows}
+    body = {v.name: v for v in outputs(scene) if v.name in set(states)}
+    rows = rows + [dict(name=n, unit=body[n].unit, description=body[n].description,
+                        causality="local", initial="calculated") for n in states if n not in named]
+    rows += [dict(name=f"{b.name}.{a}", unit=unit, description=text.format(b=b.name),
+                  causality="local", initial="calculated")
+             for b in scene.bodies for a, unit, text in ACCELERATIONS]
+    accelerations = {f"{b.name}.{a[0]}" for b in scene.bodies for a in ACCELERATIONS}
+    for r in rows:
+        if r["name"] in of:        # a velocity (depends on itself) or an acceleration
+            r["derivative"] = of[r["name"]]
+            r["dependencies"] = None if r["name"] in accelerations else ()   # None: every known
+        elif r["causality"] == "output" and r["name"] not in states:
+            r["dependencies"] = tuple(states)
+    return rows
+
+
 def variable_table(scene) -> list[Variable]:
     """Every variable of the scene's FMU in value-reference order: parameters (start values
     as in ``scene``), solver parameters, inputs, outputs (``initial="calculated"``; no
     direct feedthrough: inputs reach the outputs at the next fmi2DoStep; in Initialization
     Mode kinematic outputs depend on the parameters and driver inputs, the others on every
-    known)."""
+    known), then the states the scene does not output and the accelerations
+    (``_with_states``)."""
     rows = [dict(name=p.name, start=p.value, unit=p.unit, description=p.description,
                  causality="parameter") for p in parameters(scene)]
     rows += [dict(name=n, type=t, unit=u, start=start, description=d, causality="parameter")
@@ -121,7 +166,7 @@ def variable_table(scene) -> list[Variable]:
                   initial="calculated", dependencies=(),
                   initial_dependencies=assembly if v.name in kinematic else None)
              for v in select_outputs(scene)]
-    return [Variable(value_reference=k, **row) for k, row in enumerate(rows)]
+    return [Variable(value_reference=k, **row) for k, row in enumerate(_with_states(scene, rows))]
 
 
 def shipped_files(package_dir: Path) -> list[Path]:
@@ -189,27 +234,36 @@ def _load(scene_path, values: dict[str, float] | None):
     return scene_path, data, text, scene
 
 
-def build_fmu(scene_path, output=None, parameters: dict[str, float] | None = None) -> Path:
+def build_fmu(scene_path, output=None, parameters: dict[str, float] | None = None,
+              fmi_version: int = 2) -> Path:
     """Build the FMU of a scene file (or a shipped scene's name); returns its path (default
     ``<Model>.fmu`` in the cwd). ``parameters``: start values baked into the FMU
-    (``{"crank.mass": 0.3}``; names and ranges as ``mbdfmu.with_parameters`` checks them)."""
+    (``{"crank.mass": 0.3}``; names and ranges as ``mbdfmu.with_parameters`` checks them);
+    ``fmi_version``: 2 (FMI 2.0) or 3 (FMI 3.0, the same variables and behaviour)."""
     scene_path, data, text, scene = _load(scene_path, parameters)
     table = variable_table(scene)
     core, core_files = _core_files()
     outputs_ = tuple(v.name for v in table if v.causality == "output")
+    states, derivatives = state_names(scene)
     source = fill_template(TEMPLATE, {"CORE_PACKAGE": core, "SCENE_FILE": "scene.json",
-                                      "OUTPUTS": outputs_, "KERNEL_FILE": KERNEL_FILE})
+                                      "OUTPUTS": outputs_, "STATES": tuple(states),
+                                      "ACCELERATIONS": tuple(d for d in derivatives
+                                                             if d not in states),
+                                      "KERNEL_FILE": KERNEL_FILE})
     run = scene.simulation
     settings = settings_from_scene(scene)
     experiment = DefaultExperiment(0.0, run.t_end, settings.output_interval_for(run.t_end),
                                    run.rtol)
     info = ModelInfo(description=scene.description, author=scene.author or "mbdfmu",
                      version=scene.version or __version__,
-                     generation_tool=f"mbdfmu {__version__} (native FMI 2.0 runtime)")
+                     generation_tool=f"mbdfmu {__version__} (native FMI {fmi_version}.0 runtime)")
     resources = {**core_files, "scene.toml": text.encode(),
                  "scene.json": json.dumps(data, indent=1, sort_keys=True).encode(),
                  **shipped_kernel()}
-    capabilities = Capabilities(can_interpolate_inputs=True, max_output_derivative_order=2)
+    capabilities = Capabilities(can_interpolate_inputs=True, max_output_derivative_order=2,
+                                provides_directional_derivative=True)
+    ports = osp.scene_ports(scene, set(outputs_))
     return write_checked(output, scene.name, table, source, info=info,
                          default_experiment=experiment, extra_resources=resources,
-                         capabilities=capabilities)
+                         capabilities=capabilities, fmi_version=fmi_version,
+                         extra_files=osp.extra_files(ports))

@@ -355,3 +355,11 @@ def test_cli_builds_a_companion_source(tmp_path, capsys):
 def test_bad_cosim_settings_are_refused_before_any_work(settings, words):
     with pytest.raises(SettingError, match=words):
         CosimSettings(**settings)
+
+
+def test_cli_build_writes_the_power_ports_beside_the_fmu(tmp_path, capsys):
+    source = SCENARIOS / "hydraulic_crane" / "hydraulic_cylinder.py"
+    assert main(["build", str(source), "-o", str(tmp_path / "cyl.fmu")]) == 0
+    assert capsys.readouterr().out.strip() == str(tmp_path / "cyl.fmu")
+    beside = (tmp_path / "cyl_OspModelDescription.xml").read_text()
+    assert '<LinearMechanicalPort name="rod">' in beside and 'ref="rate"' in beside

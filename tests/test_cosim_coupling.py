@@ -146,13 +146,53 @@ def test_a_bad_extrapolation_setting_is_refused():
 # ----------------------------------------------------------------------------- implicit
 
 def test_the_implicit_coupling_keeps_the_crane_at_50_ms_where_jacobi_fails(built):
+    """With either interface Jacobian: from finite differences of whole steps, and from
+    the FMUs' directional derivatives, which gives the same converged steps (both iterate
+    to 1e-8 of each output's scale) without the extra steps."""
     scenario, fmus = built("hydraulic_crane")
     with pytest.raises(CosimError, match="doStep returned discard"):
         run_fmpy(scenario, fmus, CosimSettings(algorithm="jacobi", step=5e-2, t_end=1.0))
-    r = run_fmpy(scenario, fmus, CosimSettings(algorithm="implicit", step=5e-2, t_end=1.0))
-    assert r.time[-1] == pytest.approx(1.0)
-    assert _error(scenario, r, ["mechanism.boom.phi", "mechanism.load.phi"]) < 0.03
-    assert r.stats["iterations"] >= r.stats["steps"]
+    settings = dict(algorithm="implicit", step=5e-2, t_end=1.0)
+    fd = run_fmpy(scenario, fmus, CosimSettings(**settings))
+    assert fd.time[-1] == pytest.approx(1.0)
+    assert _error(scenario, fd, ["mechanism.boom.phi", "mechanism.load.phi"]) < 0.03
+    assert fd.stats["iterations"] >= fd.stats["steps"]
+    dd = run_fmpy(scenario, fmus, CosimSettings(**settings, jacobian="directional"))
+    assert dd.time[-1] == pytest.approx(1.0)
+    assert _error(scenario, dd, ["mechanism.boom.phi", "mechanism.load.phi"]) < 0.03
+    for name in ("mechanism.boom.phi", "mechanism.load.phi", "hydraulics.p_A"):
+        assert np.abs(dd[name] - fd[name]).max() < 1e-6 * np.abs(fd[name]).max(), name
+    assert dd.stats["jacobians"] == dd.stats["steps"] and "fallbacks" not in dd.stats
+
+
+@pytest.mark.parametrize("name", ["two_mass_oscillator", "two_mass_oscillator:dd"])
+def test_the_directional_jacobian_is_exact_for_linear_fmus(name, built):
+    """The oscillator FMUs are linear and integrate exactly: the Jacobian of the linearized
+    step is the step's own, so Newton's first update lands on the solution (two
+    evaluations per step: the guess and the converged one)."""
+    scenario, fmus = built(name)
+    r = run_fmpy(scenario, fmus, CosimSettings(algorithm="implicit", step=0.02, t_end=0.4,
+                                               jacobian="directional"))
+    assert r.stats["iterations"] == 2 * r.stats["steps"] == 40
+
+
+def test_step_sensitivity_is_the_closed_form_of_a_scalar_linear_system():
+    from mbdfmu.cosim.interface_jacobian import step_sensitivity
+
+    a, b, h = -30.0, 2.5, 0.05
+    ramp = b / (a * a * h) * (math.exp(a * h) - 1 - a * h)   # int e^{a(h-s)} b s/h ds
+    hold = b / a * (math.exp(a * h) - 1)
+    got_ramp = step_sensitivity(np.array([[a]]), np.array([[b]]), h, ramp=True)
+    got_hold = step_sensitivity(np.array([[a]]), np.array([[b]]), h, ramp=False)
+    assert got_ramp[0, 0] == pytest.approx(ramp, rel=1e-12)
+    assert got_hold[0, 0] == pytest.approx(hold, rel=1e-12)
+
+
+def test_the_directional_jacobian_is_an_option_of_the_implicit_coupling_only():
+    with pytest.raises(SettingError, match="interface Jacobian is the implicit"):
+        CosimSettings(algorithm="jacobi", jacobian="directional")
+    with pytest.raises(SettingError, match="jacobian"):
+        CosimSettings(algorithm="implicit", jacobian="exact")
 
 
 # ----------------------------------------------------------------------------- two masses
@@ -212,6 +252,74 @@ def test_ecco_runs_the_quarter_car_in_libcosim(built):
     assert len(set(np.round(np.diff(r.time), 9))) > 3          # the step varies
     assert _error(scenario, r) < 0.05
     assert np.all(np.isfinite(r[RESIDUAL]))
+
+
+@pytest.mark.parametrize("name", ["quarter_car", "hydraulic_crane"])
+def test_the_ecco_configuration_comes_from_the_fmus_power_ports(name, built, tmp_path):
+    """The bond found from the ports the FMUs declare (extra/OspModelDescription.xml) is the
+    one the scenario names by hand in [power_bonds]; the OspSystemStructure.xml written
+    for it marks those two connections, and libcosim runs ECCO from it."""
+    pytest.importorskip("libcosimpy")
+    import xml.etree.ElementTree as ET
+
+    from mbdfmu.cosim.ecco_config import NAMESPACE, find_bond
+    from mbdfmu.cosim.ecco_runner import RESIDUAL, run_ecco
+
+    scenario, fmus = built(name)
+    bond = find_bond(scenario, fmus)
+    assert bond.as_table() == {k: tuple(v) for k, v in scenario.power_bonds.items()}
+    path = tmp_path / "OspSystemStructure.xml"
+    r = run_ecco(scenario, fmus, step=2e-3, t_end=0.1, rtol=1e-2, atol=1e-2, structure=path)
+    marked = [c for c in ET.parse(path).getroot().iter(f"{{{NAMESPACE}}}VariableConnection")
+              if c.get("powerBond")]
+    ends = [tuple(f'{v.get("simulator")}.{v.get("name")}' for v in c) for c in marked]
+    assert ends == bond.connections()
+    assert r.time[-1] == pytest.approx(0.1, abs=2e-2)    # within its largest step (10 h)
+    assert np.all(np.isfinite(r[RESIDUAL]))
+
+
+def test_ecco_needs_one_bond_of_the_fmus_ports(built):
+    """Displacement-displacement coupling connects no force to a velocity: no bond; a
+    scenario table that names another bond than the FMUs' is refused."""
+    from dataclasses import replace
+
+    from mbdfmu.cosim.ecco_config import check_scenario_table, find_bond
+
+    scenario, fmus = built("two_mass_oscillator:dd")
+    with pytest.raises(CosimError, match="needs exactly one power bond .* found 0; the FMUs' "
+                                         "ports: mass1: mass, coupling"):
+        find_bond(scenario, fmus)
+    scenario, fmus = built("two_mass_oscillator")
+    bond = find_bond(scenario, fmus)
+    assert bond.as_table() == {"mass2": ("force", "v"), "mass1": ("v_other", "coupling_force")}
+    wrong = replace(scenario, power_bonds={"mass2": ["force", "x"],
+                                           "mass1": ["v_other", "coupling_force"]})
+    with pytest.raises(CosimError, match="is not the bond the FMUs declare"):
+        check_scenario_table(wrong, bond)
+
+
+def test_the_fmus_declare_their_power_ports(built):
+    from mbdfmu.fmu_build.osp import Port, read_ports
+
+    _, fmus = built("hydraulic_crane")
+    assert read_ports(fmus["mechanism"]) == [Port("cylinder", "cylinder.actuator",
+                                                  "cylinder.velocity", "N")]
+    assert read_ports(fmus["hydraulics"]) == [Port("rod", "force", "rate", "N")]
+    assert read_ports(fmus["command"]) == []
+    _, fmus = built("dc_motor_slider_crank")
+    assert Port("shaft", "torque", "speed", "N.m") in read_ports(fmus["motor"])
+
+
+def test_a_power_port_must_pair_an_effort_with_its_flow(tmp_path):
+    from mbdfmu.fmu_build.common import BuildError
+    from mbdfmu.fmu_build.companion import build_companion
+
+    source = (SCENARIOS / "hydraulic_crane" / "hydraulic_cylinder.py").read_text()
+    bad = tmp_path / "bad_cylinder.py"
+    bad.write_text(source.replace('POWER_PORTS = {"rod": ("force", "rate")}',
+                                  'POWER_PORTS = {"rod": ("force", "p_A")}'))
+    with pytest.raises(BuildError, match='power port "rod": "force" \\(N\\) and "p_A"'):
+        build_companion(bad, tmp_path / "bad.fmu")
 
 
 def test_a_power_bond_must_follow_the_connections(tmp_path):

@@ -249,9 +249,18 @@ def test_the_model_description_declares_dependencies_and_initial_unknowns(scene_
     outputs = [v for v in md.modelVariables if v.causality == "output"]
     assert outputs and all(v.initial == "calculated" and v.start is None for v in outputs)
     assert [u.variable.name for u in md.outputs] == [v.name for v in outputs]
-    assert all(u.dependencies == [] for u in md.outputs)          # no direct feedthrough
-    assert [u.variable.name for u in md.initialUnknowns] == [v.name for v in outputs]
-    assert text.count('dependencies=""') == len(outputs)
+    # no direct feedthrough: outputs depend on the exposed states only, body states on none
+    states = {v.derivative.name for v in md.modelVariables if v.derivative is not None}
+    assert all({d.name for d in u.dependencies} <= states for u in md.outputs)
+    assert all(u.dependencies == [] for u in md.outputs if u.variable.name in states)
+    locals_ = [v.name for v in md.modelVariables if v.causality == "local"]
+    assert locals_ == ["crank.ax", "crank.ay", "crank.alpha", "rod.ax", "rod.ay", "rod.alpha",
+                       "slider.ax", "slider.ay", "slider.alpha"]
+    assert [u.variable.name for u in md.initialUnknowns] == [v.name for v in outputs] + locals_
+    assert [u.variable.name for u in md.derivatives] == [   # in value-reference order
+        f"{b}.{c}" for b in ("crank", "rod", "slider") for c in ("vx", "vy", "omega")] + locals_
+    # the body-state outputs and, in Derivatives, the velocities (derivatives of positions)
+    assert text.count('dependencies=""') == len(states) + len(states) // 2
     assert config["python_library"]       # hosts without Python load this libpython
 
 

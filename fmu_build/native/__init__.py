@@ -1,11 +1,13 @@
-"""Compile ``fmi2.c`` into the binary every mbdfmu FMU ships (``binaries/linux64/<id>.so``).
+"""Compile the wrapper every mbdfmu FMU ships (``binaries/linux64/<id>.so``): ``fmi2.c``
+for FMI 2.0 FMUs, ``fmi3.c`` for FMI 3.0 ones, both on ``bridge.h`` (finding Python, the
+call protocol with the runtime, states).
 
-The binary holds nothing model-specific, so it is compiled once per source, headers,
-compiler and flags, and cached: ``compile_wrapper()`` returns the cached file when the key
-(a SHA-256 of all four) has been built before.
+The binary holds nothing model-specific, so it is compiled once per FMI version, source,
+headers, compiler and flags, and cached: ``compile_wrapper()`` returns the cached file
+when the key (a SHA-256 of all of them) has been built before.
 
-The FMI 2.0 headers come from fmpy (``fmpy/c-code``), which mbdfmu depends on anyway;
-they are not copied into this repository.
+The FMI headers come from fmpy (``fmpy/c-code``), which mbdfmu depends on anyway; they
+are not copied into this repository.
 """
 
 from __future__ import annotations
@@ -18,9 +20,13 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-SOURCE = Path(__file__).with_name("fmi2.c")
-HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
-# -fvisibility=hidden: only the fmi2* functions (marked FMI2_Export) are exported.
+HERE = Path(__file__).resolve().parent
+SOURCES = {2: HERE / "fmi2.c", 3: HERE / "fmi3.c"}
+BRIDGE = HERE / "bridge.h"
+HEADERS = {2: ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"),
+           3: ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h")}
+# -fvisibility=hidden: only the fmi2*/fmi3* functions (marked FMI2_Export/FMI3_Export) are
+# exported.
 # --no-undefined: proves the binary needs nothing beyond libc and libdl (no libpython).
 FLAGS = ("-shared", "-fPIC", "-O2", "-std=gnu11", "-Wall", "-Wextra", "-fvisibility=hidden",
          "-Wl,--no-undefined")
@@ -51,45 +57,50 @@ def find_compiler() -> str:
                        "(Debian/Ubuntu: apt-get install gcc) or set CC to its path")
 
 
-def header_dir() -> Path:
+def header_dir(fmi_version: int = 2) -> Path:
     """fmpy's folder of FMI headers; CompileError if fmpy is not installed."""
     spec = importlib.util.find_spec("fmpy")
     if spec is None or not spec.submodule_search_locations:
-        raise CompileError("the FMI 2.0 headers come from fmpy, which is not installed: "
-                           "pip install fmpy")
+        raise CompileError(f"the FMI {fmi_version}.0 headers come from fmpy, which is not "
+                           "installed: pip install fmpy")
     folder = Path(list(spec.submodule_search_locations)[0]) / "c-code"
-    missing = [h for h in HEADERS if not (folder / h).is_file()]
+    missing = [h for h in HEADERS[fmi_version] if not (folder / h).is_file()]
     if missing:
         raise CompileError(f"fmpy's {folder} lacks {', '.join(missing)}: reinstall fmpy")
     return folder
 
 
-def cache_key(compiler: str, headers: Path) -> str:
-    """SHA-256 over the source, the headers, the compiler's identity and the flags."""
+def cache_key(compiler: str, headers: Path, fmi_version: int = 2) -> str:
+    """SHA-256 over the sources, the headers, the compiler's identity and the flags."""
     digest = hashlib.sha256()
-    for path in (SOURCE, *(headers / h for h in HEADERS)):
+    for path in (SOURCES[fmi_version], BRIDGE, *(headers / h for h in HEADERS[fmi_version])):
         digest.update(path.read_bytes())
     version = subprocess.run([compiler, "--version"], capture_output=True, text=True).stdout
     digest.update(f"{compiler}\n{version}\n{FLAGS}\n{LIBS}".encode())
     return digest.hexdigest()
 
 
-def compile_wrapper(cache_dir: str | os.PathLike | None = None) -> Path:
-    """The compiled wrapper, built now or taken from ``cache_dir`` (see ``default_cache_dir``)."""
+def compile_wrapper(cache_dir: str | os.PathLike | None = None, fmi_version: int = 2) -> Path:
+    """The compiled wrapper of FMI version ``fmi_version`` (2 or 3), built now or taken from
+    ``cache_dir`` (see ``default_cache_dir``)."""
+    if fmi_version not in SOURCES:
+        raise CompileError(f"FMI version {fmi_version!r}: mbdfmu builds FMI 2.0 and 3.0 FMUs")
     compiler = find_compiler()
-    headers = header_dir()
-    key = cache_key(compiler, headers)
+    headers = header_dir(fmi_version)
+    key = cache_key(compiler, headers, fmi_version)
     folder = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    target = folder / f"mbdfmu-fmi2-{key[:24]}.so"
+    target = folder / f"mbdfmu-fmi{fmi_version}-{key[:24]}.so"
     if target.is_file():
         return target
     folder.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=folder) as tmp:
         built = Path(tmp) / target.name
-        command = [compiler, *FLAGS, f"-I{headers}", "-o", str(built), str(SOURCE), *LIBS]
+        source = SOURCES[fmi_version]
+        command = [compiler, *FLAGS, f"-I{headers}", f"-I{HERE}", "-o", str(built), str(source),
+                   *LIBS]
         run = subprocess.run(command, capture_output=True, text=True)
         if run.returncode != 0:
             first = (run.stderr.strip().splitlines() or ["(no output)"])[0]
-            raise CompileError(f"compiling {SOURCE.name} failed: {first}")
+            raise CompileError(f"compiling {source.name} failed: {first}")
         os.replace(built, target)   # atomic: a concurrent build never sees half a file
     return target

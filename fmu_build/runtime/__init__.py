@@ -39,7 +39,9 @@ def instantiate(resources_dir: str, config: dict, instance_name: str, guid: str,
                 logging_on: bool):
     """A new slave of the FMU described by ``config``, or (None, the reason)."""
     if guid != config["guid"]:
-        return None, (f"fmi2Instantiate: GUID {guid!r} is not this FMU's {config['guid']!r} "
+        function, what = (("fmi3InstantiateCoSimulation", "instantiation token")
+                          if config.get("fmi_version") == 3 else ("fmi2Instantiate", "GUID"))
+        return None, (f"{function}: {what} {guid!r} is not this FMU's {config['guid']!r} "
                       "(the model description and the resources come from different builds)")
     module = load_package(resources_dir, config["model_module"], parent=__name__)
     cls = getattr(module, config.get("model_class", "Model"), None)
@@ -49,5 +51,5 @@ def instantiate(resources_dir: str, config: dict, instance_name: str, guid: str,
     table = VariableTable([Variable.from_dict(d) for d in config["variables"]])
     start = float(config.get("default_experiment", {}).get("start_time", 0.0))
     slave = cls(instance_name, guid, resources_dir, table, config.get("log_categories", {}),
-                bool(logging_on), start)
+                bool(logging_on), start, fmi_version=int(config.get("fmi_version", 2)))
     return slave, None

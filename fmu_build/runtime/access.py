@@ -21,13 +21,22 @@ import math
 
 from . import status
 from .machine import State
-from .variables import INT32_MAX, INT32_MIN, Variable
+from .variables import FMI3_EMPTY, FMI3_TYPES, INT32_MAX, INT32_MIN, Variable
+
+
+def _with_fmi3_names(table: dict, other) -> dict:
+    """``table`` (by FMI 2.0 type name) also under FMI 3.0's names; ``other`` for the FMI
+    3.0 types the runtime has no variables of (never used: every reference of them fails)."""
+    return {**table, **{alias: table[t] for alias, t in FMI3_TYPES.items()},
+            **{t: other for t in FMI3_EMPTY}}
+
 
 # Placeholder returned for a get entry that was skipped.
-SKIPPED = {"Real": math.nan, "Integer": 0, "Boolean": False, "String": b""}
+SKIPPED = _with_fmi3_names({"Real": math.nan, "Integer": 0, "Boolean": False, "String": b""},
+                           None)
 # Causalities the host never sets, as messages name them.
 NOT_SETTABLE = {"output": "an output", "calculatedParameter": "a calculated parameter",
-                "local": "a local variable"}
+                "local": "a local variable", "independent": "the independent variable"}
 
 
 def settable_problem(v: Variable, state: str) -> str | None:
@@ -56,7 +65,8 @@ def _utf8(value) -> bytes:
 
 
 # A value as the C wrapper copies it into the caller's array, per FMI type.
-TO_C = {"Real": float, "Integer": _int32, "Boolean": bool, "String": _utf8}
+TO_C = _with_fmi3_names({"Real": float, "Integer": _int32, "Boolean": bool, "String": _utf8},
+                        float)
 
 
 def _from_utf8(value) -> str:
@@ -65,7 +75,8 @@ def _from_utf8(value) -> str:
 
 # The host's value as held in ``Slave.values``, per FMI type. The wrapper passes fmi2Real
 # as float, fmi2Integer and fmi2Boolean as int, fmi2String as bytes (without the NUL).
-FROM_C = {"Real": float, "Integer": int, "Boolean": bool, "String": _from_utf8}
+FROM_C = _with_fmi3_names({"Real": float, "Integer": int, "Boolean": bool,
+                          "String": _from_utf8}, float)
 
 
 def get_values(slave, type_name: str, vrs) -> tuple[int, tuple]:
@@ -115,7 +126,7 @@ def fast_set(slave, type_name: str, vrs, new_values) -> bool:
     if names is None:
         names = settable_names(table, slave._fmi_state, type_name)
     try:
-        if type_name == "Real" and not all(map(math.isfinite, new_values)):
+        if type_name in ("Real", "Float64") and not all(map(math.isfinite, new_values)):
             return False
         convert = FROM_C[type_name]
         pairs = [(names[vr], convert(x)) for vr, x in zip(vrs, new_values)]
@@ -140,7 +151,7 @@ def set_values(slave, type_name: str, vrs, new_values) -> int:
                 value = FROM_C[type_name](raw)
             except (TypeError, ValueError) as exc:
                 value, reason = None, f'"{v.name}": {exc}'
-            if reason is None and type_name == "Real" and not math.isfinite(value):
+            if reason is None and v.type == "Real" and not math.isfinite(value):
                 reason, worst = f'"{v.name}" = {value} is not finite; value not applied', status.DISCARD
         if reason is None:
             values[v.name] = slave.set_since_step[v.name] = value

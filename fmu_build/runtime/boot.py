@@ -26,6 +26,11 @@ CONFIG_FILE = "mbdfmu.json"
 ENV_PYTHONPATH = "MBDFMU_PYTHONPATH"
 
 
+def instantiating(config: dict) -> str:
+    """The FMI function that instantiates an FMU of this config (for messages)."""
+    return "fmi3InstantiateCoSimulation" if config.get("fmi_version") == 3 else "fmi2Instantiate"
+
+
 def boot(resources_dir: str, instance_name: str, guid: str, logging_on: bool,
          own_interpreter: bool):
     """``(slave, "")`` for the FMU in ``resources_dir``, or ``(None, the reason in one line)``."""
@@ -33,7 +38,7 @@ def boot(resources_dir: str, instance_name: str, guid: str, logging_on: bool,
         with open(os.path.join(resources_dir, CONFIG_FILE), encoding="utf-8") as f:
             config = json.load(f)
     except (OSError, ValueError) as exc:
-        return None, f"fmi2Instantiate: cannot read the FMU's {CONFIG_FILE}: {exc}"
+        return None, f"Instantiate: cannot read the FMU's {CONFIG_FILE}: {exc}"
     try:
         prepare_path(config, own_interpreter)
         runtime = load_runtime(resources_dir, config["runtime_package"])
@@ -42,7 +47,7 @@ def boot(resources_dir: str, instance_name: str, guid: str, logging_on: bool,
     except ImportError as exc:
         return None, missing_module(exc, config)
     except BaseException as exc:  # noqa: B902 - the host must get a message, not a crash
-        return None, f"fmi2Instantiate: {type(exc).__name__}: {exc}"
+        return None, f"{instantiating(config)}: {type(exc).__name__}: {exc}"
 
 
 def prepare_path(config: dict, own_interpreter: bool) -> None:
@@ -88,10 +93,10 @@ def missing_module(exc: ImportError, config: dict) -> str:
     name = exc.name or "a required module"
     version = ".".join(map(str, sys.version_info[:3]))
     if name.split(".")[0] in getattr(sys, "stdlib_module_names", ()):
-        return (f"fmi2Instantiate: Python {version} cannot import its standard module '{name}' "
+        return (f"{instantiating(config)}: Python {version} cannot import its standard module '{name}' "
                 f"(prefix {sys.prefix}): its standard library was not found; set "
                 "MBDFMU_PYTHON_HOME (or PYTHONHOME) to that Python's sys.base_prefix")
-    return (f"fmi2Instantiate: the FMU's Python code needs '{name}', which Python {version} "
+    return (f"{instantiating(config)}: the FMU's Python code needs '{name}', which Python {version} "
             f"(prefix {sys.prefix}) cannot import ({exc}); install it into that Python "
             f"(python{sys.version_info[0]}.{sys.version_info[1]} -m pip install {name.split('.')[0]}) "
             f"or set {ENV_PYTHONPATH} to a folder that has it (the FMU was built with Python "

@@ -17,6 +17,9 @@ and defines one subclass of ``CompanionSlave`` with
 4. ``outputs(state)``: every output by name, from the state, ``self.values`` and
    ``self.time`` (an output that reads an input is direct feedthrough).
 
+A class that also defines ``rates(state)`` (the state's time derivative at ``self.time``)
+exposes its continuous states and provides directional derivatives (``companion_states``).
+
 Derivatives (docs/fmu.md, "Derivatives"): every companion FMU gives the first and second
 time derivatives of its outputs (``maxOutputDerivativeOrder`` 2), by default from one-sided
 differences of ``outputs`` along ``step`` (``DERIVATIVE_STEP``), or exactly where the class
@@ -37,6 +40,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+from . import companion_states
 from .slave import Slave
 from .status import Discard, FmiError
 
@@ -144,6 +148,8 @@ class CompanionModel(Slave):
 
     COMPANION: type[CompanionSlave] = CompanionSlave
     OUTPUTS: tuple[str, ...] = ()
+    # state key -> its variable (an output of that name, or a local), with rates() only
+    STATE_VARIABLES: dict[str, str] = {}
 
     def setup(self):
         self.companion = self.COMPANION(self)
@@ -182,11 +188,13 @@ class CompanionModel(Slave):
             self.pending.setdefault(name, {})[order] = float(value)
 
     def _anchor_inputs(self, time):
-        """Inputs set (or given derivatives) since the last step start their polynomial now."""
+        """Inputs set (or given derivatives) since the last step start their polynomial now
+        (FMI 3.0's derivative inputs are not inputs of the companion)."""
         for name in set(self.set_since_step) | set(self.pending):
             if name in self.pending and name not in self.set_since_step:
                 self.values[name] = self.input_at(name, time)
-            if self.variables.by_name[name].causality == "input":
+            variable = self.variables.by_name[name]
+            if variable.causality == "input" and variable.derivative is None:
                 given = self.pending.get(name, {})
                 top = max(given, default=0)
                 self.taylor[name] = [time] + [given.get(k, 0.0) for k in range(1, top + 1)]
@@ -228,6 +236,18 @@ class CompanionModel(Slave):
     def calculate(self):
         out = self.companion.outputs(self.state)
         self.values.update({name: float(out[name]) for name in self.OUTPUTS})
+        if self.STATE_VARIABLES:
+            self.values.update({v: self.state[k] for k, v in self.STATE_VARIABLES.items()})
+            rates = self.companion.rates(self.state)
+            self.values.update({companion_states.derivative_name(v): float(rates[k])
+                                for k, v in self.STATE_VARIABLES.items()})
+
+    def directional_derivative(self, unknowns, knowns, seeds):
+        if not self.STATE_VARIABLES:
+            return super().directional_derivative(unknowns, knowns, seeds)
+        if self.state is None:
+            raise FmiError("directional derivatives are given after initialization")
+        return companion_states.directional(self, unknowns, knowns, seeds)
 
     def step(self, time, step_size):
         self._anchor_inputs(float(time))

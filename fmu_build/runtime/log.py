@@ -40,7 +40,8 @@ class LogQueue:
     length after each call (cheap) and calls ``take`` only when it is not empty.
     """
 
-    def __init__(self, model_categories: dict[str, str], logging_on: bool):
+    def __init__(self, model_categories: dict[str, str], logging_on: bool, translate=None):
+        self.translate = translate      # FMI 3.0: names in messages (fmi3.fmi3_text)
         self.categories = {**STANDARD_CATEGORIES, **model_categories}
         self.debug = set(self.categories) - set(STATUS_CATEGORIES.values())
         self.enabled = set(STATUS_CATEGORIES.values()) | (self.debug if logging_on else set())
@@ -59,7 +60,7 @@ class LogQueue:
     def emit(self, code: int, category: str, text: str) -> None:
         """Queue ``text`` when its category (or logAll) is enabled."""
         if (category in self.enabled or "logAll" in self.enabled) and len(self.pending) < MAX_PENDING:
-            self.pending.append((code, category, text))
+            self.pending.append((code, category, self.translate(text) if self.translate else text))
 
     def status(self, code: int, text: str) -> None:
         """Queue the reason for a call that returns ``code`` (Warning and worse)."""

@@ -63,9 +63,17 @@ ALLOWED: dict[str, frozenset[str]] = {
 }
 
 
+def allowed_states(function: str) -> frozenset[str]:
+    """The states ``function`` may be called in; a get or set of a type FMI 2.0 lacks
+    (FMI 3.0's fmi3GetFloat32, ...) like the other gets and sets."""
+    if function in ALLOWED:
+        return ALLOWED[function]
+    return _GET if function.startswith("fmi2Get") else _SET
+
+
 def refusal(function: str, state: str) -> str | None:
     """Why ``function`` may not be called in ``state``, or None when it may."""
-    allowed = ALLOWED[function]
+    allowed = allowed_states(function)
     if state in allowed:
         return None
     if state == State.ERROR:

@@ -47,6 +47,7 @@ from .log import LogQueue
 from .real_cache import RealCache
 from .machine import ALLOWED, State, fmi_function, refusal
 from .derivatives import DerivativeProtocol
+from .fmi3 import Fmi3Protocol, fmi3_text
 from .snapshot import StateProtocol
 from .status import Discard, FmiError
 from .variables import VariableTable
@@ -60,16 +61,18 @@ STATUS_ANSWERS = {("Real", LAST_SUCCESSFUL_TIME), ("Boolean", TERMINATED)}
 GET_STATES, SET_STATES = ALLOWED["fmi2GetReal"], ALLOWED["fmi2SetReal"]
 
 
-class Slave(StateProtocol, DerivativeProtocol):
+class Slave(StateProtocol, DerivativeProtocol, Fmi3Protocol):
     """Base class of every model; see the module docstring for what a model implements."""
 
     def __init__(self, instance_name: str, guid: str, resources: str, variables: VariableTable,
-                 log_categories: dict[str, str], logging_on: bool, default_start: float = 0.0):
+                 log_categories: dict[str, str], logging_on: bool, default_start: float = 0.0,
+                 fmi_version: int = 2):
         self.instance_name = instance_name
         self.guid = guid
         self.resources = Path(resources)
         self.variables = variables
-        self._fmi_log = LogQueue(log_categories, logging_on)
+        self._fmi_log = LogQueue(log_categories, logging_on,
+                                 translate=fmi3_text if fmi_version == 3 else None)
         self.log_queue = self._fmi_log.pending   # watched by the C wrapper
         self._fmi_default_start = default_start
         self._fmi_calculates = type(self).calculate is not Slave.calculate
@@ -84,6 +87,10 @@ class Slave(StateProtocol, DerivativeProtocol):
 
     def initialize(self) -> None:
         """Derive the internal state and calculated values from ``self.values``."""
+
+    # True: ``step`` leaves every calculated value current, so ``calculate`` follows sets only
+    # (and a step's values can be served by the wrapper without Python)
+    STEP_CALCULATES = False
 
     def calculate(self) -> None:
         """Outputs with direct feedthrough: compute them in ``self.values`` from the inputs
@@ -132,11 +139,18 @@ class Slave(StateProtocol, DerivativeProtocol):
         self._fmi_state = State.INSTANTIATED
         self.values = self.variables.start_values()
         self.set_since_step: dict[str, object] = {}
-        self._fmi_time = self.start_time = self._fmi_default_start
+        self._fmi_at(self._fmi_default_start)
+        self.start_time = self._fmi_default_start
         self.stop_time = self.tolerance = None
         self._fmi_dirty = True
         self._fmi_stale = False
         self._fmi_terminate = False
+
+    def _fmi_at(self, t: float) -> None:
+        """The instance's time is ``t`` (and so is its independent variable, FMI 3.0)."""
+        self._fmi_time = t
+        if self.variables.independent:
+            self.values[self.variables.independent] = t
 
     def _fmi_error(self, reason: str) -> int:
         """Log ``reason``, enter the Error state, and return fmi2Error."""
@@ -174,7 +188,8 @@ class Slave(StateProtocol, DerivativeProtocol):
             raise FmiError(f"stopTime {stop} is before startTime {start}")
         if tolerance_defined and not (math.isfinite(tolerance) and tolerance > 0):
             raise FmiError(f"tolerance = {tolerance} is not a positive finite number")
-        self._fmi_time = self.start_time = float(start)
+        self._fmi_at(float(start))
+        self.start_time = float(start)
         self.stop_time = float(stop) if stop_defined else None
         self.tolerance = float(tolerance) if tolerance_defined else None
         return status.OK, None
@@ -265,10 +280,12 @@ class Slave(StateProtocol, DerivativeProtocol):
         end = time + step_size
         if not math.isfinite(end):
             raise FmiError(f"the time after the step, {time} + {step_size}, is not finite")
+        if self.variables.input_derivatives:
+            self._fmi_push_input_derivatives()
         self.step(time, step_size)
-        self._fmi_time = end
+        self._fmi_at(end)
         self.set_since_step.clear()
-        self._fmi_stale = self._fmi_calculates
+        self._fmi_stale = self._fmi_calculates and not self.STEP_CALCULATES
         if not self._fmi_stale:       # fmi2GetReal served by the wrapper until the next call
             self._fmi_reals.publish(self.values)
         return status.OK, None

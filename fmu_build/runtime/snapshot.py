@@ -98,13 +98,14 @@ class StateProtocol:
         if not isinstance(state, FmuState) or state.guid != self.guid:
             raise FmiError("the state was not taken from an instance of this FMU")
         tree = state.tree
-        self.restore_state(copy_tree(tree["model"]))
         self.values = dict(tree["values"])
         self.set_since_step = dict(tree["set_since_step"])
-        self._fmi_time, self.start_time = tree["time"], tree["start_time"]
+        self._fmi_at(tree["time"])
+        self.start_time = tree["start_time"]
         self.stop_time, self.tolerance = tree["stop_time"], tree["tolerance"]
         self._fmi_dirty, self._fmi_terminate = tree["dirty"], tree["terminate_requested"]
         self._fmi_state = tree["state"]
+        self.restore_state(copy_tree(tree["model"]))   # (sees the restored values and flags)
         self._fmi_stale = self._fmi_calculates
         return status.OK, None
 

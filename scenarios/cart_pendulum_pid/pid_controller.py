@@ -17,6 +17,8 @@ from mbdfmu.fmu_build.runtime import companion as base
 
 
 class PIDController(base.CompanionSlave):
+    STATE_INFO = {"z": ("m.s", "integral of the cart's position error x - x_ref")}
+    POWER_PORTS = {"cart": ("force", "v")}     # OSP power port (ECCO)
     DESCRIPTION = "PID on the cart position with PD feedback of the pole angle: force out"
     VARIABLES = (
         base.Var("kp_x", "parameter", "N/m", 16.956, "proportional gain, cart position"),
@@ -46,6 +48,10 @@ class PIDController(base.CompanionSlave):
 
     def step(self, t, h, state):
         return {"z": state["z"] + (self.values["x"] - self.set_point(t)) * h}
+
+    def rates(self, state):
+        """z' = x - x_ref at the communication point (directional derivatives)."""
+        return {"z": self.values["x"] - self.set_point(self.time)}
 
     def outputs(self, state):
         p = self.values

@@ -22,6 +22,7 @@ from mbdfmu.fmu_build.runtime import companion as base
 
 
 class DCMotor(base.CompanionSlave):
+    POWER_PORTS = {"shaft": ("torque", "speed")}     # OSP power port (ECCO)
     DESCRIPTION = "DC motor armature: voltage and speed in, torque out (exact over each step)"
     INTERPOLATES_INPUTS = True
     VARIABLES = (
@@ -40,7 +41,7 @@ class DCMotor(base.CompanionSlave):
         if not (self.values["R"] > 0 and self.values["L"] > 0):
             raise ValueError(f"R and L must be positive, got R = {self.values['R']}, "
                              f"L = {self.values['L']}")
-        return {"i": self.values["i0"]}
+        return {"current": self.values["i0"]}
 
     def step(self, t, h, state):
         p = self.values
@@ -55,7 +56,13 @@ class DCMotor(base.CompanionSlave):
         for k in reversed(range(n)):
             c[k] = (beta[k] - (k + 1) * c[k + 1]) / a
         particular = sum(ck * h ** k for k, ck in enumerate(c))
-        return {"i": particular + (state["i"] - c[0]) * math.exp(-a * h)}
+        return {"current": particular + (state["current"] - c[0]) * math.exp(-a * h)}
+
+    def rates(self, state):
+        """L di/dt = V - R i - ke w at the communication point (directional derivatives)."""
+        p = self.values
+        return {"current": (self.input("voltage") - p["R"] * state["current"]
+                            - p["ke"] * self.input("speed")) / p["L"]}
 
     def outputs(self, state):
-        return {"torque": self.values["kt"] * state["i"], "current": state["i"]}
+        return {"torque": self.values["kt"] * state["current"], "current": state["current"]}

@@ -32,6 +32,8 @@ def orifice(dp, dp_t):
 
 
 class HydraulicCylinder(base.CompanionSlave):
+    # the rod's force and the rate it acts on (OSP power port, ECCO)
+    POWER_PORTS = {"rod": ("force", "rate")}
     DESCRIPTION = ("Double-acting hydraulic cylinder with a proportional valve: "
                    "length, rate and valve in, force out")
     INTERPOLATES_INPUTS = True
@@ -64,7 +66,7 @@ class HydraulicCylinder(base.CompanionSlave):
 
     def initial_state(self):
         p = self.values
-        return {"pA": (p["force0"] + p["pB0"] * p["A_B"]) / p["A_A"], "pB": p["pB0"]}
+        return {"p_A": (p["force0"] + p["pB0"] * p["A_B"]) / p["A_A"], "p_B": p["pB0"]}
 
     def flows(self, pA, pB, valve):
         """(Q_A, Q_B) into the chambers through the valve (spool ``valve``) and the leak."""
@@ -79,30 +81,41 @@ class HydraulicCylinder(base.CompanionSlave):
         leak = p["C_leak"] * (pA - pB)
         return qa - leak, qb + leak
 
+    def pressure_rates(self, pA, pB, length, rate, valve):
+        """(p_A', p_B') at the pressures, the cylinder's length and rate and the spool."""
+        p = self.values
+        x = length - p["s_min"]
+        VA = p["V_A0"] + p["A_A"] * x
+        VB = p["V_B0"] + p["A_B"] * (p["stroke"] - x)
+        if VA <= 0 or VB <= 0:
+            raise base.Discard(f"the piston left its stroke: x = {x:.4g} m")
+        qa, qb = self.flows(pA, pB, valve)
+        return [p["beta"] / VA * (qa - p["A_A"] * rate), p["beta"] / VB * (qb + p["A_B"] * rate)]
+
+    def rates(self, state):
+        """The pressures' rates at the communication point (directional derivatives)."""
+        a, b = self.pressure_rates(state["p_A"], state["p_B"], self.input("length"),
+                                   self.input("rate"), self.input("valve"))
+        return {"p_A": a, "p_B": b}
+
     def step(self, t, h, state):
         p = self.values
         length, rate0 = self.input_taylor("length", t), self.input_taylor("rate", t)
         held = len(length) == 1 and len(rate0) == 1   # zero-order hold: s follows the rate
 
         def rhs(tau, y):
-            pA, pB = y
             if held:
-                x, rate = length[0] + rate0[0] * (tau - t) - p["s_min"], rate0[0]
+                s, rate = length[0] + rate0[0] * (tau - t), rate0[0]
             else:
-                x, rate = self.input("length", tau) - p["s_min"], self.input("rate", tau)
-            VA = p["V_A0"] + p["A_A"] * x
-            VB = p["V_B0"] + p["A_B"] * (p["stroke"] - x)
-            if VA <= 0 or VB <= 0:
-                raise base.Discard(f"the piston left its stroke: x = {x:.4g} m")
-            qa, qb = self.flows(pA, pB, self.input("valve", tau))
-            return [p["beta"] / VA * (qa - p["A_A"] * rate),
-                    p["beta"] / VB * (qb + p["A_B"] * rate)]
+                s, rate = self.input("length", tau), self.input("rate", tau)
+            return self.pressure_rates(y[0], y[1], s, rate, self.input("valve", tau))
 
-        pA, pB = base.rk4(rhs, t, [state["pA"], state["pB"]], h, p["max_substep"])
-        return {"pA": pA, "pB": pB}
+        pA, pB = base.rk4(rhs, t, [state["p_A"], state["p_B"]], h,
+                          p["max_substep"])
+        return {"p_A": pA, "p_B": pB}
 
     def outputs(self, state):
         p = self.values
-        return {"force": state["pA"] * p["A_A"] - state["pB"] * p["A_B"]
+        return {"force": state["p_A"] * p["A_A"] - state["p_B"] * p["A_B"]
                 - p["b"] * self.input("rate"),
-                "p_A": state["pA"], "p_B": state["pB"]}
+                "p_A": state["p_A"], "p_B": state["p_B"]}

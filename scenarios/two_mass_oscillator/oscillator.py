@@ -47,6 +47,9 @@ def expm(a):
 
 
 class Oscillator(base.CompanionSlave):
+    # OSP power ports (ECCO): the external force on this mass and its velocity; the
+    # coupling force it exerts on the other mass and that mass's velocity
+    POWER_PORTS = {"mass": ("force", "v"), "coupling": ("coupling_force", "v_other")}
     DESCRIPTION = "Mass on a wall spring and damper, with an optional coupling spring to another mass"
     INTERPOLATES_INPUTS = True
     VARIABLES = (
@@ -93,6 +96,12 @@ class Oscillator(base.CompanionSlave):
         e = expm([[x * h for x in row] for row in f])
         x, v = (sum(e[i][k] * z[k] for k in range(n)) for i in (0, 1))
         return {"x": x, "v": v}
+
+    def rates(self, state):
+        """The equation of motion at the communication point (directional derivatives)."""
+        a = self.acceleration(state["x"], state["v"], self.input("force"),
+                              self.input("x_other"), self.input("v_other"))
+        return {"x": state["v"], "v": a}
 
     def outputs(self, state):
         p = self.values

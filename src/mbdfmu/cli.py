@@ -15,7 +15,7 @@ import numpy as np
 from . import __version__
 from .errors import InputError, MbdfmuError
 from .cli_analysis import SCENE_HELP
-from .cli_options import (SOLVER_NAMES, Ticker, add_progress_option, add_set_option,
+from .cli_options import (SOLVER_NAMES, add_progress_option, add_set_option,
                           parse_assignments, print_warnings, progress_bar, show_progress,
                           split_solver)
 from .integrators import DEFAULT_METHOD, METHOD_NAMES, SUMMARIES
@@ -30,6 +30,7 @@ EXAMPLES = """examples:
   mbdfmu linearize double_pendulum --equilibrium   A, B, C, D, frequencies, damping ratios
   mbdfmu sweep slider_crank --set load.fx=-100:0:10 --set rod.mass=0.1:0.5:10 --t-end 0.02
   mbdfmu build slider_crank -o SliderCrank.fmu --set load.fx=-50
+  mbdfmu build slider_crank --fmi-version 3 -o SliderCrank3.fmu   FMI 3.0
   mbdfmu build scenarios/dc_motor_slider_crank/dc_motor.py -o DCMotor.fmu
   mbdfmu cosim hydraulic_crane --master libcosim   co-simulation scenario: CSV and plot
 scenes: a .toml file, or a shipped scene's name (%s)
@@ -196,16 +197,6 @@ def cmd_demo(args) -> int:
     return 0
 
 
-def cmd_build(args) -> int:
-    from .fmu_build import build  # a scene (.toml) or a companion source (.py)
-
-    with Ticker(args, "build"):
-        path = build(args.scene, output=args.output,
-                     parameters=parse_assignments(args.set) or None)
-    print(path)
-    return 0
-
-
 def cmd_bench(args) -> int:
     from .bench import sweep
 
@@ -216,28 +207,6 @@ def cmd_bench(args) -> int:
                                output=args.output, quick=args.quick, progress=show_progress(args))
     print(f"{len(done['rows'])} runs -> {done['csv']}, {done['summary']}, "
           f"{len(done['charts'])} charts in {Path(done['summary']).parent}")
-    return 0
-
-
-def cmd_cosim(args) -> int:
-    from .cosim.cosimulate import cosimulate, write
-    from .cosim.settings import CosimSettings
-
-    out = Path(args.output)
-    with Ticker(args, "cosim"):
-        run = cosimulate(args.scenario, CosimSettings(
-            master=args.master, algorithm=args.algorithm, step=args.step, t_end=args.t_end,
-            variable_step=args.variable_step, rtol=args.rtol, start=args.start,
-            extrapolation=args.extrapolation),
-            work_dir=out / "fmus")
-    r = run.result
-    stats = ", ".join(f"{k} {v:g}" for k, v in r.stats.items())
-    print(f"{run.scenario.name}: {r.method}, {len(r.time)} points to t = {r.time[-1]:g} s "
-          f"in {run.seconds:.2f} s ({stats})")
-    for name, err in run.errors.items():
-        print(f"  {name}: max |error| against the reference {err:.3g}")
-    for p in write(run, out):
-        print(f"  {p}")
     return 0
 
 
@@ -296,46 +265,6 @@ def _add_run_commands(sub) -> None:
     p.add_argument("-o", "--output", default="mbdfmu-demo", help="output folder")
 
 
-def _add_fmu_commands(sub) -> None:
-    p = _command(sub, "build", cmd_build, "build the FMI 2.0 co-simulation FMU of a scene "
-                 "(.toml) or of a companion source (.py, see scenarios/)",
-                 ("mbdfmu build slider_crank -o SliderCrank.fmu",
-                  "mbdfmu build scenarios/dc_motor_slider_crank/dc_motor.py -o DCMotor.fmu"))
-    p.add_argument("scene", help="scene file (.toml), shipped scene name, or companion "
-                   "FMU source (.py)")
-    p.add_argument("-o", "--output", default=None, help="FMU file (default <scene name>.fmu)")
-    add_set_option(p, "parameter's start value in the FMU")
-    add_progress_option(p)
-    p = _command(sub, "cosim", cmd_cosim, "run a co-simulation scenario (scenarios/): CSV and "
-                 "plot", ("mbdfmu cosim dc_motor_slider_crank",
-                          "mbdfmu cosim hydraulic_crane --master libcosim --step 2e-3",
-                          "mbdfmu cosim hydraulic_crane --algorithm jacobi --variable-step",
-                          "mbdfmu cosim dc_motor_slider_crank --extrapolation 2",
-                          "mbdfmu cosim hydraulic_crane --algorithm implicit --step 0.05",
-                          "mbdfmu cosim prescribed_motion:derivatives --master ssp"),
-                 description="Run a scenario of scenarios/ (NAME, NAME:VARIANT, a folder or a "
-                 "connections file) with the fmpy master, fmpy's SSP runner or OSP libcosim.")
-    p.add_argument("scenario")
-    p.add_argument("--master", choices=["fmpy", "ssp", "libcosim", "ecos"], default="fmpy")
-    p.add_argument("--algorithm", choices=["jacobi", "gauss-seidel", "implicit", "ecco"],
-                   default=None, help="default: the scenario's (fmpy), jacobi (ssp, libcosim); "
-                   "implicit: interface-Jacobian iteration with rollback (fmpy); ecco: "
-                   "libcosim's energy-conservation-based step control (libcosim)")
-    p.add_argument("--extrapolation", type=int, choices=[0, 1, 2], default=0,
-                   help="inputs follow polynomials of this order over a step (fmpy; 0: "
-                   "zero-order hold)")
-    p.add_argument("--step", type=float, default=None, help="communication step (s)")
-    p.add_argument("--t-end", type=float, default=None, help="end time (s)")
-    p.add_argument("--variable-step", action="store_true",
-                   help="error-controlled step with rollback (fmpy master)")
-    p.add_argument("--rtol", type=float, default=None,
-                   help="variable step: allowed change of a coupled variable per step")
-    p.add_argument("--start", choices=["exchange", "zero"], default="exchange",
-                   help="connected inputs start at the upstream outputs (default) or at 0")
-    p.add_argument("-o", "--output", default="cosim-out", help="output folder")
-    add_progress_option(p)
-
-
 def _add_bench_command(sub) -> None:
     from .bench.cases import CASES
     from .integrators import METHODS
@@ -362,17 +291,19 @@ def _add_bench_command(sub) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     from .cli_analysis import add_analysis_commands
+    from .cli_fmu import add_fmu_commands
     from .model.reader import shipped_scene_names
 
     parser = argparse.ArgumentParser(
-        prog="mbdfmu", description="Planar multibody mechanisms as FMI 2.0 co-simulation FMUs.",
+        prog="mbdfmu", description="Planar multibody mechanisms as FMI 2.0 and 3.0 "
+        "co-simulation FMUs.",
         epilog=EXAMPLES % ", ".join(shipped_scene_names()),
         formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"mbdfmu {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     _add_run_commands(sub)
     add_analysis_commands(sub, _command)
-    _add_fmu_commands(sub)
+    add_fmu_commands(sub, _command)
     _add_bench_command(sub)
     return parser
 

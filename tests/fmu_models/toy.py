@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import math
 from pathlib import Path
 
@@ -16,6 +17,17 @@ M, K, C, X0, V0, F = 2.0, 50.0, 1.0, 0.1, 0.0, 0.5
 # Value references (per FMI type), named for the tests.
 VR = {"m": 0, "k": 1, "c": 2, "x0": 3, "v0": 4, "F": 5, "x": 6, "v": 7,
       "fault": 50, "frozen": 60, "label": 100}
+
+
+
+def transition_source() -> str:
+    """The text of mass_spring.transition, the toy's exact step (for FMUs built from
+    other runtimes in the benchmarks, which must step the same model)."""
+    text = SOURCE.read_text()
+    node = next(n for n in ast.parse(text).body
+                if isinstance(n, ast.FunctionDef) and n.name == "transition")
+    return ast.get_source_segment(text, node)
+
 
 VARIABLES = (
     Variable("m", VR["m"], causality="parameter", start=M, unit="kg", description="mass"),

@@ -12,7 +12,7 @@ import numpy as np
 from ..fmu_build.cache import build_fmus
 from ..plotting import figure
 from ..result import Result
-from .ecco_runner import run_ecco
+from .ecco_runner import RESIDUAL, run_ecco
 from .ecos_runner import run_ecos
 from .fmpy_master import run_fmpy
 from .libcosim_runner import run_libcosim
@@ -75,6 +75,8 @@ def cosimulate(scenario: Scenario | str, settings: CosimSettings = CosimSettings
 def plot(run: CosimRun, path: str | Path) -> Path:
     """One panel per plotted variable against time, with the reference dashed."""
     names = [n for n in (run.scenario.plot or run.result.names) if n in run.result]
+    if RESIDUAL in run.result and RESIDUAL not in names:   # ECCO: the bond's energy residual
+        names.append(RESIDUAL)
     fig = figure(figsize=(8, 1.9 * len(names) + 0.8))
     axes = fig.subplots(len(names), 1, sharex=True, squeeze=False)
     for ax, name in zip(axes[:, 0], names):

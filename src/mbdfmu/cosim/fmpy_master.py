@@ -128,12 +128,13 @@ class CoupledSystem:
         if h is not None and not zero:
             self.extrapolation.set_inputs(member, pairs, h, new)
 
-    def step_member(self, member: str, t: float, h: float) -> None:
+    def step_member(self, member: str, t: float, h: float, derivatives: bool = True) -> None:
+        """doStep(t, h) on ``member``, then read its connected outputs at t + h."""
         self.counters["doStep"] += 1
         status = self.members[member].do_step(t, h)
         if status > WARNING:
             raise Refused(member, status, self.members[member].reason(), STATUS.get(status, status))
-        self.read_outputs(member, t + h)
+        self.read_outputs(member, t + h, derivatives)
 
     def coupling_error(self, rtol: float, atol: float, nominal: dict | None = None) -> float:
         """Largest scaled difference between a held input and the output it stood for;
@@ -220,13 +221,10 @@ class Jacobi:
         if not first:  # the first step of a "zero" start keeps the zeros set at initialization
             for m in system.members:
                 system.write_inputs(m, h)
+        # inputs are all written before any member steps, so reading each member's outputs
+        # right after its step is still Jacobi
         for m in system.members:
-            system.counters["doStep"] += 1
-            status = system.members[m].do_step(t, h)
-            if status > WARNING:
-                raise Refused(m, status, system.members[m].reason(), STATUS.get(status, status))
-        for m in system.members:
-            system.read_outputs(m, t + h)
+            system.step_member(m, t, h)
 
 
 class GaussSeidel:
@@ -282,7 +280,12 @@ def run_fmpy(scenario: Scenario, fmus: dict[str, Path],
     point (t0 included) as a ``Result`` (``stats``: steps, rejections, doStep calls)."""
     from .variable_step import run_variable_step   # the fixed-step runs do not need it
 
-    algorithm = algorithm_class(settings.algorithm_for(scenario))(scenario)
+    name = settings.algorithm_for(scenario)
+    if settings.jacobian != "differences" and name != "implicit":
+        raise CosimError(f'the interface Jacobian is the implicit coupling\'s; {scenario.name} '
+                         f'runs "{name}" (--algorithm implicit)')
+    algorithm = (Implicit(scenario, settings.jacobian) if name == "implicit"
+                 else algorithm_class(name)(scenario))
     h = float(settings.step or scenario.step)
     t_end = float(settings.t_end or scenario.t_end)
     # (the implicit master's first guess extrapolates with the outputs' first derivatives)
@@ -303,7 +306,8 @@ def run_fmpy(scenario: Scenario, fmus: dict[str, Path],
     if out.steps:
         stats.update(h_min=float(min(out.steps)), h_max=float(max(out.steps)))
     master = f"fmpy {algorithm.name}" + (" variable-step" if settings.variable_step else "") \
-        + (f" extrapolation {settings.extrapolation}" if settings.extrapolation else "")
+        + (f" extrapolation {settings.extrapolation}" if settings.extrapolation else "") \
+        + (f" {settings.jacobian} jacobian" if algorithm.name == "implicit" else "")
     return Result(time=np.array(out.times), names=list(system.record),
                   values=np.array(out.rows, dtype=float).reshape(len(out.times), -1),
                   units=system.units, method=master, stats=stats)

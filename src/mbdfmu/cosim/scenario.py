@@ -26,7 +26,7 @@ to = "mechanism.drive.torque"    # <instance>.<input>
 "motor.R" = 0.5
 "motor.voltage" = 12.0           # an input nobody drives holds this value
 
-[power_bonds]                    # for ECCO: each side's effort input and flow output
+[power_bonds]                    # optional: ECCO takes the bond from the FMUs' power ports
 mechanism = ["drive.torque", "crank.omega"]
 motor = ["speed", "torque"]
 

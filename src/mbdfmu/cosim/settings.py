@@ -10,6 +10,7 @@ from ..errors import MbdfmuError, SettingError
 MASTERS = ("fmpy", "ssp", "libcosim", "ecos")
 ALGORITHMS = ("jacobi", "gauss-seidel", "implicit", "ecco")
 STARTS = ("exchange", "zero")
+JACOBIANS = ("differences", "directional")
 
 
 class CosimError(MbdfmuError):
@@ -42,7 +43,9 @@ class CosimSettings:
     ``rtol``, ``atol``, ``h_min``, ``h_max``; ``start``: connected inputs start at the
     upstream outputs ("exchange", as libcosim does) or at 0.0 ("zero", as fmpy's SSP
     runner does); ``extrapolation`` (fmpy master): the order of the polynomial each input
-    follows over a step, 0 (zero-order hold), 1 or 2 (``extrapolation.py``).
+    follows over a step, 0 (zero-order hold), 1 or 2 (``extrapolation.py``); ``jacobian``
+    (implicit coupling): the interface Jacobian from finite differences of whole steps
+    ("differences") or from the FMUs' directional derivatives ("directional").
     """
 
     master: str = "fmpy"
@@ -56,6 +59,7 @@ class CosimSettings:
     h_max: float | None = None
     start: str = "exchange"
     extrapolation: int = 0
+    jacobian: str = "differences"
 
     def __post_init__(self):
         if self.extrapolation not in (0, 1, 2) or isinstance(self.extrapolation, bool):
@@ -66,7 +70,8 @@ class CosimSettings:
                                "(--master fmpy)")
         for name, value, choices in (("master", self.master, MASTERS),
                                      ("algorithm", self.algorithm, ALGORITHMS),
-                                     ("start", self.start, STARTS)):
+                                     ("start", self.start, STARTS),
+                                     ("jacobian", self.jacobian, JACOBIANS)):
             if value is not None and value not in choices:
                 raise SettingError(name, f'{name} "{value}" is not one of {", ".join(choices)}')
         for name in ("step", "t_end", "rtol", "atol", "h_min", "h_max"):
@@ -77,6 +82,9 @@ class CosimSettings:
         if self.algorithm == "implicit" and (self.master != "fmpy" or self.variable_step):
             raise SettingError("algorithm", 'the implicit coupling is the fmpy master\'s, '
                                "with a fixed step (--master fmpy, no --variable-step)")
+        if self.jacobian != "differences" and self.algorithm not in (None, "implicit"):
+            raise SettingError("jacobian", "the interface Jacobian is the implicit "
+                               "coupling's (--algorithm implicit)")
         if self.algorithm == "ecco" and self.master != "libcosim":
             raise SettingError("algorithm", "ECCO is libcosim's algorithm (--master libcosim)")
         if self.variable_step and self.master != "fmpy":
