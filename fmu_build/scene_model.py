@@ -176,6 +176,10 @@ class Model(Slave):
         self.sim, self.built = self.new_simulation(build), build
         for line in self.sim.warnings:          # initial values the assembly changed
             self.warn(f"initial conditions: {line}")
+        if self.sim.kernel_note:
+            self.log(self.sim.kernel_note)
+        self.logged_events = 0
+        self.log_events()
         self.push_inputs()
         self.pending = []
         self.publish()
@@ -253,7 +257,16 @@ class Model(Slave):
             raise Discard(f"at t = {time!r} s: {exc} (the FMU stays at t = {self.sim.t!r} s; "
                           "retry with a smaller step or other inputs)") from None
         self.pending = []
+        self.log_events()
         self.publish()
+
+    def log_events(self):
+        """Each transition of end stops and friction since the last call, one line each."""
+        events = self.sim.events
+        if events is not None:
+            for t, joint, what in events.log[self.logged_events:]:
+                self.log(f"t = {t!r} s: joint {joint} {what}")
+            self.logged_events = len(events.log)
 
     def save_state(self):
         if self.sim is None:
@@ -297,6 +310,7 @@ class Model(Slave):
         if self.sim is None or build != self.built:
             self.sim, self.built = self.new_simulation(build), build
         self.sim.set_state(tree["sim"])
+        self.logged_events = len(self.sim.events.log) if self.sim.events is not None else 0
         if not self._fmi_dirty:
             self.publish()      # the same values for a state this FMU wrote
 
@@ -317,6 +331,9 @@ def directional(model, unknowns, knowns, seeds):
     ``equations.sensitivity.directional`` once for the outputs (inputs held as the step
     left them) and once for the accelerations (inputs as they are now), as needed."""
     sim, sensitivity = model.sim, model.core.equations.sensitivity
+    if sim.events is not None:          # the sensitivities know no contact mode
+        raise FmiError("directional derivatives are not available for scenes with joint "
+                       "limits or friction")
     dx = [sim.q * 0.0, sim.qd * 0.0]
     u_held, u_now = sim.inputs_at(sim.t), model.inputs_now()
     dm, df = u_now.motions * 0.0, u_now.forces * 0.0

@@ -15,7 +15,7 @@ import exact_solutions as ref
 SCENE_FILES = sorted(ref.SCENES.glob("*.toml"))
 BODY_KEYS = ("name", "mass", "inertia", "position", "angle", "velocity", "angular_velocity")
 JOINT_KEYS = ("name", "type", "body_i", "point_i", "axis_i", "body_j", "point_j", "radius",
-              "frame_angle")
+              "frame_angle", "limits", "restitution", "friction")
 COUPLER_KEYS = ("name", "type", "joint_i", "joint_j", "ratio")
 
 
@@ -333,7 +333,8 @@ def test_expected_scenes_exist():
     assert names >= {"pendulum", "rod_pendulum", "double_pendulum", "slider_crank", "four_bar",
                      "n_four_bar_2", "n_four_bar_40", "andrews", "light_cart_pole",
                      "parallelogram", "pendulum_torque", "slider_force", "gear_pair",
-                     "rack_pinion", "rolling_disc", "slot_rod"}
+                     "rack_pinion", "rolling_disc", "slot_rod", "slider_stop", "incline_stick",
+                     "incline_slide", "crane_stop"}
 
 
 @pytest.mark.parametrize("path", SCENE_FILES, ids=lambda p: p.stem)

@@ -51,6 +51,8 @@ def cmd_check(args) -> int:
     from .equations.projection import assemble, assembly_changes, initial_estimates, rank_report
     from .integrators.settings import settings_from_scene
     from .model import load_scene
+    from .integrators.events import event_summary
+    from .model.scene import has_events
     from .model.variables import inputs
 
     scene = load_scene(args.scene)
@@ -78,6 +80,8 @@ def cmd_check(args) -> int:
     print(f"  coordinates {system.n}, constraints {system.m}, rank {report.rank}, "
           f"degrees of freedom {report.dof}")
     print("  redundant constraints: " + (", ".join(report.redundant) or "none"))
+    if has_events(scene):
+        print("  " + event_summary(scene, q, qd, report.dof))
     print(f"  assembly residual: {residual0:.3g} as given, {residual:.3g} after assembly")
     print(f"  inputs: {', '.join(v.name for v in inputs(scene)) or 'none'}")
     print_warnings("check", changes)

@@ -32,6 +32,8 @@ class Result:
     method_reason: str = ""
     stats: dict[str, int] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    # transitions of end stops and friction: (time s, joint, what happened), in time order
+    events: list[tuple[float, str, str]] = field(default_factory=list)
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name == "time":

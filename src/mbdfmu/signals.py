@@ -18,7 +18,11 @@ import numpy as np
 from numpy.polynomial import polynomial as P
 from scipy.interpolate import BPoly, CubicSpline
 
+from .errors import InputError
 from .plain import Plain
+
+# The fields of a driver input (its motion and the motion's derivatives).
+DRIVER_FIELDS = ("position", "velocity", "acceleration")
 
 # Samples of driver position kept to derive its velocity and acceleration.
 HISTORY_LENGTH = 4
@@ -152,3 +156,39 @@ class TaylorInput(Plain):
             total = total + c * term
             term = term * tau / (k + 1)
         return total
+
+
+def known_ahead(signals) -> bool:
+    """Whether input signals are known beyond the current time: functions of time given
+    beforehand (tables, ``set_input_signal``), not values set by a master (held, sampled
+    or Taylor inputs, which hold only until set again)."""
+    return not any(isinstance(s, (SampledDriver, Held, TaylorInput)) for s in signals)
+
+
+def apply_input_table(sim, table) -> None:
+    """Inputs from a structured array with 'time' first (fmpy's layout): forces linearly
+    interpolated, driver positions by splines."""
+    names = table.dtype.names
+    if not names or names[0] != "time":
+        raise InputError('an input table needs a "time" column first')
+    time = np.asarray(table["time"], dtype=float)
+    if time.size == 0:
+        raise InputError("the input table has no rows")
+    if np.any(np.diff(time) < 0):
+        raise InputError("input table: time must not decrease")
+    columns = set(names[1:])
+    for name in columns:
+        sim._split(name)  # unknown names are an error, not silently ignored
+        if not np.all(np.isfinite(table[name])):
+            raise InputError(f'input table: column "{name}" has non-finite values')
+    for item in list(sim._drivers):
+        cols = [f"{item}.{k}" for k in DRIVER_FIELDS]
+        if cols[0] in columns:
+            extra = [table[c] if c in columns else None for c in cols[1:]]
+            sim.set_input_signal(item, DriverTable(time, table[cols[0]], *extra))
+    for item, fields in sim.equations.layout.fields.items():
+        cols = [f"{item}.{k}" for k in fields]
+        if any(c in columns for c in cols):
+            values = np.column_stack([table[c] if c in columns else np.zeros(len(time))
+                                      for c in cols])
+            sim.set_input_signal(item, LinearTable(time, values))

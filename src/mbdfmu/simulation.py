@@ -20,17 +20,17 @@ from .equations.projection import (ASSEMBLY_TOL, PROJECTION_MAX_ITER, assemble,
 from .errors import InputError, SettingError, SolverError
 from .integrators import make_integrator
 from .integrators.base import WorkLimit
+from .integrators.events import EventRunner, check_method, event_kernel
 from .integrators.settings import SolverSettings, settings_from_scene
 from .model.reader import load_scene
-from .model.scene import Scene
+from .model.scene import Scene, has_events
 from .model.variables import InputValues, inputs, outputs
 from .plain import decode, encode
 from .result import Result
-from .signals import DriverTable, Held, LinearTable, SampledDriver, TaylorInput
+from .signals import Held, SampledDriver, TaylorInput, apply_input_table, known_ahead
 
 # After an input jump the state is re-projected to this many times the assembly tolerance.
 REINITIALIZE_TOL_FACTOR = 100
-DRIVER_FIELDS = ("position", "velocity", "acceleration")
 # Time step (s) of the central differences of output_time_derivatives.
 DELTA = 2e-4
 
@@ -52,6 +52,7 @@ class Simulation:
         self.settings = (settings or settings_from_scene(scene)).updated(
             method=method, step=step, rtol=rtol, atol=atol, options=method_options,
             output_interval=output_interval)
+        kernel, self.kernel_note = event_kernel(scene, kernel)   # stops, friction: numpy
         self.equations = Equations(scene, kernel=kernel)
         layout = self.equations.layout
         self.input_names = [v.name for v in inputs(scene)]
@@ -66,9 +67,15 @@ class Simulation:
         # what assembly changed of the scene's initial values, for the user to see
         self.warnings = assembly_changes(self.equations, initial_estimates(self.equations),
                                          (q0, qd0))
+        self.events = None                          # stops and friction: their contact mode
+        if has_events(scene):
+            self.events = EventRunner(scene, kernel, t0, q0, qd0, self.inputs_at)
+            q0, qd0 = self.events.q, self.events.qd
         self.integrator = make_integrator(
-            None, self.equations, t0, q0, qd0, self.settings, inputs=self.inputs_at,
+            None, self.events.equations if self.events else self.equations, t0, q0, qd0,
+            self.settings, inputs=self.inputs_at,
             output_interval=self.settings.output_interval_for(scene.simulation.t_end))
+        check_method(self.integrator, scene)
         self._cache = None
 
     @property
@@ -181,22 +188,20 @@ class Simulation:
 
     def _reinitialize(self) -> None:
         """After inputs change: the state is made consistent with the new driver positions."""
-        tol = ASSEMBLY_TOL * self.equations.length_scale * REINITIALIZE_TOL_FACTOR
-        u, kernel = self.inputs_at(self.t), self.equations.ckernel
+        eq = self.equations if self.events is None else self.events.equations
+        tol = ASSEMBLY_TOL * eq.length_scale * REINITIALIZE_TOL_FACTOR
+        u, kernel = self.inputs_at(self.t), eq.ckernel
         done = None if kernel is None else kernel.project(
-            self.q, self.qd, self.equations.motion_values(self.t, u), tol, PROJECTION_MAX_ITER)
+            self.q, self.qd, eq.motion_values(self.t, u), tol, PROJECTION_MAX_ITER)
         if done is None:
-            q, _ = project_positions(self.equations, self.t, self.q, tol=tol, u=u)
-            done = q, project_velocities(self.equations, self.t, q, self.qd, u)
+            q, _ = project_positions(eq, self.t, self.q, tol=tol, u=u)
+            done = q, project_velocities(eq, self.t, q, self.qd, u)
         self.integrator.reset_state(*done, self.t)
         self._inputs_changed = False
 
     def inputs_known_ahead(self) -> bool:
-        """Whether the inputs beyond the current time are known now: the scene has none, or
-        each is a function of time given beforehand (``set_input_signal``). Inputs set by
-        value (``set_input``, an FMU's master) hold only until set again."""
-        signals = list(self._drivers.values()) + list(self._forces.values())
-        return not any(isinstance(s, (SampledDriver, Held, TaylorInput)) for s in signals)
+        """Whether the inputs beyond now are known (``signals.known_ahead``)."""
+        return known_ahead([*self._drivers.values(), *self._forces.values()])
 
     # ------------------------------------------------------------------ stepping
 
@@ -211,13 +216,19 @@ class Simulation:
         # Only the integrator and the flag change while stepping (inputs do not), so that
         # is all the rollback keeps.
         snapshot, inputs_changed = self.integrator.rollback_point(), self._inputs_changed
+        saved = self.events.get_state() if self.events is not None else None
         try:
             if self._inputs_changed:
                 self._reinitialize()
             if dense is None:
                 dense = self.inputs_known_ahead()
-            self.integrator.advance(t_target, limit, dense=dense)
+            if self.events is None:
+                self.integrator.advance(t_target, limit, dense=dense)
+            else:       # located events: the steps land on them (no dense output)
+                self.events.advance(self.integrator, t_target, limit)
         except SolverError:
+            if self.events is not None:
+                self.events.restore(self.integrator, saved)
             self.integrator.set_state(snapshot)
             self._inputs_changed = inputs_changed
             raise
@@ -231,12 +242,18 @@ class Simulation:
         state is first made consistent with new driver positions, as ``advance`` would."""
         if self._inputs_changed:
             self._reinitialize()
+        if self._cache is None and self.events is not None:
+            self._cache = self.events.accelerations(self.t, self.q, self.qd, self.equations.m)
         if self._cache is None:
             self._cache = self.equations.accelerations(self.t, self.q, self.qd,
                                                        self.inputs_at(self.t))
         return self._cache
 
     def output_vector(self) -> np.ndarray:
+        if self.events is not None:
+            if self._inputs_changed:
+                self._reinitialize()
+            return self.events.output_vector(self.t, self.q, self.qd, self.output_names)
         kernel = self.equations.ckernel
         if kernel is not None and not self._inputs_changed:   # one call, q'' kept from the step
             u = self.inputs_at(self.t)
@@ -257,12 +274,15 @@ class Simulation:
         """Everything needed to continue bit for bit (integrator, inputs, flags), as plain
         data (``plain.py``)."""
         return {"integrator": self.integrator.get_state(), "drivers": encode(self._drivers),
-                "forces": encode(self._forces), "inputs_changed": self._inputs_changed}
+                "forces": encode(self._forces), "inputs_changed": self._inputs_changed,
+                "modes": None if self.events is None else self.events.get_state()}
 
     def set_state(self, state: dict) -> None:
         self.integrator.set_state(state["integrator"])
         self._drivers, self._forces = decode(state["drivers"]), decode(state["forces"])
         self._inputs_changed = bool(state["inputs_changed"])
+        if self.events is not None and state.get("modes") is not None:
+            self.events.restore(self.integrator, state["modes"])
         self._cache = self._held = None
 
 
@@ -285,6 +305,9 @@ def output_time_derivatives(sim: Simulation) -> tuple[np.ndarray, np.ndarray]:
         qs = q + d * qd + d * d / 2 * qdd + d ** 3 / 6 * jerk
         qds = qd + d * qdd + d * d / 2 * jerk
         u = sim.inputs_at(t + d)
+        if sim.events is not None:       # the current contact mode's equations and outputs
+            a = sim.events.equations.accelerations(t + d, qs, qds, u)[0]
+            return sim.events.output_vector(t + d, qs, qds, sim.output_names), a
         a, mult = eq.accelerations(t + d, qs, qds, u)
         return eq.output_values(t + d, qs, qds, a, mult, u), a
 
@@ -295,35 +318,6 @@ def output_time_derivatives(sim: Simulation) -> tuple[np.ndarray, np.ndarray]:
 
     (f1, s1), (f2, s2) = differences(DELTA), differences(DELTA / 2)
     return (4 * f2 - f1) / 3, (4 * s2 - s1) / 3
-
-
-def apply_input_table(sim: Simulation, table) -> None:
-    """Inputs from a structured array with 'time' first (fmpy's layout): forces linearly
-    interpolated, driver positions by splines."""
-    names = table.dtype.names
-    if not names or names[0] != "time":
-        raise InputError('an input table needs a "time" column first')
-    time = np.asarray(table["time"], dtype=float)
-    if time.size == 0:
-        raise InputError("the input table has no rows")
-    if np.any(np.diff(time) < 0):
-        raise InputError("input table: time must not decrease")
-    columns = set(names[1:])
-    for name in columns:
-        sim._split(name)  # unknown names are an error, not silently ignored
-        if not np.all(np.isfinite(table[name])):
-            raise InputError(f'input table: column "{name}" has non-finite values')
-    for item in list(sim._drivers):
-        cols = [f"{item}.{k}" for k in DRIVER_FIELDS]
-        if cols[0] in columns:
-            extra = [table[c] if c in columns else None for c in cols[1:]]
-            sim.set_input_signal(item, DriverTable(time, table[cols[0]], *extra))
-    for item, fields in sim.equations.layout.fields.items():
-        cols = [f"{item}.{k}" for k in fields]
-        if any(c in columns for c in cols):
-            values = np.column_stack([table[c] if c in columns else np.zeros(len(time))
-                                      for c in cols])
-            sim.set_input_signal(item, LinearTable(time, values))
 
 
 def output_times(t_end: float, interval: float) -> np.ndarray:
@@ -381,4 +375,6 @@ def simulate(scene: Scene | str | Path, t_end: float | None = None, method=None,
     return Result(time=times, names=list(sim.output_names), values=np.array(rows),
                   q=np.array(qs), qd=np.array(qds), qdd=np.array(qdds), lam=np.array(lams),
                   units=dict(sim.units), method=sim.method_name, method_reason=sim.method_reason,
-                  stats=vars(sim.integrator.stats).copy(), warnings=list(sim.warnings))
+                  stats=vars(sim.integrator.stats).copy(),
+                  warnings=list(sim.warnings) + ([sim.kernel_note] if sim.kernel_note else []),
+                  events=list(sim.events.log) if sim.events is not None else [])

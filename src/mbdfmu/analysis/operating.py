@@ -21,10 +21,10 @@ import numpy as np
 import scipy.linalg
 
 from ..equations import Equations
-from ..errors import SolverError
+from ..errors import SettingError, SolverError
 from ..model.motion import ConstantMotion, InputMotion
 from ..model.reader import load_scene
-from ..model.scene import Scene
+from ..model.scene import Scene, has_events
 from ..model.variables import InputLayout, InputValues, with_parameters
 
 COORDINATES = ("x", "y", "phi")
@@ -46,6 +46,9 @@ def prepare(scene: Scene | str | Path, parameters: dict[str, float] | None = Non
     """A scene (loaded from a file or a shipped scene's name) with ``parameters`` set."""
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
+    if has_events(scene):     # smooth equations only: a stop or friction would be ignored
+        raise SettingError("scene", "equilibrium and linearization do not handle joint "
+                           "limits or friction (keys limits, friction)", scene.source)
     return with_parameters(scene, parameters) if parameters else scene
 
 

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model.scene import RotationalSpringDamper, Scene
+from ..model.scene import RotationalSpringDamper, Scene, has_events
 from ..model.variables import TABLES, InputValues, input_layout
 from . import ckernel
-from .constraints import ConstraintSet
+from .constraints import ConstraintSet, choose_kernel
 from .forces import AppliedForces
 from .planar import poses, rotate
 from .singular import nullspace_accelerations
@@ -37,6 +37,8 @@ class Equations:
         self.mass = np.array([[b.mass, b.mass, b.inertia] for b in scene.bodies]).ravel()
         self.minv = 1.0 / self.mass
         self.layout = input_layout(scene)
+        if has_events(scene) and choose_kernel(kernel) == "c":
+            kernel = "numpy"    # the C kernel has no stops or friction (Simulation says so)
         self.no_inputs = self.layout.initial()
         self.constraint_set = ConstraintSet(scene, self.minv, kernel)
         self.applied = AppliedForces(scene, self.mass, self.layout)
@@ -221,8 +223,10 @@ class Equations:
 
     def joint_outputs(self, q, lam, t: float = 0.0, data=None) -> np.ndarray:
         """Every joint output of ``model.variables.outputs(scene)``, in that order."""
+        # a trailing 0: limit and friction outputs, which the events layer fills
+        # (integrators/events.py: they depend on the contact mode)
         values = np.concatenate((self.reactions(q, lam, t, data).ravel(),
-                                 self.coupler_efforts(lam)))
+                                 self.coupler_efforts(lam), [0.0]))
         return values[self._joint_outputs]
 
     def output_values(self, t, q, qd, qdd, lam, u: InputValues | None = None) -> np.ndarray:
@@ -248,6 +252,11 @@ def _joint_output_plan(scene: Scene, c) -> np.ndarray:
     column = {"Fx": 0, "Fy": 1, "Tz": 2}
     coupler = {int(k): i for i, k in enumerate(c.coupler_joints)}
     nj = len(scene.joints)
-    return np.array([3 * nj + coupler[k] if s.suffix == "effort" else 3 * k + column[s.suffix]
-                     for k, j in enumerate(scene.joints) for s in TABLES[type(j)].outputs],
-                    dtype=int)
+    zero = 3 * nj + len(coupler)
+
+    def slot(k, suffix):
+        if suffix == "effort":
+            return 3 * nj + coupler[k]
+        return 3 * k + column[suffix] if suffix in column else zero
+    return np.array([slot(k, s.suffix) for k, j in enumerate(scene.joints)
+                     for s in TABLES[type(j)].outputs if s.applies(j)], dtype=int)

@@ -88,6 +88,9 @@ class Integrator:
     option_names: tuple[str, ...] = ()
     state_fields: tuple[str, ...] = ()
     limit: WorkLimit | None = None      # of the running ``advance`` call
+    # Called as watch(self) after each accepted step; events.py sets it to find events
+    # (it raises to stop the run there).
+    watch: Callable | None = None
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -169,6 +172,8 @@ class Integrator:
 
     def _after_step(self) -> None:
         """Checks on an accepted step (self.t already moved)."""
+        if self.watch is not None:
+            self.watch(self)
         if self.audit is not None:
             problem = self.audit.check(self.equations, self.t, self.q, self.qd)
             if problem:

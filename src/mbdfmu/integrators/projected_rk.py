@@ -286,7 +286,7 @@ class DOP853P(ProjectedRK):
             e5, e3 = tangent(e5), tangent(e3)
         err5 = np.linalg.norm(e5 / scale) ** 2
         err3 = np.linalg.norm(e3 / scale) ** 2
-        if err5 == 0.0 and err3 == 0.0:
+        if err5 == 0.0:     # also when 0.01 err3 underflows (a body held at rest): not 0 / 0
             return 0.0
         return float(abs(h) * err5 / math.sqrt((err5 + 0.01 * err3) * scale.size))
 

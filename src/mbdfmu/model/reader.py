@@ -14,7 +14,8 @@ from typing import Any
 from ..errors import Problems, SceneError, suggest
 from .motion import MOTION_TYPES
 from .scene import (COORDINATE_JOINTS, FORCE_TYPES, GROUND, IDENTIFIER, JOINT_TYPES,
-                    RESERVED_NAMES, Body, Driver, RevoluteJoint, Scene, SimulationSettings)
+                    RESERVED_NAMES, Body, Driver, Friction, LimitedJoint, RevoluteJoint, Scene,
+                    SimulationSettings)
 from .toml_table import Table, load_toml, read_fields
 
 # [[kind]] arrays of a scene and the class (or type registry) of their items.
@@ -57,6 +58,21 @@ def _read_motion(table: Table):
     return cls(**values)
 
 
+def _read_friction(table: Table):
+    """A joint's ``friction`` table (None when absent); its keys checked as any item's."""
+    table.known.add("friction")
+    raw = table.data.get("friction")
+    if raw is None:
+        return None
+    t = Table(raw, table.where + ": friction", table.problems)   # reports a non-table
+    values = read_fields(Friction, t)
+    t.finish()
+    if not t.ok:
+        table.ok = False
+        return None
+    return Friction(**values)
+
+
 def read_item(kind: str, raw: Any, where: str, problems: Problems):
     """One ``[[kind]]`` item, or None when it has problems (all of them reported)."""
     t = Table(raw, where, problems)
@@ -69,6 +85,8 @@ def read_item(kind: str, raw: Any, where: str, problems: Problems):
         values["motion"] = _read_motion(t)
         if "motion" not in t.data:
             t.fail('missing required key "motion"')
+    if issubclass(cls, LimitedJoint):
+        values["friction"] = _read_friction(t)
     values = read_fields(cls, t, values)
     t.finish()
     if not t.ok:

@@ -75,8 +75,53 @@ class TwoBodyJoint(BodyPair):
     frame_angle: float = key("float", 0.0)
 
 
+@dataclass(frozen=True)
+class Friction:
+    """Coulomb friction on a joint's coordinate: magnitude ``coulomb + coefficient * radius
+    * |F|`` (revolute, |F| its reaction's magnitude; N.m) or ``coulomb + coefficient * |Fy|``
+    (translational, Fy its normal reaction; N), opposing the coordinate's rate; it sticks
+    while the force needed to hold is below that magnitude."""
+
+    coulomb: float = key("float", 0.0, nonnegative=True)
+    coefficient: float = key("float", 0.0, nonnegative=True)
+    radius: float = key("float", 0.0, nonnegative=True)
+
+
 @dataclass(frozen=True, kw_only=True)
-class RevoluteJoint(TwoBodyJoint):
+class LimitedJoint(TwoBodyJoint):
+    """A joint with a coordinate, which may have end stops and Coulomb friction:
+    ``limits = [lower, upper]`` (rad or m) with Newton's ``restitution`` (0 to 1) at an
+    impact, and ``friction`` (``Friction``)."""
+
+    limits: Vec2 | None = key("vec2", None)
+    restitution: float = key("float", 0.0)
+    friction: Friction | None = key("table", None)
+
+    def problems(self) -> list[str]:
+        out = super().problems()
+        if self.limits is not None and not self.limits[0] < self.limits[1]:
+            out.append(f"limits: lower {self.limits[0]:g} is not below upper "
+                       f"{self.limits[1]:g}")
+        if not 0.0 <= self.restitution <= 1.0:
+            out.append(f"restitution must be between 0 and 1, got {self.restitution:g}")
+        elif self.restitution and self.limits is None:
+            out.append("restitution needs limits = [lower, upper]")
+        return out
+
+    def summary(self) -> str:
+        text = super().summary()
+        if self.limits is not None:
+            text += (f", limits [{self.limits[0]:g}, {self.limits[1]:g}] restitution "
+                     f"{self.restitution:g}")
+        if self.friction is not None:
+            f = self.friction
+            text += f", friction coulomb {f.coulomb:g} coefficient {f.coefficient:g}"
+            text += f" radius {f.radius:g}" if f.radius else ""
+        return text
+
+
+@dataclass(frozen=True, kw_only=True)
+class RevoluteJoint(LimitedJoint):
     """point_i of body_i and point_j of body_j coincide; rotation is free.
 
     Reactions are reported on body_j in the joint frame: body_j's frame turned by
@@ -86,7 +131,7 @@ class RevoluteJoint(TwoBodyJoint):
 
 
 @dataclass(frozen=True, kw_only=True)
-class TranslationalJoint(TwoBodyJoint):
+class TranslationalJoint(LimitedJoint):
     """point_j stays on the line through point_i along ``axis_i`` (body_i's frame); the
     relative rotation stays at its initial value.
 
@@ -95,6 +140,13 @@ class TranslationalJoint(TwoBodyJoint):
 
     TYPE = "translational"
     axis_i: Vec2 = key("vec2", nonzero=True)
+
+    def problems(self) -> list[str]:
+        out = super().problems()
+        if self.friction is not None and self.friction.radius:
+            out.append("friction.radius is for revolute joints only (a translational "
+                       "joint's friction grows with its normal reaction)")
+        return out
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -246,6 +298,12 @@ class RotationalSpringDamper:
 Joint = RevoluteJoint | TranslationalJoint | SlotJoint | RollingJoint | CouplerJoint
 # Joints with a coordinate (what drivers, couplers and rotational springs act on).
 COORDINATE_JOINTS = (RevoluteJoint, TranslationalJoint)
+
+
+def has_events(scene: "Scene") -> bool:
+    """The scene has end stops or Coulomb friction: its run locates events."""
+    return any(isinstance(j, LimitedJoint) and (j.limits is not None or j.friction is not None)
+               for j in scene.joints)
 Force = PointForce | Torque | SpringDamper | RotationalSpringDamper
 JOINT_TYPES: dict[str, type] = {cls.TYPE: cls for cls in (RevoluteJoint, TranslationalJoint,
                                                           SlotJoint, RollingJoint, CouplerJoint)}

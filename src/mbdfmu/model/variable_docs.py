@@ -9,7 +9,9 @@ def _doc_row(label: str, kind: str, spec: Spec) -> str:
     """One row of the documentation's variable list."""
     text = spec.description.format(name="<name>", item=_Placeholder(), pos="{pos}",
                                    effort="{effort}", body="<body>", ratio="{ratio}")
-    if spec.when:
+    if spec.when in ("limits", "friction"):      # keys that are a list or a table
+        text += f" (when the joint has `{spec.when}`)"
+    elif spec.when:
         text += f" (when `{spec.when.lstrip('!')}` is {'false' if spec.when[0] == '!' else 'true'})"
     return f"| {label} | {kind} | `<{label.split()[0]}>.{spec.suffix}` | {spec.unit} | {text} |"
 

@@ -90,8 +90,16 @@ TABLES: dict[type, ItemVariables] = {
                  Spec("vx", "m/s", "x velocity of {name}'s centre of mass"),
                  Spec("vy", "m/s", "y velocity of {name}'s centre of mass"),
                  Spec("omega", "rad/s", "angular velocity of {name}"))),
-    RevoluteJoint: ItemVariables(outputs=_REACTIONS),
-    TranslationalJoint: ItemVariables(outputs=_REACTIONS),
+    RevoluteJoint: ItemVariables(outputs=_REACTIONS + (
+        Spec("limit", "N.m", "torque the end stops of {name} apply on its coordinate, "
+             "positive pushing it up (0: not in contact)", when="limits"),
+        Spec("friction", "N.m", "Coulomb friction torque of {name} on its coordinate",
+             when="friction"))),
+    TranslationalJoint: ItemVariables(outputs=_REACTIONS + (
+        Spec("limit", "N", "force the end stops of {name} apply on its coordinate, positive "
+             "pushing it up (0: not in contact)", when="limits"),
+        Spec("friction", "N", "Coulomb friction force of {name} on its coordinate",
+             when="friction"))),
     SlotJoint: ItemVariables(outputs=(
         Spec("Fx", "N", "force of slot {name} on the pin ({item.body_j}) along the slot's axis "
              "(0: no friction)"),

@@ -1,0 +1,168 @@
+"""End stops and Coulomb friction in the equations: one contact mode at a time.
+
+A mode says, for each joint with ``limits`` or ``friction``, whether it rests against a
+stop or sticks (its coordinate then held by a constant driver row: ``model.limits``) and in
+which direction each sliding joint slides. ``ModeEquations`` are the ``Equations`` of the
+scene with those rows, plus the sliding friction as a generalized force on each sliding
+joint's coordinate (formulation.md eqs. 29-31). The events that change the mode are found by
+``integrators/events.py``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import SolverError
+from ..model.scene import RevoluteJoint, Scene
+from .dynamics import Equations
+from .sparsity import schur_solve
+
+# Fixed-point iterations of the sliding force against the reactions it changes (eq. 31),
+# and their relative tolerance.
+FRICTION_MAX_ITER = 60
+FRICTION_TOL = 1e-14
+
+
+def body_poses(q: np.ndarray, index: int | None) -> tuple[float, float, float]:
+    """(x, y, angle) of body ``index`` in q, the ground's (None) at the origin."""
+    return (0.0, 0.0, 0.0) if index is None else tuple(q[3 * index:3 * index + 3])
+
+
+class Coordinate:
+    """A joint's coordinate (scene contract: ``phi_j - phi_i`` or ``(r_Pj - r_Pi) . u_i``),
+    its gradient in q and its rate, evaluated from q and q' (eqs. 29-30)."""
+
+    def __init__(self, scene: Scene, joint):
+        index = {b.name: k for k, b in enumerate(scene.bodies)}
+        self.joint = joint
+        self.i, self.j = index.get(joint.body_i), index.get(joint.body_j)
+        self.revolute = isinstance(joint, RevoluteJoint)
+        if not self.revolute:
+            u = np.asarray(joint.axis_i, dtype=float)
+            self.u = u / math.hypot(*u)
+        self.n = 3 * len(scene.bodies)
+
+    def gradient(self, q: np.ndarray) -> np.ndarray:
+        g = np.zeros(self.n)
+        if self.revolute:
+            if self.j is not None:
+                g[3 * self.j + 2] += 1.0
+            if self.i is not None:
+                g[3 * self.i + 2] -= 1.0
+            return g
+        (xi, yi, ai), (xj, yj, aj) = body_poses(q, self.i), body_poses(q, self.j)
+        ci, si, cj, sj = math.cos(ai), math.sin(ai), math.cos(aj), math.sin(aj)
+        a = np.array([ci * self.u[0] - si * self.u[1], si * self.u[0] + ci * self.u[1]])
+        (pi0, pi1), (pj0, pj1) = self.joint.point_i, self.joint.point_j
+        Ai = np.array([ci * pi0 - si * pi1, si * pi0 + ci * pi1])
+        Aj = np.array([cj * pj0 - sj * pj1, sj * pj0 + cj * pj1])
+        d = np.array([xj, yj]) + Aj - np.array([xi, yi]) - Ai
+        if self.j is not None:
+            g[3 * self.j:3 * self.j + 2] += a
+            g[3 * self.j + 2] += a @ np.array([-Aj[1], Aj[0]])
+        if self.i is not None:
+            g[3 * self.i:3 * self.i + 2] -= a
+            g[3 * self.i + 2] += np.array([-a[1], a[0]]) @ d - a @ np.array([-Ai[1], Ai[0]])
+        return g
+
+    def value(self, q: np.ndarray) -> float:
+        if self.revolute:
+            return body_poses(q, self.j)[2] - body_poses(q, self.i)[2]
+        (xi, yi, ai), (xj, yj, aj) = body_poses(q, self.i), body_poses(q, self.j)
+        ci, si, cj, sj = math.cos(ai), math.sin(ai), math.cos(aj), math.sin(aj)
+        (pi0, pi1), (pj0, pj1) = self.joint.point_i, self.joint.point_j
+        dx = xj + cj * pj0 - sj * pj1 - xi - ci * pi0 + si * pi1
+        dy = yj + sj * pj0 + cj * pj1 - yi - si * pi0 - ci * pi1
+        return (ci * self.u[0] - si * self.u[1]) * dx + (si * self.u[0] + ci * self.u[1]) * dy
+
+    def rate(self, q: np.ndarray, qd: np.ndarray) -> float:
+        return float(self.gradient(q) @ qd)
+
+
+def friction_bound(eq: Equations, k: int, q: np.ndarray, lam: np.ndarray) -> float:
+    """Eq. 31: the friction magnitude joint ``k`` (scene index) can give, from its reaction."""
+    joint = eq.scene.joints[k]
+    f = joint.friction
+    fx, fy, _ = eq.reactions(q, lam)[k]
+    if isinstance(joint, RevoluteJoint):
+        return f.coulomb + f.coefficient * f.radius * math.hypot(fx, fy)
+    # the normal reaction: the joint frame is the axis turned by frame_angle
+    normal = fx * math.sin(joint.frame_angle) + fy * math.cos(joint.frame_angle)
+    return f.coulomb + f.coefficient * abs(normal)
+
+
+class _PlusFriction:
+    """The scene's applied forces plus the sliding friction of the current evaluation.
+
+    Never constant: rk4p then takes its steps one at a time, each watched for events."""
+
+    is_constant = False
+
+    def __init__(self, base, sliding: bool):
+        self.base, self.extra, self.sliding = base, None, sliding
+
+    def __getattr__(self, name):
+        return getattr(self.base, name)
+
+    def __call__(self, t, q, qd, u):
+        F = self.base(t, q, qd, u)
+        return F if self.extra is None else F + self.extra
+
+    def depend_on_state(self) -> bool:
+        return True
+
+    def nonconservative_reason(self) -> str | None:
+        return "Coulomb friction slides" if self.sliding else self.base.nonconservative_reason()
+
+
+class ModeEquations(Equations):
+    """``Equations`` of a mode's scene (its held coordinates as driver rows after the
+    scene's own rows) with ``sliding``: {joint index: direction +1 or -1} sliding joints.
+
+    The friction force of a sliding joint, ``-direction (F0 + mu r |F|)`` (eq. 31), depends
+    on the reactions it changes: eq. (14) is solved with a guess, the force updated from
+    the reactions, until it no longer changes (``last_friction`` keeps it)."""
+
+    def __init__(self, scene: Scene, sliding: dict[int, int], *, kernel: str | None = None):
+        super().__init__(scene, kernel=kernel)
+        self.sliding = dict(sliding)
+        self.coordinates = {k: Coordinate(scene, scene.joints[k]) for k in self.sliding}
+        self.direction = np.array([float(d) for d in self.sliding.values()])
+        self.last_friction = -self.direction * np.array(
+            [scene.joints[k].friction.coulomb for k in self.sliding])
+        self.applied = _PlusFriction(self.applied, bool(self.sliding))
+
+    def accelerations(self, t, q, qd, u=None, *, baumgarte=None):
+        if not self.sliding:
+            return super().accelerations(t, q, qd, u, baumgarte=baumgarte)
+        grads = [c.gradient(q) for c in self.coordinates.values()]
+        f = self.last_friction.copy()
+        for _ in range(FRICTION_MAX_ITER):
+            self.applied.extra = sum(fk * g for fk, g in zip(f, grads))
+            try:
+                qdd, lam = super().accelerations(t, q, qd, u, baumgarte=baumgarte)
+            finally:
+                self.applied.extra = None
+            new = -self.direction * np.array([friction_bound(self, k, q, lam)
+                                              for k in self.sliding])
+            if np.all(np.abs(new - f) <= FRICTION_TOL * (1.0 + np.abs(new))):
+                self.last_friction = f
+                return qdd, lam
+            f = new
+        names = ", ".join(self.scene.joints[k].name for k in self.sliding)
+        raise SolverError(f"the sliding friction of {names} does not converge against its "
+                          "reactions (coefficient x radius too large for this mechanism)", t)
+
+
+def velocity_jump(eq: Equations, t: float, q: np.ndarray, qd: np.ndarray, gradient: np.ndarray,
+                  rate_after: float, u=None) -> np.ndarray:
+    """Eq. 32: the q' closest in kinetic energy to ``qd`` that meets ``eq``'s constraints and
+    gives the coordinate of ``gradient`` the rate ``rate_after`` (Newton's impact law)."""
+    if eq.m:
+        _, J, nu, _ = eq.constraints(t, q, qd, u)
+        J, target = np.vstack((J, gradient)), np.append(nu, rate_after)
+    else:
+        J, target = gradient[None, :], np.array([rate_after])
+    return qd - eq.minv * (J.T @ schur_solve(J, eq.minv, J @ qd - target))

@@ -1,0 +1,248 @@
+"""Events of end stops and Coulomb friction: found after each step, located inside it.
+
+``EventRunner`` drives any integrator that takes single steps through ``Integrator.watch``
+(the explicit methods: rk4p, rk45p, dop853p). After each accepted step it evaluates the
+event functions of the current mode (``equations/limits.py``, formulation.md eq. 33):
+
+* free of a stop: ``q - lower`` and ``upper - q`` (an impact when one turns negative);
+* resting against a stop: the stop's force, signed to push away from it (it leaves);
+* sticking: the friction bound minus the force that holds (it slips);
+* sliding: the rate, signed along the sliding direction (it stops, then sticks or turns).
+
+A sign change stops the step; the runner re-steps from the step's start to the Illinois
+estimates of the root until the bracket is below ``EVENT_TIME_TOL`` and continues from its
+earlier end with the new mode: Newton's restitution as a velocity jump projected onto the
+other constraints (eq. 32), or a stop's or a sticking joint's coordinate held by a row.
+Impacts whose remaining bounces would all fit in ``SETTLE_TIME`` (an accumulation of
+impacts) settle into contact. Every transition is recorded in ``log`` (time, joint, what).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..equations.constraints import choose_kernel
+from ..equations.limits import velocity_jump
+from ..errors import SettingError, SolverError
+from ..model.limits import (HELD, LOWER, SLIDE_DOWN, SLIDE_UP, STICK, UPPER, JointMode,
+                            slip_text)
+from ..model.scene import Scene, has_events
+from .modes import ContactModes
+
+# The methods whose steps the runner watches and repeats (one step from any state).
+EVENT_METHODS = ("rk4p", "rk45p", "dop853p")
+# Width (s) of the bracket at which an event counts as located.
+EVENT_TIME_TOL = 1e-12
+# Secant / Illinois iterations allowed to locate one event.
+LOCATE_MAX_ITER = 200
+# An impact whose remaining bounces would all end within this time (s) rests at once.
+SETTLE_TIME = 1e-10
+
+
+class EventFound(Exception):
+    """Raised from ``watch`` inside a step: the keys whose event functions changed sign."""
+
+
+class EventRunner(ContactModes):
+    """Runs an integrator through the events of the contact modes (``ContactModes``)."""
+
+    def watch(self, integrator) -> None:
+        """Called after each accepted step (``Integrator.watch``)."""
+        g = self.values(integrator.t, integrator.q, integrator.qd)
+        g0 = self.watching[1]
+        crossed = [key for key, v in g.items() if v < 0 and (g0[key] >= 0 or v < g0[key])]
+        if crossed:
+            raise EventFound(crossed, g)
+        self.watching = (integrator.rollback_point(), g, integrator.t)
+
+    # ------------------------------------------------------------------ running
+
+    def advance(self, integrator, t_target: float, limit=None) -> None:
+        """``integrator.advance(t_target, limit)`` with every event on the way handled."""
+        integrator.equations = self.equations
+        while integrator.t < t_target:
+            self.watching = (integrator.rollback_point(),
+                             self.values(integrator.t, integrator.q, integrator.qd), integrator.t)
+            integrator.watch = self.watch
+            try:
+                integrator.advance(t_target, limit)
+            except EventFound as found:
+                integrator.watch = None
+                crossed, g1 = found.args
+                self._handle(integrator, crossed, g1)
+            finally:
+                integrator.watch = None
+
+    def _state_at(self, integrator, start, t: float):
+        integrator.set_state(start)
+        if t > integrator.t:
+            integrator.advance(t)
+        return integrator.rollback_point()
+
+    def _handle(self, integrator, crossed, g1) -> None:
+        start, g0, t0 = self.watching
+        t1 = integrator.t
+        # the earliest crossing by linear interpolation first; any earlier one found at
+        # the located time is located in turn
+        key = min(crossed, key=lambda c: _fraction(g0[c], g1[c]))
+        a, point, b = t0, start, t1
+        while True:
+            a, point = self._locate(integrator, start, key, t0, g0[key], b, g1[key])
+            integrator.set_state(point)
+            g = self.values(integrator.t, integrator.q, integrator.qd)
+            earlier = [c for c, v in g.items() if c != key and v < 0 <= g0[c]]
+            if not earlier or a <= t0:
+                break
+            key, b, g1 = earlier[0], a, g
+        self._transition(integrator, key)
+
+    def _locate(self, integrator, start, key, a, ga, b, gb):
+        """(time, rollback point) of the bracket's earlier end once ``b - a`` is within
+        ``EVENT_TIME_TOL``: Illinois (secant with halving of a retained end's value); for a
+        stop's distance, whose slope is the coordinate's rate, the quadratic through the
+        earlier end's value and slope and the later end's value, aimed a quarter of the
+        tolerance past the last side found (so that the bracket closes from both sides)."""
+        point, last = start, 0
+        if ga < 0:
+            return a, point       # already past it at the step's start: change at once
+        sa = self._slope(key, start["q"], start["qd"])
+        for _ in range(LOCATE_MAX_ITER):
+            if b - a <= max(EVENT_TIME_TOL, 4 * np.spacing(b)):
+                return a, point
+            if sa is not None and sa < 0 and ga <= -sa * 0.5 * EVENT_TIME_TOL:
+                return a, point   # moving in, its distance reached within the tolerance
+            t = _quadratic_root(a, ga, sa, b, gb) if sa is not None else None
+            if t is not None:
+                t += 0.25 * EVENT_TIME_TOL * last
+            elif gb != ga:
+                t = b - gb * (b - a) / (gb - ga)
+            if t is None or not a < t < b:
+                t = 0.5 * (a + b)
+            state = self._state_at(integrator, start, t)
+            g = self.values(integrator.t, integrator.q, integrator.qd)[key]
+            if g >= 0:
+                a, ga, point = t, g, state
+                sa = self._slope(key, integrator.q, integrator.qd)
+                if last == 1:
+                    gb *= 0.5
+                last = 1
+            else:
+                b, gb = t, g
+                if last == -1:
+                    ga *= 0.5
+                last = -1
+        raise SolverError(f"the event of joint {self.scene.joints[key[0]].name} could not be "
+                          f"located within {EVENT_TIME_TOL:g} s", a)
+
+    def _slope(self, key, q, qd) -> float | None:
+        """The time derivative of a stop's distance (the coordinate's rate); None for the
+        other event functions."""
+        k, kind = key
+        if kind == "hit lower":
+            return self.coordinates[k].rate(q, qd)
+        if kind == "hit upper":
+            return -self.coordinates[k].rate(q, qd)
+        return None
+
+    def _transition(self, integrator, key) -> None:
+        k, kind = key
+        t, q, qd = integrator.t, integrator.q.copy(), integrator.qd.copy()
+        j, c, eq = self.scene.joints[k], self.coordinates[k], self.equations
+        state = self.mode[k].state
+        if kind in ("hit lower", "hit upper"):
+            stop = LOWER if kind == "hit lower" else UPPER
+            before = c.rate(q, qd)
+            after = -j.restitution * before
+            if self._settles(t, q, qd, k, stop, after):
+                self.mode[k] = JointMode(stop, j.limits[0 if stop == LOWER else 1])
+                self.log.append((float(t), j.name, f"hits its {stop} stop at rate {before:.9g} and "
+                                 "rests against it"))
+                self._settle(t, q, qd, "")
+            else:
+                qd = velocity_jump(eq, t, q, qd, c.gradient(q), after, self.inputs(t))
+                self.log.append((float(t), j.name, f"hits its {stop} stop at rate {before:.9g}, "
+                                 f"leaves at {after:.9g}"))
+                if state in (SLIDE_UP, SLIDE_DOWN):
+                    self.mode[k] = JointMode(SLIDE_UP if after > 0 else SLIDE_DOWN)
+        elif kind in (LOWER, UPPER):
+            self.mode[k] = self._moving_state(k, c.value(q), 0.0)
+            self.log.append((float(t), j.name, f"leaves its {kind} stop"))
+            self._settle(t, q, qd, "")
+        elif kind == STICK:
+            _, lam = eq.accelerations(t, q, qd, self.inputs(t))
+            effort = -lam[eq.held_rows[k]]
+            self.mode[k] = JointMode(SLIDE_DOWN if effort > 0 else SLIDE_UP)
+            self.log.append((float(t), j.name, f"slips: {slip_text(self.mode[k].state)}"))
+        else:                            # a sliding joint's rate reaches zero: stick if it can
+            self.log.append((float(t), j.name, "stops sliding"))
+            self.mode[k] = JointMode(STICK, c.value(q))
+            self._settle(t, q, qd, "stops")
+        q, qd = self._project(t, q, qd)
+        integrator.equations = self.equations
+        integrator.reset_state(q, qd)
+
+    def _settles(self, t, q, qd, k, stop, after) -> bool:
+        """An impact ends in contact: no rebound, or the remaining bounces (a geometric
+        series of flights 2 v / a, each e times the last) all fit in ``SETTLE_TIME``."""
+        j, c = self.scene.joints[k], self.coordinates[k]
+        if after == 0.0:
+            return True
+        e = j.restitution
+        qdd, _ = self.equations.accelerations(t, q, qd, self.inputs(t))
+        d = 1e-6
+        accel = (c.rate(q + d * qd, qd + d * qdd) - c.rate(q, qd)) / d
+        toward = -accel if stop == LOWER else accel
+        if toward <= 0 or e >= 1.0:
+            return False
+        return 2.0 * abs(after) / toward / (1.0 - e) < SETTLE_TIME
+
+
+def event_kernel(scene: Scene, kernel: str | None) -> tuple[str | None, str]:
+    """The kernel a scene runs on and a note when it is not the one asked for: the C kernel
+    takes whole steps in one call, which the events cannot watch; scenes with stops or
+    friction run on the numpy kernel instead (numba's stays: its steps are watched)."""
+    if not has_events(scene) or choose_kernel(kernel) != "c":
+        return kernel, ""
+    return "numpy", 'kernel "c" does not handle joint limits or friction: the numpy kernel runs'
+
+
+def event_summary(scene: Scene, q0, qd0, dof: int) -> str:
+    """``mbdfmu check``'s line on stops and friction: their rows and the mode at the start."""
+    runner = EventRunner(scene, "numpy", 0.0, q0, qd0, lambda t: None)
+    stops = [scene.joints[k].name for k in runner.joints if scene.joints[k].limits is not None]
+    rubs = [scene.joints[k].name for k in runner.joints if scene.joints[k].friction is not None]
+    held = sum(m.state in HELD for m in runner.mode.values())
+    start = ", ".join(f"{scene.joints[k].name} {m.state}" for k, m in runner.mode.items())
+    return (f"end stops on {', '.join(stops) or 'none'} (one row each while resting on a "
+            f"stop), friction on {', '.join(rubs) or 'none'} (one row each while sticking); "
+            f"at the start: {start}: {held} rows held, degrees of freedom {dof - held}")
+
+
+def check_method(integrator, scene: Scene) -> None:
+    """Only methods that take single steps from any state can locate events (the only ones
+    a scene with stops or friction may run)."""
+    if has_events(scene) and integrator.name not in EVENT_METHODS:
+        raise SettingError("method", f'method "{integrator.name}" does not locate the events '
+                           f"of joint limits and friction: use one of {', '.join(EVENT_METHODS)}",
+                           scene.source)
+
+
+def _quadratic_root(a, ga, sa, b, gb) -> float | None:
+    """The first root in (a, b) of the quadratic with value ga and slope sa at a, gb at b."""
+    h = b - a
+    c = (gb - ga - sa * h) / (h * h)
+    if abs(c) * h < 1e-14 * (abs(sa) + abs(gb - ga) / h):
+        return a - ga / sa if sa < 0 else None
+    disc = sa * sa - 4 * c * ga
+    if disc < 0:
+        return None
+    r = math.sqrt(disc)
+    inside = [a + tau for tau in ((-sa - r) / (2 * c), (-sa + r) / (2 * c)) if 0 < tau < h]
+    return min(inside) if inside else None
+
+
+def _fraction(g0: float, g1: float) -> float:
+    """Where in the step a linear g crosses zero (0 at its start)."""
+    return 0.0 if g0 <= 0 else g0 / (g0 - g1)
