@@ -17,7 +17,7 @@ import scipy.linalg
 from ..errors import AssemblyError, SolverError
 from ..model.variables import InputValues
 from .dynamics import Equations
-from .sparsity import RANK_TOLERANCE, schur_solve
+from .sparsity import RANK_TOLERANCE, schur_solve, schur_solve_checked
 
 # Newton iterations allowed when assembling from rough estimates, and while projecting.
 ASSEMBLY_MAX_ITER = 60
@@ -39,7 +39,8 @@ def project_positions(system: Equations, t: float, q: np.ndarray, *, tol: float,
                       u: InputValues | None = None) -> tuple[np.ndarray, int]:
     """Closest q (mass-weighted) with Psi(q, t) = 0; returns (q, iterations).
 
-    Converged when Psi and the last Newton increment are both below ``tol`` (max-norms):
+    Converged when Psi is below ``tol`` (max-norm) where the Schur complement is well
+    conditioned; elsewhere when Psi and the last Newton increment are both below ``tol``:
     near a singular configuration |Psi| <= tol alone leaves q off by up to tol / sigma
     (sigma the smallest singular value of Psi_q) along the direction that loses rank,
     towards the other branch. An increment made of the rounding of Psi (a residual at
@@ -57,7 +58,10 @@ def project_positions(system: Equations, t: float, q: np.ndarray, *, tol: float,
         err = float(np.max(np.abs(Psi)))
         if err > tol and it == max_iter:
             break
-        dq = system.minv * (J.T @ schur_solve(J, system.minv, Psi))
+        x, well_conditioned = schur_solve_checked(J, system.minv, Psi)
+        if err <= tol and well_conditioned:
+            return q, it      # away from singular configurations q is within ~tol already
+        dq = system.minv * (J.T @ x)
         q -= dq
         if err <= tol and (float(np.max(np.abs(dq))) <= tol
                            or err <= ROUNDOFF_RESIDUAL * system.length_scale):
