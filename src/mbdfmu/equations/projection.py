@@ -17,7 +17,8 @@ import scipy.linalg
 from ..errors import AssemblyError, SolverError
 from ..model.variables import InputValues
 from .dynamics import Equations
-from .sparsity import RANK_TOLERANCE, schur_solve, schur_solve_checked
+from ..model.scene import has_events
+from .sparsity import RANK_TOLERANCE, schur_solve
 
 # Newton iterations allowed when assembling from rough estimates, and while projecting.
 ASSEMBLY_MAX_ITER = 60
@@ -39,29 +40,31 @@ def project_positions(system: Equations, t: float, q: np.ndarray, *, tol: float,
                       u: InputValues | None = None) -> tuple[np.ndarray, int]:
     """Closest q (mass-weighted) with Psi(q, t) = 0; returns (q, iterations).
 
-    Converged when Psi is below ``tol`` (max-norm) where the Schur complement is well
-    conditioned; elsewhere when Psi and the last Newton increment are both below ``tol``:
+    Converged when Psi and the last Newton increment are both below ``tol`` (max-norms):
     near a singular configuration |Psi| <= tol alone leaves q off by up to tol / sigma
     (sigma the smallest singular value of Psi_q) along the direction that loses rank,
     towards the other branch. An increment made of the rounding of Psi (a residual at
     ROUNDOFF_RESIDUAL of the mechanism's size) cannot shrink further and also ends the
-    iteration. Raises SolverError when Newton does not get there in ``max_iter``.
+    iteration. Scenes with end stops or friction (events hold rows of their joints) stop on
+    Psi alone: the extra increment moved the states the events hold (crane_stop came to
+    rest off its closed form). Raises SolverError when Newton does not get there in
+    ``max_iter``.
     """
     q = q.copy()
     if system.m == 0:
         return q, 0
+    held_rows = has_events(system.scene)
     err = np.inf
     for it in range(max_iter + 1):
         Psi, J = system.constraints(t, q, u=u, sparse=True)
         if not np.all(np.isfinite(Psi)):
             raise SolverError("non-finite constraint residual while projecting positions", t)
         err = float(np.max(np.abs(Psi)))
+        if err <= tol and held_rows:
+            return q, it      # Psi alone: see the docstring
         if err > tol and it == max_iter:
             break
-        x, well_conditioned = schur_solve_checked(J, system.minv, Psi)
-        if err <= tol and well_conditioned:
-            return q, it      # away from singular configurations q is within ~tol already
-        dq = system.minv * (J.T @ x)
+        dq = system.minv * (J.T @ schur_solve(J, system.minv, Psi))
         q -= dq
         if err <= tol and (float(np.max(np.abs(dq))) <= tol
                            or err <= ROUNDOFF_RESIDUAL * system.length_scale):

@@ -63,8 +63,6 @@ def _project_positions(qe, qn, c, minv, rank_tol, tol, roundoff, max_iter, p, pl
         x, ok = schur_solve(values, plan, psi, rank_tol)
         if not ok:
             return qn, StepStatus.SINGULAR
-        if err <= tol:
-            return qn, StepStatus.DONE      # well conditioned (ok): Psi alone, as numpy
         dq = minv * jac_t_mul(values, plan.rows, plan.cols, x, n)
         qn = qn - dq
         if err <= tol and (np.max(np.abs(dq)) <= tol or err <= roundoff):
