@@ -27,11 +27,9 @@ from mbdfmu.fmu_build.scene_fmu import build_fmu
 
 fmpy = pytest.importorskip("fmpy")
 from fmpy import extract, read_model_description, simulate_fmu  # noqa: E402
-from fmpy.fmi1 import FMICallException, calloc, free  # noqa: E402
-from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE,  # noqa: E402
-                       fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
-                       fmi2CallbackLoggerTYPE)
-from fmpy.logging import addLoggerProxy  # noqa: E402
+from fmpy.fmi1 import FMICallException  # noqa: E402
+from fmpy.fmi2 import FMU2Slave  # noqa: E402
+from fmu_logs import CALLBACKS as _CALLBACKS, LOGS as _LOGS  # noqa: E402
 from fmpy.validation import validate_fmu  # noqa: E402
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
@@ -152,19 +150,6 @@ def fmu(tmp_path_factory, scene_file):
     return get
 
 
-def _log(env, instance, status, category, message):
-    _LOGS.setdefault(instance.decode(), []).append(
-        (status, (category or b"").decode(), message.decode()))
-
-
-# fmpy's logger proxy (which formats the variadic message) keeps one Python logger per
-# process, so one callback serves every instance and sorts messages by instance name.
-_LOGS: dict[str, list] = {}
-_CALLBACKS = fmi2CallbackFunctions()
-_CALLBACKS.logger = fmi2CallbackLoggerTYPE(_log)
-_CALLBACKS.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-_CALLBACKS.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-addLoggerProxy(byref(_CALLBACKS))
 _NAMES = iter(range(10 ** 9))
 
 

@@ -13,11 +13,13 @@ import numpy as np
 import pytest
 
 fmpy = pytest.importorskip("fmpy")
+from fmpy.fmi2 import FMU2Slave  # noqa: E402
 
 from mbdfmu.fmu_build import build  # noqa: E402
 from mbdfmu.model import load_scene  # noqa: E402
 
 import exact_solutions as ref  # noqa: E402
+import fmu_logs  # noqa: E402
 from event_checks import CHECKS, check_events  # noqa: E402
 
 SLOW = [pytest.mark.slow,
@@ -40,17 +42,29 @@ def fmus(tmp_path_factory):
     return {name: build(ref.SCENES / f"{name}.toml", folder / f"{name}.fmu") for name in CHECKS}
 
 
+def _instance(path, name: str, folder):
+    """An fmpy instance of the FMU at ``path`` logging through the process's one logger."""
+    md = fmpy.read_model_description(str(path))
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(str(path), str(folder)),
+                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
+    slave.instantiate(callbacks=fmu_logs.CALLBACKS, loggingOn=True)
+    return slave
+
+
 @pytest.mark.parametrize("name, start", cases())
-def test_fmu_matches_the_closed_form(fmus, name, start, capsys):
+def test_fmu_matches_the_closed_form(fmus, name, start, tmp_path):
     t_end = load_scene(ref.SCENES / f"{name}.toml").simulation.t_end
-    # The FMU's log through fmpy's default logger (it prints "[STATUS] message"), not a
-    # logger= callback: fmpy's native logging proxy keeps that callback in one process-wide
-    # slot, and after simulate_fmu returns it points at a freed ctypes thunk, so the next
-    # FMU to log anything in this process would crash the host (fmpy's own defect).
-    capsys.readouterr()
-    table = fmpy.simulate_fmu(str(fmus[name]), stop_time=t_end, output_interval=t_end / 40,
-                              start_values=START[start], debug_logging=True)
-    lines = [re.sub(r"^\[[A-Z]+\] ", "", line) for line in capsys.readouterr().out.splitlines()]
+    # the log through the process's one logger (fmu_logs), never a logger= callback, which
+    # fmpy would keep process-wide after freeing it
+    instance = f"limits-{name}-{start}"
+    fmu_logs.take(instance)
+    slave = _instance(fmus[name], instance, tmp_path)
+    try:
+        table = fmpy.simulate_fmu(str(fmus[name]), stop_time=t_end, output_interval=t_end / 40,
+                                  start_values=START[start], fmu_instance=slave)
+    finally:
+        slave.freeInstance()
+    lines = fmu_logs.take(instance)
     time = np.asarray(table["time"], dtype=float)
     assert time[-1] == pytest.approx(t_end)
     CHECKS[name](time, {n: np.asarray(table[n], dtype=float) for n in table.dtype.names})
