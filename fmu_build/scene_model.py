@@ -13,8 +13,9 @@ argument checks, get/set, statuses, logging and the state format. What is here:
   bad value fails fmi2ExitInitializationMode with fmi2Error naming it;
 * ``step`` passes the inputs set since the last step to the simulation and advances it
   within the work limits (``solver.max_steps_per_communication_step``,
-  ``solver.max_cpu_per_communication_step``); a solver failure or an exceeded limit is
-  ``Discard``: the simulation is back where the step started and the master may retry;
+  ``solver.max_cpu_per_communication_step``): an exceeded limit is ``Discard`` (the
+  simulation is back where the step started and the master may retry with a shorter step),
+  any other solver failure fmi2Error (a shorter step would fail the same way);
 * ``save_state``/``check_state``/``restore_state``: the simulation's plain-data state and
   what it was built from;
 * derivatives (docs/fmu.md, "Derivatives"): input derivatives set before a step make the
@@ -253,9 +254,15 @@ class Model(Slave):
         self.push_inputs()
         try:
             self.sim.advance(time + step_size, self.work_limit())
-        except (errors.SolverError, errors.InputError) as exc:
+        except errors.WorkLimitError as exc:    # the one failure a shorter step can avoid
             raise Discard(f"at t = {time!r} s: {exc} (the FMU stays at t = {self.sim.t!r} s; "
-                          "retry with a smaller step or other inputs)") from None
+                          "retry with a smaller step)") from None
+        except (errors.SolverError, errors.InputError) as exc:
+            # the integrator's steps do not depend on the communication step, so a shorter
+            # one fails the same way: fmi2Error (a master that retried fmi2Discard would loop)
+            raise FmiError(f"at t = {time!r} s: {exc} (the FMU stays at t = {self.sim.t!r} s; "
+                           "fmi2SetFMUstate to an earlier state with other inputs or solver "
+                           "settings, or fmi2Reset, to go on)") from None
         self.pending = []
         self.log_events()
         self.publish()

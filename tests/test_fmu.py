@@ -582,25 +582,29 @@ def test_non_finite_input_is_discarded_with_a_reason_and_can_be_retried(fmu, sla
     assert s.step(1e-2) == OK
 
 
-def test_a_loop_that_cannot_close_is_discarded_and_leaves_the_state(fmu, slave):
-    # the slider pushed beyond r + l = 0.4 m: the position projection (Newton) cannot converge
+def test_a_loop_that_cannot_close_is_an_error_and_a_saved_state_goes_on(fmu, slave):
+    # the slider pushed beyond r + l = 0.4 m: the position projection (Newton) cannot converge,
+    # at any communication step, so fmi2Error (not fmi2Discard, which a master would retry)
     s = slave(fmu("slider_crank_slide"))
     s.init(inputs={"motor.position": 0.3})
     before = s.get("slider.x", "crank.phi")
+    saved = s.fmu.getFMUState()
     s.set(motor__position=0.45)
-    assert s.step(1e-3) == DISCARD
-    assert s.messages[-1][0] == DISCARD and "projection" in s.messages[-1][2]
+    assert s.step(1e-3) == ERROR
+    assert s.messages[-1][0] == ERROR and "projection" in s.messages[-1][2]
+    assert "fmi2SetFMUstate" in s.messages[-1][2]
+    s.fmu.setFMUState(saved)
     np.testing.assert_array_equal(s.get("slider.x", "crank.phi"), before)
     s.set(motor__position=0.31)
     assert s.step(1e-3) == OK
     assert s.get("slider.x")[0] == pytest.approx(0.31, abs=1e-9)
 
 
-def test_a_blown_up_state_is_discarded_and_a_smaller_step_passes(fmu, slave):
+def test_a_blown_up_state_is_an_error_and_a_smaller_solver_step_passes(fmu, slave):
     s = slave(fmu("pendulum"))
     s.init(**{"solver.method": "taylor", "solver.step": 0.2})
-    assert s.step(2.0) == DISCARD
-    assert s.messages[-1][0] == DISCARD and "taylor" in s.messages[-1][2]
+    assert s.step(2.0) == ERROR
+    assert s.messages[-1][0] == ERROR and "taylor" in s.messages[-1][2]
     assert s.t == 0.0
     s.fmu.reset()
     s.init(**{"solver.method": "taylor", "solver.step": 1e-4})

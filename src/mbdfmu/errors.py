@@ -50,6 +50,11 @@ class SolverError(MbdfmuError):
         super().__init__(prefix + message)
 
 
+class WorkLimitError(SolverError):
+    """The work allowed for one advance (internal steps, CPU time) ran out before its target
+    time: a shorter advance may succeed, unlike the other solver failures."""
+
+
 class InputError(MbdfmuError):
     """An unknown input name, a non-finite input value, or an unreadable input table."""
 

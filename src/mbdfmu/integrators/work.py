@@ -6,7 +6,7 @@ import math
 import time
 from dataclasses import dataclass, fields
 
-from ..errors import SolverError
+from ..errors import WorkLimitError
 from ..plain import Plain
 
 
@@ -36,8 +36,8 @@ class WorkLimit:
     (accepted and rejected) and ``max_cpu`` CPU seconds of the calling thread, checked
     after every internal step (a fixed-step run longer than ``max_steps`` is refused before
     its first step). None: no bound. ``names`` are the settings' names in messages (an
-    FMU's parameters). Exceeding either raises ``SolverError``; ``Simulation.advance`` then
-    restores the state it started from."""
+    FMU's parameters). Exceeding either raises ``WorkLimitError`` (a ``SolverError``);
+    ``Simulation.advance`` then restores the state it started from."""
 
     def __init__(self, max_steps: int | None = None, max_cpu: float | None = None,
                  names: tuple[str, str] = ("max_steps", "max_cpu")):
@@ -51,14 +51,14 @@ class WorkLimit:
     def check_planned(self, steps: int, h: float, t: float, t_target: float) -> None:
         if self.max_steps is not None and steps > self.max_steps:
             count = steps if steps < 10 ** 9 else f"{float(steps):.3g}"
-            raise SolverError(f"reaching t = {t_target:.9g} s takes {count} steps of "
+            raise WorkLimitError(f"reaching t = {t_target:.9g} s takes {count} steps of "
                               f"{h:.3g} s, more than {self.names[0]} = {self.max_steps}", t)
 
     def check(self, stats: "Counters", t: float, t_target: float) -> None:
         used = stats.nsteps + stats.nrejected - self.first
         if self.max_steps is not None and used >= self.max_steps and t < t_target:
-            raise SolverError(f"{used} internal steps did not reach t = {t_target:.9g} s "
+            raise WorkLimitError(f"{used} internal steps did not reach t = {t_target:.9g} s "
                               f"({self.names[0]} = {self.max_steps})", t)
         if time.thread_time() > self.deadline:
-            raise SolverError(f"{self.max_cpu:g} CPU seconds did not reach t = "
+            raise WorkLimitError(f"{self.max_cpu:g} CPU seconds did not reach t = "
                               f"{t_target:.9g} s ({self.names[1]} = {self.max_cpu:g})", t)
