@@ -31,7 +31,7 @@ def make_integrator(method, equations, t0: float, q0: np.ndarray, qd0: np.ndarra
         u = inputs(t0) if inputs is not None else None
         cls, reason = choose_method(equations, t0, np.asarray(q0, dtype=float), interval, u,
                                     rtol=settings.rtol)
-    rtol, atol = settings.tolerances_for(cls)
+    rtol, atol = settings.tolerances_for(cls, chosen=bool(reason))
     integrator = cls(equations, t0, q0, qd0, step=settings.step_for(cls), rtol=rtol, atol=atol,
                      inputs=inputs, **settings.options)
     integrator.picked_by = AUTO if reason else ""

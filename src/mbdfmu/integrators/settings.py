@@ -92,12 +92,14 @@ class SolverSettings:
             return self.step
         return math.inf if cls.adaptive else cls.default_step
 
-    def tolerances_for(self, cls) -> tuple[float, float]:
-        """(rtol, atol) a method runs with. Adaptive methods: rtol, and atol as given, else
-        min(DEFAULT_ATOL, ATOL_PER_RTOL rtol). Fixed-step methods (their stated accuracy):
-        the values given, else FIXED_STEP_RTOL and min(FIXED_STEP_ATOL, ATOL_PER_RTOL rtol)."""
+    def tolerances_for(self, cls, chosen: bool = False) -> tuple[float, float]:
+        """(rtol, atol) a method runs with. Adaptive methods, and any method ``auto`` chose
+        (the run was asked for rtol, whatever ran it): rtol, and atol as given, else
+        min(DEFAULT_ATOL, ATOL_PER_RTOL rtol). Fixed-step methods the user named (their
+        stated accuracy): the values given, else FIXED_STEP_RTOL and min(FIXED_STEP_ATOL,
+        ATOL_PER_RTOL rtol)."""
         given = self.given
-        if cls.adaptive:
+        if cls.adaptive or chosen:
             rtol, atol = self.rtol, DEFAULT_ATOL
         else:
             rtol = self.rtol if "rtol" in given else FIXED_STEP_RTOL
