@@ -210,3 +210,25 @@ def test_loading_and_stepping_an_fmu_imports_no_plotting_or_dask(slider_crank_fm
     assert out.returncode == 0, out.stderr
     rows, heavy = out.stdout.split()[0], out.stdout.strip().partition(" ")[2]
     assert int(rows) == 11 and heavy == "", heavy
+
+
+def test_every_package_and_its_data_files_are_installed():
+    """A non-editable install (CI's, a user's) holds only what pyproject.toml lists: every
+    folder with an __init__.py is a listed package, and its non-Python files are package
+    data (the C sources of the wrapper and the kernel are compiled at `mbdfmu build`)."""
+    import tomllib
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    dirs = {name: ROOT / path for name, path in config["package-dir"].items()}
+    found = {}
+    for top, folder in dirs.items():
+        for init in folder.rglob("__init__.py"):
+            rel = init.parent.relative_to(folder).parts
+            found[".".join((top,) + rel)] = init.parent
+    missing = sorted(set(found) - set(config["packages"]))
+    assert not missing, f"packages missing from pyproject.toml: {missing}"
+    data = config["package-data"]
+    for name, folder in found.items():
+        for path in folder.iterdir():
+            if path.suffix in (".c", ".h"):
+                assert any(path.match(g) for g in data.get(name, [])), \
+                    f"{path.relative_to(ROOT)} is not package data of {name}"
