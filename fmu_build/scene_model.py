@@ -265,6 +265,8 @@ class Model(Slave):
                            "settings, or fmi2Reset, to go on)") from None
         self.pending = []
         self.log_events()
+        for line in self.core.simulation.input_warnings(self.sim):
+            self.warn(line)
         self.publish()
 
     def log_events(self):

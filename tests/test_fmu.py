@@ -418,13 +418,24 @@ def _effort_error(fmu_path, slave, scene_file, h):
 
 
 def test_position_only_inputs_converge_at_the_documented_order(fmu, slave, scene_file):
-    # signals.py: the acceleration of the cubic through the last four positions has an
-    # O(h^2) error, and so has the effort (linear in the acceleration).
+    # signals.py: the acceleration of the quadratic through the last three positions, held
+    # over the step, has an O(h) error, and so has the effort (linear in the acceleration).
     path = fmu("slider_crank_input")
     e1 = _effort_error(path, slave, scene_file, 2e-4)
     e2 = _effort_error(path, slave, scene_file, 1e-4)
-    assert e2 < 1e-2
-    assert 3.5 < e1 / e2 < 5.0, (e1, e2)
+    assert e2 < 5e-2
+    assert 1.7 < e1 / e2 < 2.4, (e1, e2)
+
+
+def test_coarse_position_samples_log_a_warning(fmu, slave):
+    # 0.3 sin(2 pi 40 t) sampled every 2 ms: the derived acceleration's estimated error
+    # (cubic minus quadratic) is large against the motion; the step still succeeds
+    s = slave(fmu("slider_crank_input"), "coarse_positions")
+    s.init()
+    s.run([2e-3] * 10, ["motor.effort"], inputs=lambda t: {
+        "motor.position": 0.3 * math.sin(2 * math.pi * 40.0 * t)})
+    warnings = [m for status, _, m in s.messages if status == 1]
+    assert any("derived from motor.position samples" in m for m in warnings), s.messages
 
 
 def test_torque_driven_pendulum_follows_its_energy_integral(fmu, slave):

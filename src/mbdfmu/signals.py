@@ -7,9 +7,15 @@ force components.
 Sampled driver positions (an FMU's inputs, set once per communication step): when the
 master gives position, velocity and acceleration at t_n, the motion over the next step is
 their Taylor polynomial ``p + v tau + a tau^2 / 2``. When it gives positions only, the
-motion is the cubic through the last four samples, extrapolated over the step: position,
-velocity and acceleration then carry errors of order h^4, h^3 and h^2 in the communication
-step h (lower for the first three steps, while the history fills).
+motion is the quadratic through the last three samples, extrapolated over the step: its
+acceleration is the samples' second divided difference, which equals the motion's
+acceleration at some time among those samples (mean value theorem), so the derived
+acceleration never leaves the range the motion's acceleration takes. Its error is of order
+h in the communication step h, as with full inputs (whose acceleration is held over the
+step). Extrapolating the cubic through four samples (order h^2) was dropped: a linear
+acceleration carried past a peak overshoots it, by far at coarse steps (docs/fmu.md).
+The difference between the cubic's and the quadratic's acceleration at the end of the
+next step estimates the derived acceleration's error (``SampledDriver.error``).
 """
 
 from __future__ import annotations
@@ -24,8 +30,13 @@ from .plain import Plain
 # The fields of a driver input (its motion and the motion's derivatives).
 DRIVER_FIELDS = ("position", "velocity", "acceleration")
 
-# Samples of driver position kept to derive its velocity and acceleration.
+# Samples of driver position kept to derive its velocity and acceleration (three for the
+# quadratic, a fourth for the cubic of the error estimate).
 HISTORY_LENGTH = 4
+
+# The derived acceleration's estimated error, as a fraction of the largest acceleration of the
+# samples so far, above which it is reported (``SampledDriver.error_is_large``).
+LARGE_ERROR = 0.1
 
 
 class Held(Plain):
@@ -85,7 +96,8 @@ class DriverTable(Plain):
 class SampledDriver(Plain):
     """A driver position set at discrete times; derivatives given or from the history."""
 
-    plain_fields = ("times", "positions", "velocity", "acceleration", "fresh")
+    plain_fields = ("times", "positions", "velocity", "acceleration", "fresh", "error",
+                    "scale", "reported")
 
     def __init__(self, initial: float):
         self.times = [0.0]
@@ -93,6 +105,9 @@ class SampledDriver(Plain):
         self.velocity = None
         self.acceleration = None
         self.fresh = False  # no sample set yet: the initial value stands still
+        self.error = 0.0    # estimated error of the derived acceleration over the next step
+        self.scale = 0.0    # largest derived acceleration so far: the motion's magnitude
+        self.reported = False  # the large error was reported (once until it is small again)
 
     def set(self, t: float, position=None, velocity=None, acceleration=None):
         """Record what the master set at time t (a repeated time replaces the last sample)."""
@@ -105,30 +120,51 @@ class SampledDriver(Plain):
             else:
                 self.times = (self.times + [t])[-HISTORY_LENGTH:]
                 self.positions = (self.positions + [float(position)])[-HISTORY_LENGTH:]
+            self._estimate()
         if velocity is not None:
             self.velocity = float(velocity)
         if acceleration is not None:
             self.acceleration = float(acceleration)
 
-    def __call__(self, t):
+    def _quadratic(self):
+        """Position, velocity and acceleration at the last sample of the quadratic through
+        the last three samples (lower orders while the history fills)."""
+        t, p = self.times[-3:], self.positions[-3:]
+        if len(t) == 1:
+            return p[-1], 0.0, 0.0
+        d1 = (p[-1] - p[-2]) / (t[-1] - t[-2])
+        if len(t) == 2:
+            return p[-1], d1, 0.0
+        d0 = (p[1] - p[0]) / (t[1] - t[0])
+        a = 2.0 * (d1 - d0) / (t[2] - t[0])
+        return p[-1], d1 + 0.5 * a * (t[2] - t[1]), a
+
+    def _estimate(self):
+        """The cubic's acceleration minus the quadratic's, at the end of a next step as long
+        as the last: the error of the lower order, as the two orders differ."""
+        a = self._quadratic()[2]
+        self.scale = max(self.scale, abs(a))
+        if len(self.times) < 4:
+            self.error = 0.0
+            return
         tn = self.times[-1]
-        tau = t - tn
-        k = len(self.times)
-        if k > 1:
-            span = tn - self.times[0]
-            x = (np.asarray(self.times) - tn) / span  # scaled for conditioning
-            c = P.polyfit(x, self.positions, k - 1)
-            d1, d2 = P.polyder(c, 1), P.polyder(c, 2)
-            s = tau / span
-            poly = (P.polyval(s, c), P.polyval(s, d1) / span, P.polyval(s, d2) / span ** 2)
-            v0, a0 = P.polyval(0.0, d1) / span, P.polyval(0.0, d2) / span ** 2
-        else:
-            poly, v0, a0 = (self.positions[-1], 0.0, 0.0), 0.0, 0.0
-        if self.velocity is None and self.acceleration is None:
-            return tuple(float(v) for v in poly)
+        span = tn - self.times[0]
+        x = (np.asarray(self.times) - tn) / span  # scaled for conditioning
+        c = P.polyfit(x, self.positions, 3)
+        s = (tn - self.times[-2]) / span
+        self.error = float(P.polyval(s, P.polyder(c, 2)) / span ** 2 - a)
+
+    def error_is_large(self) -> bool:
+        """Whether the derived acceleration's estimated error exceeds ``LARGE_ERROR`` of the
+        motion's acceleration (positions only: given derivatives are taken as exact)."""
+        derived = self.velocity is None and self.acceleration is None
+        return derived and abs(self.error) > LARGE_ERROR * self.scale > 0.0
+
+    def __call__(self, t):
+        tau = t - self.times[-1]
+        p, v0, a0 = self._quadratic()
         v = self.velocity if self.velocity is not None else v0
         a = self.acceleration if self.acceleration is not None else a0
-        p = self.positions[-1]
         return p + v * tau + 0.5 * a * tau * tau, v + a * tau, a
 
 
@@ -156,6 +192,24 @@ class TaylorInput(Plain):
             total = total + c * term
             term = term * tau / (k + 1)
         return total
+
+
+def large_error_warnings(drivers: dict, t: float) -> list[str]:
+    """One line for each sampled driver whose derived acceleration's estimated error is
+    large (``SampledDriver.error_is_large``), once until it is small again."""
+    lines = []
+    for item, driver in drivers.items():
+        if not isinstance(driver, SampledDriver):
+            continue
+        large = driver.error_is_large()
+        if large and not driver.reported:
+            lines.append(
+                f"t = {t!r} s: {item}.velocity and .acceleration derived from "
+                f"{item}.position samples may be off by {abs(driver.error):.3g} "
+                f"({abs(driver.error) / driver.scale:.0%} of the motion's acceleration "
+                f"{driver.scale:.3g}): give them as inputs or shorten the communication step")
+        driver.reported = large
+    return lines
 
 
 def known_ahead(signals) -> bool:

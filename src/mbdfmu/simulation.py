@@ -27,7 +27,8 @@ from .model.scene import Scene, has_events
 from .model.variables import InputValues, inputs, outputs
 from .plain import decode, encode
 from .result import Result
-from .signals import Held, SampledDriver, TaylorInput, apply_input_table, known_ahead
+from .signals import (Held, SampledDriver, TaylorInput, apply_input_table, known_ahead,
+                      large_error_warnings)
 
 # After an input jump the state is re-projected to this many times the assembly tolerance.
 REINITIALIZE_TOL_FACTOR = 100
@@ -284,6 +285,12 @@ class Simulation:
         if self.events is not None and state.get("modes") is not None:
             self.events.restore(self.integrator, state["modes"])
         self._cache = self._held = None
+
+
+def input_warnings(sim: Simulation) -> list[str]:
+    """Driver positions whose derived acceleration's estimated error is large, one line each
+    (``signals.large_error_warnings``; a master logs them after each step)."""
+    return large_error_warnings(sim._drivers, sim.t)
 
 
 def output_time_derivatives(sim: Simulation) -> tuple[np.ndarray, np.ndarray]:

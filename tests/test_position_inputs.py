@@ -1,0 +1,105 @@
+"""Driver velocity and acceleration derived from position samples alone (signals.py),
+checked on the slider-crank against the same motion given analytically (issue 12)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import mbdfmu
+from mbdfmu.signals import SampledDriver
+from mbdfmu.simulation import input_warnings
+
+SCENE = Path(__file__).resolve().parents[1] / "scenes" / "slider_crank.toml"
+LINEAR_MOTOR = 'motion = { type = "linear", start = 0.0, rate = 314.1592653589793 }'
+A, F = 1.0, 1.0   # phi = A sin(2 pi F t): 20 samples a period at the coarsest step
+W = 2 * math.pi * F
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory):
+    """The slider-crank from rest, its motor an input or the motion given analytically."""
+    folder = tmp_path_factory.mktemp("position_inputs")
+    text = (SCENE.read_text()
+            .replace("angular_velocity = 314.1592653589793", "angular_velocity = 0.0")
+            .replace("velocity = [0.0, 15.707963267948966]", "velocity = [0.0, 0.0]"))
+    out = {}
+    for key, motion in [("input", '{ type = "input" }'),
+                        ("exact", f'{{ type = "harmonic", offset = 0.0, amplitude = {A}, '
+                                  f'frequency = {F} }}')]:
+        path = folder / f"{key}.toml"
+        path.write_text(text.replace(LINEAR_MOTOR, f"motion = {motion}"))
+        out[key] = mbdfmu.load_scene(path)
+    return out
+
+
+def _efforts(scenes, h, full=False, t_end=1.0):
+    """Effort at each communication point with the motor's position set before every step
+    (as the FMU sets it), and the exact effort; the first three steps (history) left out."""
+    sim, ref = mbdfmu.Simulation(scenes["input"]), mbdfmu.Simulation(scenes["exact"])
+    got, exact, warnings = [], [], []
+    for k in range(round(t_end / h)):
+        t = k * h
+        sim.set_input("motor.position", A * math.sin(W * t))
+        if full:
+            sim.set_input("motor.velocity", A * W * math.cos(W * t))
+            sim.set_input("motor.acceleration", -A * W * W * math.sin(W * t))
+        sim.advance((k + 1) * h)
+        ref.advance((k + 1) * h)
+        warnings += input_warnings(sim)
+        got.append(sim.outputs()["motor.effort"])
+        exact.append(ref.outputs()["motor.effort"])
+    return np.array(got[3:]), np.array(exact[3:]), warnings
+
+
+@pytest.fixture(scope="module")
+def exact_range(scenes):
+    _, exact, _ = _efforts(scenes, 1e-3)
+    return exact.min(), exact.max()
+
+
+@pytest.mark.parametrize("h", [1e-3, 5e-3, 1e-2, 2e-2, 5e-2])
+def test_position_only_effort_stays_within_the_exact_range(scenes, exact_range, h):
+    # the derived acceleration is a second divided difference: the motion's acceleration at
+    # a time among the samples, never beyond its range (the cubic overshot the peaks)
+    got, _, _ = _efforts(scenes, h)
+    lo, hi = exact_range
+    assert lo - 1e-6 * (hi - lo) <= got.min() and got.max() <= hi + 1e-6 * (hi - lo), \
+        (got.min(), got.max(), lo, hi)
+
+
+def test_position_only_effort_error_is_first_order(scenes):
+    # documented in docs/fmu.md: order h, as with full inputs (acceleration held over a step)
+    errors = []
+    for h in (1e-2, 5e-3, 2.5e-3):
+        got, exact, _ = _efforts(scenes, h)
+        errors.append(np.abs(got - exact).max() / np.abs(exact).max())
+    ratios = [errors[0] / errors[1], errors[1] / errors[2]]
+    assert all(1.8 < r < 2.3 for r in ratios), (errors, ratios)
+
+
+def test_large_derived_acceleration_error_is_reported_once(scenes):
+    # 50 ms samples of a 1 Hz motion: the estimate (cubic minus quadratic) is large
+    _, _, coarse = _efforts(scenes, 5e-2)
+    assert coarse and all("motor.position" in line and "\n" not in line for line in coarse)
+    # full inputs: nothing derived, nothing reported
+    assert _efforts(scenes, 5e-2, full=True)[2] == []
+
+
+def test_sampled_driver_reproduces_a_quadratic_and_estimates_a_cubic():
+    d = SampledDriver(0.0)
+    for t in (0.0, 0.1, 0.2):
+        d.set(t, position=1.0 + 2.0 * t + 1.5 * t * t)
+    np.testing.assert_allclose(d(0.25), (1.0 + 0.5 + 1.5 * 0.0625, 2.0 + 0.75, 3.0),
+                               rtol=1e-12)
+    d = SampledDriver(0.0)
+    for t in (0.0, 0.1, 0.2, 0.3):
+        d.set(t, position=t ** 3)
+    # the quadratic's acceleration is the second divided difference 6 * 0.2; the cubic's at
+    # 0.4 is 6 * 0.4: the estimate is their difference
+    assert d(0.3)[2] == pytest.approx(1.2, rel=1e-12)
+    assert d.error == pytest.approx(1.2, rel=1e-9)
+    assert d.error_is_large()
