@@ -192,20 +192,24 @@ def cosim_run(fmu: Path, case: str, h: float, n: int) -> tuple[float, float]:
     return (time.perf_counter() - w) / n, (time.process_time() - c) / n
 
 
-def direct_run(scene_path: Path, case: str, h: float, n: int, kernel: str) -> tuple[float, float]:
-    """(wall s, CPU s) per communication step of the solver called directly."""
-    sim = mbdfmu.Simulation(mbdfmu.load_scene(scene_path), kernel=kernel)
-    name = input_of(case)
-    t = 0.0
+def stepper(sim, case: str, h: float):
+    """``steps(count)``: ``count`` communication steps of ``h`` on ``sim`` as an FMU's master
+    drives it (the case's actuator input set before each step, every output read after)."""
+    name, t = input_of(case), [0.0]
 
     def steps(count):
-        nonlocal t
         for _ in range(count):
             if name:
-                sim.set_input(name, actuator(t))
-            t += h
-            sim.advance(t)
+                sim.set_input(name, actuator(t[0]))
+            t[0] += h
+            sim.advance(t[0])
             sim.output_vector()
+    return steps
+
+
+def direct_run(scene_path: Path, case: str, h: float, n: int, kernel: str) -> tuple[float, float]:
+    """(wall s, CPU s) per communication step of the solver called directly."""
+    steps = stepper(mbdfmu.Simulation(mbdfmu.load_scene(scene_path), kernel=kernel), case, h)
     steps(20)
     w, c = time.perf_counter(), time.process_time()
     steps(n)

@@ -31,7 +31,7 @@ import mbdfmu  # noqa: E402
 from mbdfmu.equations import ckernel  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fmu_speed import CASES, actuator, input_of  # noqa: E402
+from fmu_speed import CASES, stepper  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 # The Kernel methods that cross into C (each is one ctypes call, or two for ``project``).
@@ -68,16 +68,7 @@ class CallTimer:
 def one_run(path: Path, case: str, h: float, steps: int) -> tuple[float, float, int, str]:
     """(wall s per step, of it in C, C calls per step, method) of ``steps`` steps."""
     sim = mbdfmu.Simulation(mbdfmu.load_scene(path), kernel="c")
-    name, t = input_of(case), 0.0
-
-    def run(count):
-        nonlocal t
-        for _ in range(count):
-            if name:
-                sim.set_input(name, actuator(t))
-            t += h
-            sim.advance(t)
-            sim.output_vector()
+    run = stepper(sim, case, h)
     run(20)
     with CallTimer() as timer:
         start = time.perf_counter()
