@@ -125,7 +125,9 @@ def cmd_simulate(args) -> int:
     print(f"{scene.name}: {len(result.time)} points to t = {result.time[-1]:g} s with "
           f"{result.method} ({result.stats['nsteps']} steps) -> {out}")
     if result.method_reason:
-        print(f"  auto picked {result.method.split('->')[-1]}: {result.method_reason}")
+        print(f"  auto picked {result.method.split('->')[1]}: {result.method_reason}")
+    for t, old, new, why in result.switches:
+        print(f"  t = {t:.9g} s: auto switched from {old} to {new}: {why}")
     return 0
 
 

@@ -34,6 +34,8 @@ class Result:
     warnings: list[str] = field(default_factory=list)
     # transitions of end stops and friction: (time s, joint, what happened), in time order
     events: list[tuple[float, str, str]] = field(default_factory=list)
+    # auto's changes of method (integrators/auto_watch.py): (time s, from, to, reason)
+    switches: list[tuple[float, str, str, str]] = field(default_factory=list)
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name == "time":

@@ -32,8 +32,9 @@ named method (scipy keeps the choice outside the solver classes too):
    energy audit stops a run that still drifts (``energy_audit.py``). docs/accuracy.md has
    the measurements behind these rules.
 
-It looks at t0 only: a mechanism that reaches a singular configuration later gets dop853p,
-whose failure message then points at ali3p.
+These rules look at t0 only; ``auto_watch.py`` watches the rest of the run and switches
+method when the choice no longer fits (a singular configuration left or reached, a method
+that stops).
 """
 
 from __future__ import annotations
@@ -88,19 +89,27 @@ def _fastest_force(equations) -> tuple[float, str] | None:
     return fastest
 
 
-def _accuracy_step(equations, t0: float, q0: np.ndarray, u, rtol: float) -> float:
+def _scene_velocities(equations) -> np.ndarray:
+    return np.array([[*b.velocity, b.angular_velocity] for b in equations.scene.bodies],
+                    dtype=float).ravel()
+
+
+def _accuracy_step(equations, t0: float, q0: np.ndarray, u, rtol: float,
+                   qd0: np.ndarray | None = None) -> float:
     """The step (s) an order-8 method needs for ``rtol`` on the motion at t0, or inf.
 
     The motion's time scale is the shorter of sqrt(L / a) and L / v, with L the mechanism's
     size and a, v the largest acceleration (gravity included) and speed of a body point at
-    t0; a local error ~ (h / T)^9 below rtol gives h = T rtol^(1/9).
+    t0 (``qd0``: the run's velocities; None: the scene's initial values, projected); a local
+    error ~ (h / T)^9 below rtol gives h = T rtol^(1/9).
     """
     scene = equations.scene
-    qd0 = np.array([[*b.velocity, b.angular_velocity] for b in scene.bodies],
-                   dtype=float).ravel()
+    given = qd0 is not None
+    if not given:
+        qd0 = _scene_velocities(equations)
     size = equations.length_scale
     try:
-        if equations.m:
+        if equations.m and not given:
             qd0 = project_velocities(equations, t0, q0, qd0, u)
         qdd0 = equations.accelerations(t0, q0, qd0, u)[0]
     except SolverError:
@@ -123,9 +132,7 @@ def _rank_after_moving(equations, t0: float, q0: np.ndarray, u) -> int:
     Redundant constraints (the parallelogram's third crank) stay redundant as the mechanism
     moves; a singular configuration (cranks of a four-bar in line) is left at once.
     """
-    qd0 = np.array([[*b.velocity, b.angular_velocity] for b in equations.scene.bodies],
-                   dtype=float).ravel()
-    qd0 = project_velocities(equations, t0, q0, qd0, u)
+    qd0 = project_velocities(equations, t0, q0, _scene_velocities(equations), u)
     direction = qd0 if np.any(qd0) else equations.accelerations(t0, q0, qd0, u)[0]
     size = float(np.max(np.abs(direction)))
     if size == 0.0:
@@ -136,6 +143,24 @@ def _rank_after_moving(equations, t0: float, q0: np.ndarray, u) -> int:
     except SolverError:
         return rank_report(equations, t0, q0).rank
     return rank_report(equations, t0, q1).rank
+
+
+def stiff_reason(equations, t: float, q: np.ndarray, qd: np.ndarray | None, u, rtol: float,
+                 interval: float) -> str:
+    """Rule 2's finding at (t, q, q') (``qd`` None: the scene's initial velocities): why a
+    spring or damper is stiff for this output ``interval`` (s) and rtol, or ""."""
+    fastest = _fastest_force(equations)
+    if fastest is None:
+        return ""
+    if fastest[0] < STIFF_FRACTION * interval:
+        return (f'force "{fastest[1]}" acts on a time scale of {fastest[0]:.2g} s, far below '
+                f"the output interval {interval:.2g} s (stiff)")
+    needed = _accuracy_step(equations, t, q, u, rtol, qd)
+    if STIFF_STEP_RATIO * fastest[0] / 2 < needed:
+        return (f'force "{fastest[1]}" acts on a time scale of {fastest[0]:.2g} s: an '
+                f"explicit method would be held to steps near {fastest[0] / 2:.2g} s by "
+                f"stability where rtol = {rtol:g} needs about {needed:.2g} s (stiff)")
+    return ""
 
 
 def choose_method(equations, t0: float, q0: np.ndarray, output_interval: float,
@@ -164,18 +189,7 @@ def choose_method(equations, t0: float, q0: np.ndarray, output_interval: float,
         if redundant:
             notes.append("redundant constraints (" + ", ".join(redundant) + " repeat others) "
                          "are handled by eq. 14's minimum-norm multipliers")
-    fastest = _fastest_force(equations)
-    interval = output_interval
-    stiff = ""
-    if fastest is not None and fastest[0] < STIFF_FRACTION * interval:
-        stiff = (f'force "{fastest[1]}" acts on a time scale of {fastest[0]:.2g} s, far below '
-                 f"the output interval {interval:.2g} s (stiff)")
-    elif fastest is not None:
-        needed = _accuracy_step(equations, t0, q0, u, rtol)
-        if STIFF_STEP_RATIO * fastest[0] / 2 < needed:
-            stiff = (f'force "{fastest[1]}" acts on a time scale of {fastest[0]:.2g} s: an '
-                     f"explicit method would be held to steps near {fastest[0] / 2:.2g} s by "
-                     f"stability where rtol = {rtol:g} needs about {needed:.2g} s (stiff)")
+    stiff = stiff_reason(equations, t0, q0, None, u, rtol, output_interval)
     if stiff:
         if redundant:
             return ALI3P, (stiff + " and the constraints are redundant: implicit ali3p, whose "
