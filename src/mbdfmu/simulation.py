@@ -19,7 +19,6 @@ from .equations.projection import (ASSEMBLY_TOL, PROJECTION_MAX_ITER, assemble,
                                    project_velocities)
 from .errors import InputError, SettingError, SolverError
 from .integrators import make_integrator
-from .integrators.auto_watch import AutoWatch
 from .integrators.base import WorkLimit
 from .integrators.events import EventRunner, check_method, event_kernel
 from .integrators.settings import SolverSettings, settings_from_scene
@@ -73,18 +72,11 @@ class Simulation:
         if has_events(scene):
             self.events = EventRunner(scene, kernel, t0, q0, qd0, self.inputs_at)
             q0, qd0 = self.events.q, self.events.qd
-        self.integrator = make_integrator(
+        self.integrator = make_integrator(      # auto watches runs without events
             None, self.events.equations if self.events else self.equations, t0, q0, qd0,
-            self.settings, inputs=self.inputs_at,
+            self.settings, inputs=self.inputs_at, watch=self.events is None,
             output_interval=self.settings.output_interval_for(scene.simulation.t_end))
         check_method(self.integrator, scene)
-        # auto watches the whole run and switches method (auto_watch.py); not with stops
-        # and friction, whose events re-step the integrator it runs
-        self.auto = None
-        if self.integrator.picked_by and self.events is None:
-            self.auto = AutoWatch(self.settings.step, self.settings.output_interval_for(
-                scene.simulation.t_end))
-            self.auto.attach(self.integrator)
         self._cache = None
 
     @property
@@ -93,18 +85,10 @@ class Simulation:
 
     @property
     def method_name(self) -> str:
-        """The method that runs: its name, or e.g. "auto->dop853p" when auto picked it
-        ("auto->ali3p->dop853p" when auto switched since)."""
-        name = self.integrator.name
-        if not self.integrator.picked_by:
-            return name
-        chain = [s[1] for s in self.switches[:1]] + [s[2] for s in self.switches]
-        return "->".join(["auto", *(chain or [name])])
-
-    @property
-    def switches(self) -> list[tuple[float, str, str, str]]:
-        """auto's changes of method so far: (t s, from, to, reason), in time order."""
-        return [] if self.auto is None else [tuple(s) for s in self.auto.switches]
+        """Its name, or "auto->dop853p" when auto picked it ("auto->ali3p->dop853p": switched)."""
+        switches = self.integrator.switches
+        chain = [s[1] for s in switches[:1]] + [s[2] for s in switches] or [self.integrator.name]
+        return "->".join(["auto", *chain]) if self.integrator.picked_by else chain[-1]
 
     @property
     def method_reason(self) -> str:
@@ -235,25 +219,18 @@ class Simulation:
         # is all the rollback keeps.
         snapshot, inputs_changed = self.integrator.rollback_point(), self._inputs_changed
         saved = self.events.get_state() if self.events is not None else None
-        integrator, watch = self.integrator, encode(self.auto)
         try:
             if self._inputs_changed:
                 self._reinitialize()
             if dense is None:
                 dense = self.inputs_known_ahead()
-            if self.auto is not None:
-                self.integrator = self.auto.advance(self.integrator, t_target, limit, dense)
-            elif self.events is None:
+            if self.events is None:
                 self.integrator.advance(t_target, limit, dense=dense)
             else:       # located events: the steps land on them (no dense output)
                 self.events.advance(self.integrator, t_target, limit)
         except SolverError:
             if self.events is not None:
                 self.events.restore(self.integrator, saved)
-            if self.auto is not None:
-                self.auto = decode(watch)
-                self.integrator = integrator
-                self.auto.attach(integrator)
             self.integrator.set_state(snapshot)
             self._inputs_changed = inputs_changed
             raise
@@ -300,14 +277,9 @@ class Simulation:
         data (``plain.py``)."""
         return {"integrator": self.integrator.get_state(), "drivers": encode(self._drivers),
                 "forces": encode(self._forces), "inputs_changed": self._inputs_changed,
-                "modes": None if self.events is None else self.events.get_state(),
-                "method": self.integrator.name, "auto": encode(self.auto)}
+                "modes": None if self.events is None else self.events.get_state()}
 
     def set_state(self, state: dict) -> None:
-        if self.auto is not None and state.get("auto") is not None:
-            self.integrator = self.auto.rebuild(self.integrator, state["method"])
-            self.auto = decode(state["auto"])
-            self.auto.attach(self.integrator)
         self.integrator.set_state(state["integrator"])
         self._drivers, self._forces = decode(state["drivers"]), decode(state["forces"])
         self._inputs_changed = bool(state["inputs_changed"])
@@ -414,4 +386,4 @@ def simulate(scene: Scene | str | Path, t_end: float | None = None, method=None,
                   stats=vars(sim.integrator.stats).copy(),
                   warnings=list(sim.warnings) + ([sim.kernel_note] if sim.kernel_note else []),
                   events=list(sim.events.log) if sim.events is not None else [],
-                  switches=sim.switches)
+                  switches=list(sim.integrator.switches))

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .auto_watch import AutoRun, AutoWatch
 from .base import Integrator
 from .choose import choose_method
 from .registry import AUTO, METHOD_NAMES, METHODS, SUMMARIES, Auto, method_class
@@ -16,12 +17,14 @@ from .settings import DEFAULT_METHOD, SolverSettings
 
 def make_integrator(method, equations, t0: float, q0: np.ndarray, qd0: np.ndarray,
                     settings: SolverSettings | None = None, *, inputs=None,
-                    output_interval: float | None = None, **values):
+                    output_interval: float | None = None, watch: bool = False, **values):
     """The integrator of ``method`` (a name, a class, or None for ``settings.method``) with
     the settings given (checked here), starting from (t0, q0, qd0).
 
     For ``auto`` the method is chosen first (``choose_method``, with ``output_interval``);
-    the integrator then carries ``picked_by = "auto"`` and ``reason``.
+    the integrator then carries ``picked_by = "auto"`` and ``reason``; with ``watch`` it
+    is watched over the whole run, switching method where the choice stops fitting
+    (``auto_watch.AutoRun``).
     """
     settings = (settings or SolverSettings()).updated(method=method, **values)
     cls = method_class(settings.method)
@@ -36,6 +39,9 @@ def make_integrator(method, equations, t0: float, q0: np.ndarray, qd0: np.ndarra
                      inputs=inputs, **settings.options)
     integrator.picked_by = AUTO if reason else ""
     integrator.reason = reason
+    if watch and reason:
+        interval = output_interval or settings.output_interval or 1.0
+        return AutoRun(integrator, AutoWatch(settings.step, interval))
     return integrator
 
 

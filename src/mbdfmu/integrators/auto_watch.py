@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import SolverError, WorkLimitError
-from ..plain import Plain
+from ..plain import Plain, decode, encode
 from . import singular_zone
 from .ali3p import ALI3P
 from .choose import stiff_reason
@@ -190,11 +190,46 @@ class AutoWatch(Plain):
         self.attach(new)
         return new
 
-    def rebuild(self, integrator, name: str):
-        """An integrator of method ``name`` for restoring a saved state (``set_state``)."""
-        if integrator.name == name:
-            return integrator
-        switches, stats = list(self.switches), integrator.stats
-        new = self.switch(integrator, name, "restored")
-        self.switches, new.stats = switches, stats
-        return new
+
+
+class AutoRun:
+    """What ``Simulation`` runs for ``auto``: the integrator of the moment behind the
+    ``Integrator`` interface (attributes are the current integrator's), advanced by its
+    ``AutoWatch``. Saved states (``get_state``, ``rollback_point``) hold the integrator's
+    fields, its method's name and the watcher's state."""
+
+    def __init__(self, integrator, watch: AutoWatch):
+        self.__dict__["current"], self.__dict__["watcher"] = integrator, watch
+        watch.attach(integrator)
+
+    def __getattr__(self, name):
+        return getattr(self.current, name)
+
+    def __setattr__(self, name, value):
+        setattr(self.current, name, value)
+
+    @property
+    def switches(self) -> list[tuple[float, str, str, str]]:
+        return [tuple(s) for s in self.watcher.switches]
+
+    def advance(self, t_target: float, limit=None, *, dense: bool = False) -> None:
+        self.__dict__["current"] = self.watcher.advance(self.current, t_target, limit, dense)
+
+    def get_state(self) -> dict:
+        return {**self.current.get_state(), "auto_method": self.current.name,
+                "auto_watch": encode(self.watcher)}
+
+    def rollback_point(self) -> dict:
+        return {**self.current.rollback_point(), "auto_method": self.current.name,
+                "auto_watch": encode(self.watcher)}
+
+    def set_state(self, state: dict) -> None:
+        state = dict(state)
+        name, watch = state.pop("auto_method"), decode(state.pop("auto_watch"))
+        current = self.current
+        if current.name != name:
+            current = self.watcher.switch(current, name, "")   # an integrator of that method
+        watch.attach(current)
+        current.set_state(state)
+        self.__dict__["current"], self.__dict__["watcher"] = current, watch
+
