@@ -179,7 +179,7 @@ class Model(Slave):
             self.warn(f"initial conditions: {line}")
         if self.sim.kernel_note:
             self.log(self.sim.kernel_note)
-        self.logged_events = 0
+        self.logged_events = self.logged_switches = 0
         self.log_events()
         self.push_inputs()
         self.pending = []
@@ -270,7 +270,11 @@ class Model(Slave):
         self.publish()
 
     def log_events(self):
-        """Each transition of end stops and friction since the last call, one line each."""
+        """Each transition of end stops and friction, and each change of method by auto
+        (``Integrator.switches``), since the last call, one line each."""
+        for t, old, new, why in self.sim.integrator.switches[self.logged_switches:]:
+            self.log(f"t = {t!r} s: auto switched from {old} to {new}: {why}")
+        self.logged_switches = len(self.sim.integrator.switches)
         events = self.sim.events
         if events is not None:
             for t, joint, what in events.log[self.logged_events:]:
@@ -320,6 +324,7 @@ class Model(Slave):
             self.sim, self.built = self.new_simulation(build), build
         self.sim.set_state(tree["sim"])
         self.logged_events = len(self.sim.events.log) if self.sim.events is not None else 0
+        self.logged_switches = len(self.sim.integrator.switches)
         if not self._fmi_dirty:
             self.publish()      # the same values for a state this FMU wrote
 

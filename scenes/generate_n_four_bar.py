@@ -54,13 +54,15 @@ def _revolute(name, body_i, point_i, body_j, point_j):
     )
 
 
-def scene_text(n):
-    """Return the TOML text of the N-four-bar with `n` windows (n >= 1)."""
+def scene_text(n, theta=THETA, theta_dot=THETA_DOT):
+    """Return the TOML text of the N-four-bar with `n` windows (n >= 1), its cranks at
+    `theta` (rad from +x) turning at `theta_dot` (rad/s): P2 by default (the tests start it
+    elsewhere too, e.g. at the singular horizontal)."""
     if n < 1:
         raise ValueError(f"N must be at least 1, got {n}")
-    c, s = math.cos(THETA), math.sin(THETA)
+    c, s = math.cos(theta), math.sin(theta)
     c = 0.0 if abs(c) < 1e-15 else c           # cos(pi/2) rounds to 6e-17: write exact 0
-    tip_v = (-L * THETA_DOT * s, L * THETA_DOT * c)   # velocity of every crank top B_k
+    tip_v = (-L * theta_dot * s, L * theta_dot * c)   # velocity of every crank top B_k
     parts = [
         f"# Source: P2 of docs/problems.md (IFToMM multibody benchmark A02), N = {n}.\n"
         f"# Model: {n + 1} vertical cranks pinned to the ground at x = 0..{n}, their tops joined by {n}\n"
@@ -77,8 +79,8 @@ def scene_text(n):
         "",
     ]
     for k in range(n + 1):
-        parts.append(_body(f"crank{k}", (k + 0.5 * L * c, 0.5 * L * s), THETA,
-                           (0.5 * tip_v[0], 0.5 * tip_v[1]), THETA_DOT))
+        parts.append(_body(f"crank{k}", (k + 0.5 * L * c, 0.5 * L * s), theta,
+                           (0.5 * tip_v[0], 0.5 * tip_v[1]), theta_dot))
     for k in range(n):
         parts.append(_body(f"coupler{k}", (k + L * c + 0.5 * L, L * s), 0.0, tip_v, 0.0))
     for k in range(n + 1):

@@ -209,7 +209,9 @@ def test_auto_takes_ali3p_at_a_singular_start_and_passes_it(tmp_path):
     assert sim.method_name == "auto->ali3p"
     assert "singular configuration" in sim.method_reason
     res = mbdfmu.simulate(sc, 2.0, output_interval=0.01)
-    assert res.method == "auto->ali3p"
+    # ali3p across the singular start, dop853p once it is passed (auto_watch.py)
+    assert res.method == "auto->ali3p->dop853p"
+    assert [s[1:3] for s in res.switches] == [("ali3p", "dop853p")]
     # the cranks stay parallel (the coupler translates) through the singular start
     np.testing.assert_allclose(wrap(res["crank1.phi"] - res["crank0.phi"]), 0.0, atol=1e-8)
     np.testing.assert_allclose(res["coupler.phi"], 0.0, atol=1e-8)

@@ -15,9 +15,11 @@ these rules:
    (``singular_zone.py``).
 2. Stiffness: dop853p's steps are held by stability (Hairer's test of DOP853, Solving ODEs
    II, sec. IV.2: h |lambda| estimated from the last two stage derivatives at t + h, above
-   STIFF_HLAMBDA on STIFF_STEPS steps without NONSTIFF_STEPS steps below in between): the
-   run goes on with genalpha (ali3p with redundant constraints), implicit, whose step is
-   not held by stability.
+   STIFF_HLAMBDA on STIFF_STEPS steps without NONSTIFF_STEPS steps below in between) at a
+   step STIFF_STEP_RATIO times below the implicit method's: the run goes on with genalpha
+   (ali3p with redundant constraints), implicit, whose step is not held by stability (a
+   stiff spring stretched at t0 gets dop853p, which resolves its oscillation; once it has
+   died out, only stability holds dop853p's step).
 3. A method that stops (``SolverError`` other than the work limit): the advance call is
    retried from where it started with the other method of the pair: ali3p for an explicit
    method, dop853p for an implicit one, each at most once per call; if that also stops,
@@ -40,7 +42,7 @@ from ..errors import SolverError, WorkLimitError
 from ..plain import Plain, decode, encode
 from . import singular_zone
 from .ali3p import ALI3P
-from .choose import stiff_reason
+from .choose import STIFF_STEP_RATIO, stiff_reason
 from .genalpha import GeneralizedAlpha
 from .projected_rk import DOP853P, RK45P
 from .rk4p import RK4P
@@ -67,9 +69,9 @@ class _Switch(Exception):
 def stiffness(integrator) -> float:
     """Hairer's h |lambda| of dop853p's last step: ||f(y_new) - f(y_12)|| / ||y_new - y_12||
     times h, y_12 the stage at t + h (0 when it cannot be told)."""
-    step = integrator.dense
-    if step is None or integrator.name != DOP853P.name:
+    if integrator.name != DOP853P.name or integrator.dense is None:
         return 0.0
+    step = integrator.dense
     s = integrator.n_stages - 1           # the stage at C = 1 (scipy's DOP853 tableau)
     y_s = step.y_old + step.h * (step.K[:s].T @ integrator.A[s, :s])
     den = float(np.linalg.norm(step.y_new - y_s))
@@ -127,7 +129,8 @@ class AutoWatch(Plain):
             self.nonstiff += 1
             if self.nonstiff >= NONSTIFF_STEPS:
                 self.stiff = self.nonstiff = 0
-        if self.stiff < STIFF_STEPS:
+        implicit_step = self.step if self.step is not None else GeneralizedAlpha.default_step
+        if self.stiff < STIFF_STEPS or not STIFF_STEP_RATIO * integrator.h < implicit_step:
             return None
         self.stiff = self.nonstiff = 0
         to = GeneralizedAlpha.name
