@@ -161,3 +161,57 @@ def test_cli_says_when_auto_switched(tmp_path, capsys):
     assert "auto picked ali3p" in out
     line, = [s for s in out.splitlines() if "auto switched" in s]
     assert "from ali3p to dop853p" in line and math.isfinite(float(line.split()[2]))
+
+
+def test_fmu_logs_the_switch_and_keeps_it_in_its_state(tmp_path):
+    # the FMU of the horizontal start in fmpy at 10 ms communication steps: the switch is
+    # one log line (status fmi2OK), B0 follows the exact reduction, and a state serialized
+    # after the switch goes on bit for bit in a second instance
+    fmpy = pytest.importorskip("fmpy")
+    from fmpy.fmi2 import FMU2Slave
+
+    import fmu_logs
+    from mbdfmu.fmu_build import build
+
+    path = tmp_path / "horizontal.toml"
+    path.write_text(HORIZONTAL)
+    fmu = build(path, tmp_path / "horizontal.fmu")
+    md = fmpy.read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    names = ("crank0.x", "crank0.y", "crank0.phi")
+    h, steps = 0.01, 100
+
+    def open_(instance):
+        fmu_logs.take(instance)
+        slave = FMU2Slave(guid=md.guid, modelIdentifier=md.coSimulation.modelIdentifier,
+                          unzipDirectory=fmpy.extract(str(fmu), str(tmp_path / instance)),
+                          instanceName=instance)
+        slave.instantiate(callbacks=fmu_logs.CALLBACKS, loggingOn=True)
+        slave.setupExperiment(startTime=0.0)
+        slave.enterInitializationMode()
+        slave.exitInitializationMode()
+        return slave
+
+    def run(slave, first, last):
+        rows = []
+        for k in range(first, last):
+            slave.doStep(k * h, h)          # fmpy raises on any status but OK
+            rows.append(slave.getReal([vr[n] for n in names]))
+        return np.array(rows)
+
+    one, two = open_("auto-watch-one"), open_("auto-watch-two")
+    try:
+        head = run(one, 0, 50)
+        saved = one.serializeFMUstate(one.getFMUstate())
+        tail = run(one, 50, steps)
+        two.setFMUstate(two.deSerializeFMUstate(saved))
+        again = run(two, 50, steps)
+    finally:
+        one.freeInstance()
+        two.freeInstance()
+    lines = [s for s in fmu_logs.take("auto-watch-one") if "auto switched" in s]
+    assert len(lines) == 1 and "from ali3p to dop853p" in lines[0]
+    assert not [s for s in fmu_logs.take("auto-watch-two") if "auto switched" in s]
+    time = h * np.arange(1, steps + 1)
+    assert b0_error(time, np.vstack((head, tail))) < 10 * 1e-6
+    np.testing.assert_array_equal(again, tail)
