@@ -38,17 +38,19 @@ def pendulum(t, *, L=1.0, m=1.0, J=0.0, g=G, theta0=math.pi / 2) -> dict:
             "x": L * np.sin(theta), "y": -L * np.cos(theta), "period": 4.0 * K / w0}
 
 
-def n_four_bar_B0(t, N: int, *, m=1.0, L=1.0, g=G) -> dict:
+def n_four_bar_B0(t, N: int, *, m=1.0, L=1.0, g=G, theta0=math.pi / 2,
+                  theta_dot0=-1.0) -> dict:
     """P2: B0 (top of the first crank) of the N-four-bar from the exact one-DOF reduction.
 
     ``Meff theta'' = -C cos(theta)``, ``Meff = m L^2 ((N+1)/3 + N)``,
-    ``C = m g L ((N+1)/2 + N)``, theta(0) = pi/2, theta'(0) = -1, ``B0 = L (cos, sin)(theta)``;
-    integrated by DOP853 at 1e-13. ``t`` sorted, >= 0. Returns ``theta``, ``x``, ``y``.
+    ``C = m g L ((N+1)/2 + N)``, theta(0) = theta0 (P2: pi/2), theta'(0) = theta_dot0 (P2:
+    -1), ``B0 = L (cos, sin)(theta)``; integrated by DOP853 at 1e-13. ``t`` sorted, >= 0.
+    Returns ``theta``, ``x``, ``y``.
     """
     t = np.atleast_1d(np.asarray(t, dtype=float))
     meff = m * L * L * ((N + 1) / 3.0 + N)
     c = m * g * L * ((N + 1) / 2.0 + N)
-    y0 = [math.pi / 2, -1.0]
+    y0 = [float(theta0), float(theta_dot0)]
     theta = np.empty_like(t)
     later = t > 0
     theta[~later] = y0[0]

@@ -223,13 +223,15 @@ class AutoRun:
                 "auto_watch": encode(self.watcher)}
 
     def rollback_point(self) -> dict:
+        """Within the process: the integrator object itself too (rebuilding one would
+        recompute what its constructor derives from the state, e.g. ali3p's penalty)."""
         return {**self.current.rollback_point(), "auto_method": self.current.name,
-                "auto_watch": encode(self.watcher)}
+                "auto_watch": encode(self.watcher), "auto_object": self.current}
 
     def set_state(self, state: dict) -> None:
         state = dict(state)
         name, watch = state.pop("auto_method"), decode(state.pop("auto_watch"))
-        current = self.current
+        current = state.pop("auto_object", self.current)
         if current.name != name:
             current = self.watcher.switch(current, name, "")   # an integrator of that method
         watch.attach(current)
