@@ -21,9 +21,10 @@ these rules:
    stiff spring stretched at t0 gets dop853p, which resolves its oscillation; once it has
    died out, only stability holds dop853p's step).
 3. A method that stops (``SolverError`` other than the work limit): the advance call is
-   retried from where it started with the other method of the pair: ali3p for an explicit
-   method, dop853p for an implicit one, each at most once per call; if that also stops,
-   the first error is raised.
+   retried from where it started with ali3p (which passes singular configurations and
+   redundant constraints, where explicit methods and genalpha stop), or with dop853p if
+   ali3p stopped; each method at most once per call; when none is left, the first
+   method's error is raised, with the retries' errors after it.
 
 A switch happens at a step's end, with the state (t, q, q') carried exactly: within an
 advance call when that end is not past the output time being reached (a step past it gives
@@ -59,7 +60,6 @@ STIFF_STEPS = 15
 NONSTIFF_STEPS = 6
 
 AUTO_METHODS = {cls.name: cls for cls in (DOP853P, RK45P, RK4P, ALI3P, GeneralizedAlpha)}
-EXPLICIT = (DOP853P.name, RK45P.name, RK4P.name)
 
 
 class _Switch(Exception):
@@ -148,7 +148,7 @@ class AutoWatch(Plain):
         if self.pending is not None and (integrator.out is None or t_target > integrator.t):
             integrator = self.switch(integrator, *self.pending)
         start, first, tried = integrator.rollback_point(), integrator, {integrator.name}
-        self._target = t_target
+        self._target, failures = t_target, []
         try:
             while True:
                 try:
@@ -159,9 +159,13 @@ class AutoWatch(Plain):
                 except WorkLimitError:
                     raise
                 except SolverError as exc:
-                    to = ALI3P.name if integrator.name in EXPLICIT else DOP853P.name
-                    if to in tried:
-                        raise exc from None
+                    failures.append(exc)
+                    to = DOP853P.name if integrator.name == ALI3P.name else ALI3P.name
+                    if to in tried and len(failures) == 1:
+                        raise
+                    if to in tried:      # the first method's error, with what was tried
+                        raise SolverError(failures[0].reason + "; auto retried: " + "; ".join(
+                            str(e) for e in failures[1:]), failures[0].t) from None
                     tried.add(to)
                     first.set_state(start)
                     integrator = self.switch(first, to, f"{exc}; retried from t = "
