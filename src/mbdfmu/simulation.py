@@ -266,9 +266,11 @@ class Simulation:
         kernel = self.equations.ckernel
         if kernel is not None and not self._inputs_changed:   # one call, q'' kept from the step
             u = self.inputs_at(self.t)
-            values = kernel.state_outputs(self.q, self.qd, self.equations.motion_values(self.t, u),
-                                          u.forces)
-            if values is not None:
+            done = kernel.state_outputs(self.q, self.qd, self.equations.motion_values(self.t, u),
+                                        u.forces)
+            if done is not None:
+                values, qdd, lam = done
+                self._cache = (qdd, lam)       # what accelerations() returns until a change
                 return values
         qdd, lam = self.accelerations()
         return self.equations.output_values(self.t, self.q, self.qd, qdd, lam,

@@ -272,14 +272,15 @@ class Kernel:
         return float(b.err[0])
 
     def state_outputs(self, q, qd, motion, uf):
-        """The output vector at (q, q') with q'' and lam of eq. (14) at that state (those the
-        last step computed when it ended there): one call. None: the numpy path's case."""
+        """(outputs, q'', lam) at (q, q'): the output vector with q'' and lam of eq. (14) at
+        that state (those the last step computed when it ended there), in one call. None:
+        the numpy path's case."""
         b = self.buf
         self._load(q, qd, motion, uf)
         if self._state_outputs(self.address, b.p_q, b.p_qd, b.p_motion, b.p_uf, b.p_qdd, b.p_lam,
                                b.p_out) != OK:
             return None
-        return b.out.copy()
+        return b.out.copy(), b.qdd.copy(), b.lam[:self.m].copy()
 
     def rk4p_steps(self, q, qd, qdd, h, steps, tol, max_iter, audit, divergence, roundoff):
         """``steps`` steps of rk4p (``mbd_rk4p_steps``) with the inputs the caller put in
