@@ -273,10 +273,11 @@ class Model(Slave):
 
     def log_events(self):
         """Each transition of end stops and friction, and each change of method by auto
-        (``Integrator.switches``), since the last call, one line each."""
-        for t, old, new, why in self.sim.integrator.switches[self.logged_switches:]:
+        (``auto_watch.switches_of``), since the last call, one line each."""
+        switches = self.core.integrators.auto_watch.switches_of(self.sim.integrator)
+        for t, old, new, why in switches[self.logged_switches:]:
             self.log(f"t = {t!r} s: auto switched from {old} to {new}: {why}")
-        self.logged_switches = len(self.sim.integrator.switches)
+        self.logged_switches = len(switches)
         events = self.sim.events
         if events is not None:
             for t, joint, what in events.log[self.logged_events:]:
@@ -326,7 +327,8 @@ class Model(Slave):
             self.sim, self.built = self.new_simulation(build), build
         self.sim.set_state(tree["sim"])
         self.logged_events = len(self.sim.events.log) if self.sim.events is not None else 0
-        self.logged_switches = len(self.sim.integrator.switches)
+        self.logged_switches = len(self.core.integrators.auto_watch.switches_of(
+            self.sim.integrator))
         if not self._fmi_dirty:
             self.publish()      # the same values for a state this FMU wrote
 

@@ -19,6 +19,7 @@ from .equations.projection import (ASSEMBLY_TOL, PROJECTION_MAX_ITER, assemble,
                                    project_velocities)
 from .errors import InputError, SettingError, SolverError
 from .integrators import make_integrator
+from .integrators.auto_watch import method_chain, switches_of
 from .integrators.base import WorkLimit
 from .integrators.events import EventRunner, check_method, event_kernel
 from .integrators.settings import SolverSettings, settings_from_scene
@@ -37,13 +38,11 @@ DELTA = 2e-4
 
 
 class Simulation:
-    """A scene being simulated: assembled at ``t0``, then advanced step by step.
-
-    Inputs are set by name (``<driver>.position`` / ``.velocity`` / ``.acceleration``,
-    ``<force>.fx`` / ``.fy`` / ``.torque`` / ``.actuator``) and hold until set again, or
-    given as functions of time with ``set_input_signal``. Settings: a ``SolverSettings``
-    (default: the scene's), updated by the keyword values given.
-    """
+    """A scene being simulated: assembled at ``t0``, then advanced step by step. Inputs are
+    set by name (``<driver>.position`` / ``.velocity`` / ``.acceleration``, ``<force>.fx`` /
+    ``.fy`` / ``.torque`` / ``.actuator``) and hold until set again, or are functions of time
+    (``set_input_signal``). Settings: a ``SolverSettings`` (default: the scene's), updated
+    by the keyword values given."""
 
     def __init__(self, scene: Scene, method=None, step=None, rtol=None, atol=None,
                  t0: float = 0.0, method_options: dict | None = None,
@@ -86,9 +85,7 @@ class Simulation:
     @property
     def method_name(self) -> str:
         """Its name, or "auto->dop853p" when auto picked it ("auto->ali3p->dop853p": switched)."""
-        switches = self.integrator.switches
-        chain = [s[1] for s in switches[:1]] + [s[2] for s in switches] or [self.integrator.name]
-        return "->".join(["auto", *chain]) if self.integrator.picked_by else chain[-1]
+        return method_chain(self.integrator)
 
     @property
     def method_reason(self) -> str:
@@ -149,12 +146,10 @@ class Simulation:
         self._cache = self._held = None
 
     def set_input_derivative(self, name: str, order: int, value: float) -> None:
-        """The ``order``-th time derivative (1 or more) of an input at the current time: the
-        input then follows its Taylor polynomial until set again (``set_input`` holds it).
-
-        A force component takes any order; a driver's position takes 1 (its velocity) and
-        2 (its acceleration), its velocity 1 (the acceleration): the driver's motion over a
-        step is the quadratic ``p + v tau + a tau^2 / 2`` (``signals.SampledDriver``)."""
+        """The ``order``-th time derivative (1 or more) of an input now: it then follows its
+        Taylor polynomial until set again (``set_input`` holds it). Force components take any
+        order; a driver's position 1 and 2, its velocity 1: its motion over a step is the
+        quadratic ``p + v tau + a tau^2 / 2`` (``signals.SampledDriver``)."""
         item, field = self._split(name)
         value = float(value)
         if not math.isfinite(value):
@@ -210,11 +205,9 @@ class Simulation:
     def advance(self, t_target: float, limit: WorkLimit | None = None, *,
                 dense: bool | None = None) -> None:
         """Integrate to exactly ``t_target``, within ``limit`` (bounded internal steps and
-        CPU time) if given; on failure the state stays where it was.
-
-        ``dense``: whether an adaptive method may step past ``t_target`` and give the state
-        there from its dense output (its step sequence then does not depend on the output
-        times); None: when the inputs beyond it are known (``inputs_known_ahead``)."""
+        CPU time) if given; on failure the state stays where it was. ``dense``: whether an
+        adaptive method may step past ``t_target`` and give the state there from its dense
+        output; None: when the inputs beyond it are known (``inputs_known_ahead``)."""
         if dense is None:
             dense = self.inputs_known_ahead()
         if self.events is None and not self._inputs_changed and \
@@ -246,10 +239,8 @@ class Simulation:
             self._cache = None
 
     def accelerations(self) -> tuple[np.ndarray, np.ndarray]:
-        """q'' and lam at the current state and inputs (cached until either changes).
-
-        Inputs set since the last step take effect here already (direct feedthrough): the
-        state is first made consistent with new driver positions, as ``advance`` would."""
+        """q'' and lam at the current state and inputs (cached until either changes); inputs
+        set since the last step act already (the state made consistent, as in ``advance``)."""
         if self._inputs_changed:
             self._reinitialize()
         if self._cache is None and self.events is not None:
@@ -396,4 +387,4 @@ def simulate(scene: Scene | str | Path, t_end: float | None = None, method=None,
                   stats=vars(sim.integrator.stats).copy(),
                   warnings=list(sim.warnings) + ([sim.kernel_note] if sim.kernel_note else []),
                   events=list(sim.events.log) if sim.events is not None else [],
-                  switches=list(sim.integrator.switches))
+                  switches=switches_of(sim.integrator))

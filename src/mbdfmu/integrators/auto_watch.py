@@ -199,6 +199,20 @@ class AutoWatch(Plain):
 
 
 
+def switches_of(integrator) -> list[tuple[float, str, str, str]]:
+    """The switches of an ``AutoRun`` so far ([] for an integrator run as it is)."""
+    return integrator.switches if isinstance(integrator, AutoRun) else []
+
+
+def method_chain(integrator) -> str:
+    """Its method's name, or "auto->" and the method auto picked, then each it switched to."""
+    if not getattr(integrator, "picked_by", ""):
+        return integrator.name
+    switches = switches_of(integrator)
+    return "->".join(["auto", *([s[1] for s in switches[:1]] + [s[2] for s in switches]
+                                or [integrator.name])])
+
+
 class AutoRun:
     """What ``Simulation`` runs for ``auto``: the integrator of the moment behind the
     ``Integrator`` interface (attributes are the current integrator's), advanced by its

@@ -92,7 +92,6 @@ class Integrator:
     # Called as watch(self) after each accepted step; events.py sets it to find events
     # (it raises to stop the run there).
     watch: Callable | None = None
-    switches: tuple = ()     # auto's changes of method: (t, from, to, reason) (auto_watch.py)
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
