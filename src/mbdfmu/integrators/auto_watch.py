@@ -147,6 +147,9 @@ class AutoWatch(Plain):
         integrator that runs at the end (the same one or its successor)."""
         if self.pending is not None and (integrator.out is None or t_target > integrator.t):
             integrator = self.switch(integrator, *self.pending)
+        if integrator.interpolates_to(t_target, dense):     # no step: nothing can fail
+            integrator.advance(t_target, limit, dense=dense)
+            return integrator
         start, first, tried = integrator.rollback_point(), integrator, {integrator.name}
         self._target, failures = t_target, []
         try:
