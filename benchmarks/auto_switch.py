@@ -14,8 +14,11 @@ Two mechanisms where the method ``auto`` picks at t0 stops fitting later in the 
 Each at rtol 1e-6 and 1e-8 under ``auto`` (which watches the run and switches) and under
 the method auto picks at t0, named, with the same tolerances (what auto did before it
 watched the run). CPU time (process): best of ``--repeat``; steps: accepted + rejected.
+The ``overhead`` table: the cost of watching a run that needs no switch, P2 N = 2 as
+shipped under auto and under dop853p named, in ``simulate()`` (10 s) and through
+``Simulation.advance`` at 1 ms communication steps (2 s).
 
-    python benchmarks/auto_switch.py [--repeat 3] [-o DIR]
+    python benchmarks/auto_switch.py [--tables switch overhead] [--repeat 3] [-o DIR]
 
 Writes ``auto_switch.md`` into DIR (default docs/figures/performance).
 """
@@ -78,13 +81,42 @@ def run(make, t_end, interval, **kw):
     return time.process_time() - start, res, ""
 
 
+def overhead(repeat: int) -> str:
+    scene = mbdfmu.load_scene(ROOT / "scenes/n_four_bar_2.toml")
+
+    def in_simulate(method):
+        start = time.process_time()
+        mbdfmu.simulate(scene, 10.0, method=method)
+        return time.process_time() - start
+
+    def at_1ms(method):
+        sim = mbdfmu.Simulation(scene, method=method)
+        start = time.process_time()
+        for k in range(1, 2001):
+            sim.advance(k * 1e-3)
+        return time.process_time() - start
+
+    lines = ["| run | auto (s) | dop853p (s) | auto / dop853p |", "|---|---|---|---|"]
+    for label, run_ in (("simulate(), 10 s", in_simulate), ("advance at 1 ms, 2 s", at_1ms)):
+        best = {"auto": float("inf"), "dop853p": float("inf")}
+        for _ in range(repeat):
+            for method in best:
+                best[method] = min(best[method], run_(method))
+        lines.append(f"| {label} | {best['auto']:.3g} | {best['dop853p']:.3g} | "
+                     f"{best['auto'] / best['dop853p']:.2f} |")
+    return ("\nCost of watching (P2 N = 2 as shipped, no switch; CPU time best of "
+            f"{repeat}):\n\n" + "\n".join(lines) + "\n")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--tables", nargs="+", choices=("switch", "overhead"),
+                    default=["switch", "overhead"])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("-o", "--out", type=Path, default=ROOT / "docs/figures/performance")
     args = ap.parse_args(argv)
     rows = []
-    for case, (make, t_end, interval) in CASES.items():
+    for case, (make, t_end, interval) in (CASES.items() if "switch" in args.tables else ()):
         reference = None
         if make is stretched_stiff_pendulum:
             reference = run(make, t_end, interval, method="dop853p", rtol=1e-8)[1]
@@ -110,9 +142,12 @@ def main(argv=None) -> int:
             "switches"]
     table = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     table += ["| " + " | ".join(r) + " |" for r in rows]
-    text = (f"`python benchmarks/auto_switch.py --repeat {args.repeat}`: auto (watching the run) "
-            f"against the method it picks at t0 run alone; CPU time best of {args.repeat} "
-            "on the machine of the run (compare within a row pair).\n\n" + "\n".join(table) + "\n")
+    text = (f"`python benchmarks/auto_switch.py --tables {' '.join(args.tables)} --repeat "
+            f"{args.repeat}`: auto (watching the run) against the method it picks at t0 run "
+            f"alone; CPU time best of {args.repeat} on the machine of the run (compare within "
+            "a row pair).\n\n" + ("\n".join(table) + "\n" if rows else ""))
+    if "overhead" in args.tables:
+        text += overhead(args.repeat)
     print(text)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "auto_switch.md").write_text(text)
