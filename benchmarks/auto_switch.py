@@ -148,9 +148,10 @@ def main(argv=None) -> int:
             "a row pair).\n\n" + ("\n".join(table) + "\n" if rows else ""))
     if "overhead" in args.tables:
         text += overhead(args.repeat)
-    print(text)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "auto_switch.md").write_text(text)
+    out = args.out / "auto_switch.md"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    print(text + f"\n-> {out}")
     return 0
 
 
