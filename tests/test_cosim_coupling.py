@@ -231,13 +231,69 @@ def test_two_mass_stability_limits_agree_with_the_closed_form(name, algorithm, p
 @pytest.mark.parametrize("name, p, order", [("two_mass_oscillator", 1, 2.0),
                                             ("two_mass_oscillator:dd", 2, 3.0)])
 def test_the_two_mass_scenarios_converge_to_their_monolithic_reference(name, p, order, built):
-    """(Force-displacement at p = 2 is of order 2 only: the coupling force is direct
-    feedthrough of the position input, so its derivatives carry the previous step's
-    extrapolation error; docs/cosimulation.md.)"""
     scenario, fmus = built(name)
     errors = [_error(scenario, run_fmpy(scenario, fmus, CosimSettings(
         algorithm="jacobi", step=h, t_end=1.0, extrapolation=p))) for h in (2e-3, 1e-3)]
     assert abs(_orders(errors)[0] - order) < 0.25, errors
+
+
+def test_force_displacement_with_second_order_extrapolation_is_third_order(built):
+    """The coupling force reads the other mass's position and velocity (direct
+    feedthrough), so its derivatives at t0 need the inputs' derivatives, which the master
+    settles at the start. The runs follow the closed-form co-simulation (stability.py's
+    macro steps from a consistent start) to rounding, and converge at order 3 against the
+    monolithic solution (an inconsistent start gives 2.0 between 2 and 1 ms)."""
+    st = _stability()
+    scenario, fmus = built("two_mass_oscillator")
+    masses, connections = st.from_scenario(scenario)
+    q = scenario.parameters
+    start = st.start_state(masses, connections, [[q["mass1.x0"], 0.0], [0.0, 0.0]], 2)
+    errors = []
+    for h in (2e-3, 1e-3):
+        r = run_fmpy(scenario, fmus, CosimSettings(algorithm="jacobi", step=h, t_end=0.25,
+                                                   extrapolation=2))
+        closed = st.positions(masses, connections, start, h, round(0.25 / h), "jacobi", 2)
+        run = np.column_stack([r["mass1.x"], r["mass2.x"]])
+        assert np.abs(run - closed).max() < 1e-9 * np.ptp(closed), h
+        errors.append(_error(scenario, r))
+    assert 2.8 < _orders(errors)[0] < 3.2, errors
+
+
+def test_output_derivatives_of_direct_feedthrough_follow_the_input_derivatives(built):
+    """The oscillator's coupling force reads its position inputs: after input values and
+    derivatives are set (before the step), its output derivatives at that point are the
+    one-sided differences in time of the force along steps of k * 1 ms (the inputs
+    following their polynomials), dy/du du/dt included."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    _, fmus = built("two_mass_oscillator")
+    md = read_model_description(str(fmus["mass1"]))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmus["mass1"])),
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="m1")
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.setReal([vr["cc"], vr["dc"], vr["x0"]], [1000.0, 2.0, 0.1])
+    fmu.exitInitializationMode()
+    ins = [vr["x_other"], vr["v_other"]]
+    fmu.setReal(ins, [0.02, 0.5])
+    fmu.setRealInputDerivatives(ins + ins, [1, 1, 2, 2], [0.5, 30.0, 30.0, -400.0])
+    force = [vr["coupling_force"]]
+    d1, d2 = (fmu.getRealOutputDerivatives(force, [k])[0] for k in (1, 2))
+    h, state = 1e-3, fmu.getFMUstate()
+    y = [fmu.getReal(force)[0]]
+    for k in range(1, 5):
+        fmu.setFMUstate(state)
+        fmu.doStep(0.0, k * h)
+        y.append(fmu.getReal(force)[0])
+    fd1 = (-25 * y[0] + 48 * y[1] - 36 * y[2] + 16 * y[3] - 3 * y[4]) / (12 * h)
+    fd2 = (35 * y[0] - 104 * y[1] + 114 * y[2] - 56 * y[3] + 11 * y[4]) / (12 * h * h)
+    assert d1 == pytest.approx(fd1, rel=1e-5)
+    assert d2 == pytest.approx(fd2, rel=1e-3)
+    fmu.freeFMUstate(state)
+    fmu.freeInstance()
 
 
 # ----------------------------------------------------------------------------- ECCO
