@@ -165,6 +165,20 @@ def test_the_implicit_coupling_keeps_the_crane_at_50_ms_where_jacobi_fails(built
     assert dd.stats["jacobians"] == dd.stats["steps"] and "fallbacks" not in dd.stats
 
 
+def test_the_implicit_coupling_converges_on_the_motor_and_crank_at_50_ms(built):
+    """The crank's inertia changes along its turn, so over 50 ms the step is far from the
+    linearization at t: held fixed, that Jacobian contracts the residual by only 0.43 per
+    iteration at t = 0.4 s and the step is refused after 12; Broyden's update after each
+    iteration converges in a few. The result stays within the monolithic reference's range
+    of its crank speed (9 steps over 0.45 s: half the range)."""
+    scenario, fmus = built("dc_motor_slider_crank")
+    r = run_fmpy(scenario, fmus, CosimSettings(algorithm="implicit", jacobian="directional",
+                                               step=5e-2, t_end=0.45))
+    assert r.time[-1] == pytest.approx(0.45)
+    assert r.stats["iterations"] <= 6 * r.stats["steps"], r.stats
+    assert _error(scenario, r) < 0.6
+
+
 @pytest.mark.parametrize("name", ["two_mass_oscillator", "two_mass_oscillator:dd"])
 def test_the_directional_jacobian_is_exact_for_linear_fmus(name, built):
     """The oscillator FMUs are linear and integrate exactly: the Jacobian of the linearized
