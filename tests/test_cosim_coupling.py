@@ -324,6 +324,21 @@ def test_ecco_runs_the_quarter_car_in_libcosim(built):
     assert np.all(np.isfinite(r[RESIDUAL]))
 
 
+def test_ecco_starts_at_the_start_step_and_grows_by_its_change_bound(built):
+    """libcosim's controller takes its first two steps at the configured step (it needs two
+    error estimates) and changes a step by at most MAX_CHANGE after that: a start step of
+    1 % of h reaches h only after about a dozen steps (docs/cosimulation.md, ECCO)."""
+    pytest.importorskip("libcosimpy")
+    from mbdfmu.cosim.ecco_runner import MAX_CHANGE, run_ecco
+
+    scenario, fmus = built("quarter_car")
+    r = run_ecco(scenario, fmus, step=2e-3, t_end=0.01, rtol=1e-2, atol=1e-2,
+                 start_step=2e-5)
+    steps = np.diff(r.time)
+    assert steps[:2] == pytest.approx([2e-5, 2e-5], abs=2e-9)
+    assert np.all(steps[1:] <= MAX_CHANGE * steps[:-1] * (1 + 1e-6) + 2e-9)
+
+
 @pytest.mark.parametrize("name", ["quarter_car", "hydraulic_crane"])
 def test_the_ecco_configuration_comes_from_the_fmus_power_ports(name, built, tmp_path):
     """The bond found from the ports the FMUs declare (extra/OspModelDescription.xml) is the
