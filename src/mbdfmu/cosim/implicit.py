@@ -11,7 +11,9 @@ Jacobi); the step is accepted when ``Y - G(Y)`` is within ``TOLERANCE`` of each 
 scale. Newton's update uses the interface Jacobian ``I - dG/dY``: its columns are central
 finite differences of ``G`` (one pair of evaluations per output that feeds an instance
 with inputs; outputs of instances without inputs do not depend on Y), computed at the
-first iteration of a step and kept while the iteration converges. Converged, the coupling
+first iteration of a step, then corrected after each iteration by Broyden's update with
+the secant just taken (the step's nonlinearity), and recomputed only when the residual
+is not halved. Converged, the coupling
 is the trapezoidal rule's: second order and stable for stiff couplings at any step where
 each FMU is (the hydraulic crane at 50 ms, where Jacobi fails from 2 ms).
 
