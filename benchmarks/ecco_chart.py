@@ -62,6 +62,17 @@ def runs(name: str, t_end: float, tolerance: float, start: float = 1.0) -> dict:
             "fixed step": (fixed.time, error_over_time(scenario, fixed), residual, h)}
 
 
+def _dress(axes, col, name, top, bottom, xlabel, which="major") -> None:
+    """Title, labels, legend and grid of one scenario's column of two panels."""
+    axes[0, col].set_title(name, fontsize="medium")
+    axes[0, col].set_ylabel(top, fontsize="small")
+    axes[1, col].set_ylabel(bottom, fontsize="small")
+    axes[1, col].set_xlabel(xlabel)
+    axes[0, col].legend(fontsize="small")
+    for ax in axes[:, col]:
+        ax.grid(True, which=which, alpha=0.3)
+
+
 def sweep(tolerances, names, start: float) -> Path:
     """ECCO and the fixed step at ECCO's mean step, at every tolerance, per scenario."""
     from matplotlib.figure import Figure
@@ -71,26 +82,19 @@ def sweep(tolerances, names, start: float) -> Path:
     print("| scenario | tolerance | ECCO: mean step, error, largest |residual| | fixed step: "
           "error, largest |residual| | error ratio ECCO / fixed |\n|---|---|---|---|---|")
     for col, name in enumerate(names):
-        t_end = CASES[name]
         points = {"ECCO": [], "fixed step": []}
         for tol in tolerances:
-            found = runs(name, t_end, tol, start)
-            for label, (_, error, residual, h) in found.items():
+            for label, (_, error, residual, h) in runs(name, CASES[name], tol, start).items():
                 points[label].append((h, error.max(), np.abs(residual).max()))
             (h, ee, er), (_, fe, fr) = points["ECCO"][-1], points["fixed step"][-1]
-            print(f"| {name} ({t_end:g} s) | {tol:g} | {h * 1e3:.3g} ms, {ee:.3g}, {er:.3g} J "
-                  f"| {fe:.3g}, {fr:.3g} J | {ee / fe:.2f} |", flush=True)
+            print(f"| {name} ({CASES[name]:g} s) | {tol:g} | {h * 1e3:.3g} ms, {ee:.3g}, "
+                  f"{er:.3g} J | {fe:.3g}, {fr:.3g} J | {ee / fe:.2f} |", flush=True)
         for k, (label, pts) in enumerate(points.items()):
             h, error, residual = np.array(sorted(pts)).T
             axes[0, col].loglog(h, error, "o-", color=f"C{k}", label=label)
             axes[1, col].loglog(h, residual, "o-", color=f"C{k}", label=label)
-        axes[0, col].set_title(name, fontsize="medium")
-        axes[0, col].set_ylabel("largest error / range", fontsize="small")
-        axes[1, col].set_ylabel("largest |energy residual| (J)", fontsize="small")
-        axes[1, col].set_xlabel("communication step, mean (s)")
-        axes[0, col].legend(fontsize="small")
-        for ax in axes[:, col]:
-            ax.grid(True, which="both", alpha=0.3)
+        _dress(axes, col, name, "largest error / range", "largest |energy residual| (J)",
+               "communication step, mean (s)", which="both")
     fig.tight_layout()
     path = SWEEP_FIGURE if start == 1.0 else SWEEP_FIGURE.with_name(
         f"{SWEEP_FIGURE.stem}_start{start:g}.png")
@@ -98,10 +102,31 @@ def sweep(tolerances, names, start: float) -> Path:
     return path
 
 
+def over_time(names, tolerance: float, start: float) -> Path:
+    """ECCO and the fixed step at one tolerance: residual and error over time."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(11, 6))
+    axes = fig.subplots(2, len(names), squeeze=False)
+    print("| scenario | ECCO: mean step, error, largest |residual| | fixed step: step, error, "
+          "largest |residual| |\n|---|---|---|")
+    for col, name in enumerate(names):
+        cells = []
+        for label, (t, error, residual, h) in runs(name, CASES[name], tolerance, start).items():
+            axes[0, col].plot(t, residual, lw=1, label=f"{label} ({h * 1e3:.3g} ms)")
+            axes[1, col].semilogy(t[1:], np.maximum(error[1:], 1e-12), lw=1, label=label)
+            cells.append(f"{h * 1e3:.3g} ms, {error.max():.3g}, {np.abs(residual).max():.3g} J")
+        print(f"| {name} ({CASES[name]:g} s, tolerance {tolerance:g}) | "
+              + " | ".join(cells) + " |")
+        _dress(axes, col, name, "interface energy residual (J)", "error / range", "time (s)")
+    fig.tight_layout()
+    fig.savefig(FIGURE, dpi=90)
+    return FIGURE
+
+
 def main(argv=None) -> int:
     import matplotlib
     matplotlib.use("Agg")
-    from matplotlib.figure import Figure
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tolerance", type=float, default=1e-2)
@@ -114,30 +139,8 @@ def main(argv=None) -> int:
     names = args.only.split(",")
     if args.sweep:
         print(sweep([float(x) for x in args.sweep.split(",")], names, args.start_factor))
-        return 0
-    fig = Figure(figsize=(11, 6))
-    axes = fig.subplots(2, len(names), squeeze=False)
-    print("| scenario | ECCO: mean step, error, largest |residual| | fixed step: step, error, "
-          "largest |residual| |\n|---|---|---|")
-    for col, name in enumerate(names):
-        t_end = CASES[name]
-        found = runs(name, t_end, args.tolerance, args.start_factor)
-        cells = []
-        for label, (t, error, residual, h) in found.items():
-            axes[0, col].plot(t, residual, lw=1, label=f"{label} ({h * 1e3:.3g} ms)")
-            axes[1, col].semilogy(t[1:], np.maximum(error[1:], 1e-12), lw=1, label=label)
-            cells.append(f"{h * 1e3:.3g} ms, {error.max():.3g}, {np.abs(residual).max():.3g} J")
-        print(f"| {name} ({t_end:g} s, tolerance {args.tolerance:g}) | " + " | ".join(cells) + " |")
-        axes[0, col].set_title(name, fontsize="medium")
-        axes[0, col].set_ylabel("interface energy residual (J)", fontsize="small")
-        axes[1, col].set_ylabel("error / range", fontsize="small")
-        axes[1, col].set_xlabel("time (s)")
-        axes[0, col].legend(fontsize="small")
-        for ax in axes[:, col]:
-            ax.grid(True, alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(FIGURE, dpi=90)
-    print(FIGURE)
+    else:
+        print(over_time(names, args.tolerance, args.start_factor))
     return 0
 
 
