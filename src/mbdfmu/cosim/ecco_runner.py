@@ -96,7 +96,7 @@ def run_ecco(scenario: Scenario, fmus, step: float | None = None, t_end: float |
     default beside the first FMU); every recorded variable and the bond's variables at
     every macro step, and the interface energy residual. ``start_step`` (default
     ``step``): libcosim's controller takes its first two steps at it, whatever the
-    tolerance, and changes a step by at most ``MIN_CHANGE`` after that."""
+    tolerance, and then changes each step by a factor from ``MIN_CHANGE`` to ``MAX_CHANGE``."""
     from fmpy import read_model_description
     from libcosimpy.CosimExecution import CosimExecution, get_last_error_message
     from libcosimpy.CosimLogging import CosimLogLevel, log_output_level

@@ -174,11 +174,11 @@ class CoupledSystem:
                 raise CosimError(f"initialization failed: {failed[-1]}", t0, m.name)
         for m in self.members:
             self.read_outputs(m, t0)
-        if start != "zero":
-            self.extrapolation.settle(t0)
         if start == "zero":
             for m in self.members:
                 self.write_inputs(m, zero=True)
+        else:
+            self.extrapolation.settle(t0)
         self.update_nominal()
 
     def sample(self) -> list[float]:

@@ -13,14 +13,14 @@ finite differences of ``G`` (one pair of evaluations per output that feeds an in
 with inputs; outputs of instances without inputs do not depend on Y), computed at the
 first iteration of a step, then corrected after each iteration by Broyden's update with
 the secant just taken (the step's nonlinearity), and recomputed only when the residual
-is not halved. Converged, the coupling
-is the trapezoidal rule's: second order and stable for stiff couplings at any step where
-each FMU is (the hydraulic crane at 50 ms, where Jacobi fails from 2 ms).
+is not halved. Converged, the coupling is the trapezoidal rule's: second order and stable
+for stiff couplings at any step where each FMU is (the hydraulic crane at 50 ms, where
+Jacobi fails from 2 ms).
 
 With ``jacobian="directional"`` the interface Jacobian comes instead from the FMUs'
 directional derivatives at t (``interface_jacobian.py``): one linearization per macro step,
-no extra steps; the iteration then converges linearly rather than quadratically, and where
-it converges slowly (the residual not halved) the step goes on with the differences
+no extra steps; the iteration then converges more slowly than with the differences, and
+where it converges slowly (the residual not halved) the step goes on with the differences
 (``stats["fallbacks"]``).
 
 The first guess is the outputs' Taylor extrapolation to t + h when the sources give
