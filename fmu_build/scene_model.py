@@ -181,7 +181,7 @@ class Model(Slave):
             self.warn(f"initial conditions: {line}")
         if self.sim.kernel_note:
             self.log(self.sim.kernel_note)
-        self.logged_events = self.logged_switches = 0
+        self.logged_events = 0
         self.log_events()
         self.push_inputs()
         self.pending = []
@@ -287,17 +287,11 @@ class Model(Slave):
         self.publish()
 
     def log_events(self):
-        """Each transition of end stops and friction, and each change of method by auto
-        (``auto_watch.switches_of``), since the last call, one line each."""
-        switches = self.core.integrators.auto_watch.switches_of(self.sim.integrator)
-        for t, old, new, why in switches[self.logged_switches:]:
-            self.log(f"t = {t!r} s: auto switched from {old} to {new}: {why}")
-        self.logged_switches = len(switches)
-        events = self.sim.events
-        if events is not None:
-            for t, joint, what in events.log[self.logged_events:]:
-                self.log(f"t = {t!r} s: joint {joint} {what}")
-            self.logged_events = len(events.log)
+        """What the run did since the last call (``simulation.run_log``), one line each."""
+        lines = self.core.simulation.run_log(self.sim)
+        for line in lines[self.logged_events:]:
+            self.log(line)
+        self.logged_events = len(lines)
 
     def save_state(self):
         if self.sim is None:
@@ -317,9 +311,7 @@ class Model(Slave):
         if self.sim is None or build != self.built:
             self.sim, self.built = self.new_simulation(build), build
         self.sim.set_state(tree["sim"])
-        self.logged_events = len(self.sim.events.log) if self.sim.events is not None else 0
-        self.logged_switches = len(self.core.integrators.auto_watch.switches_of(
-            self.sim.integrator))
+        self.logged_events = len(self.core.simulation.run_log(self.sim))
         if not self._fmi_dirty:
             self.publish()      # the same values for a state this FMU wrote
 

@@ -223,6 +223,16 @@ class Simulation(SimulationInputs):
         self._cache = self._held = None
 
 
+def run_log(sim: Simulation) -> list[str]:
+    """What the run did so far, one line each, in time order (a master logs the new ones
+    after each step): transitions of end stops and friction, or auto's changes of method
+    (``auto_watch.py``; auto does not watch runs with events)."""
+    events = [] if sim.events is None else [f"t = {t!r} s: joint {joint} {what}"
+                                            for t, joint, what in sim.events.log]
+    return events + [f"t = {t!r} s: auto switched from {old} to {new}: {why}"
+                     for t, old, new, why in switches_of(sim.integrator)]
+
+
 def input_warnings(sim: Simulation) -> list[str]:
     """Driver positions whose derived acceleration's estimated error is large, one line each
     (``signals.large_error_warnings``; a master logs them after each step)."""
