@@ -304,6 +304,13 @@ class ImplicitMethod(Integrator):
         return True, h
 
     def _try_step(self, t: float, h: float) -> None:
+        """One step from t to t + h (updates the state) or NewtonFailure."""
+        self._commit(self._attempt(t, h))
+
+    def _attempt(self, t: float, h: float) -> dict:
+        raise NotImplementedError
+
+    def _commit(self, x: dict) -> None:
         raise NotImplementedError
 
     def saddle_matrix(self, top_left: np.ndarray, J: np.ndarray,
