@@ -77,8 +77,8 @@ def test_every_method_is_registered_with_a_one_line_summary():
         assert cls.summary and "\n" not in cls.summary
     assert set(SUMMARIES) == set(METHOD_NAMES) and "\n" not in SUMMARIES["auto"]
     assert METHODS["baumgarte"].option_names == ("alpha", "beta")
-    assert METHODS["genalpha"].option_names == ("rho_inf", "jacobian")
-    assert METHODS["ali3p"].option_names == ("alpha",)
+    assert METHODS["genalpha"].option_names == ("rho_inf", "jacobian", "step_control")
+    assert METHODS["ali3p"].option_names == ("alpha", "step_control")
 
 
 @pytest.mark.parametrize("method, options, words", [
