@@ -5,6 +5,8 @@ Reference: the stiff limit of P1. The pendulum's rod replaced by a spring of sti
 elliptic solution (tests/exact_solutions.py) to the spring's stretch, about 3 m g / k
 (3e-9 m at k = 1e10 N/m), far below the tolerance.
 """
+import tomllib
+
 import numpy as np
 import pytest
 
@@ -17,12 +19,16 @@ TOL = 1e-6 * 1.0 + 1e-8        # default rtol times the 1 m mechanism, plus atol
 
 
 def spring_pendulum(k: float):
-    return scene_from_dict({
-        "name": "StiffSpringPendulum", "gravity": [0.0, -9.81],
-        "body": [{"name": "bob", "mass": 1.0, "inertia": 1e-6, "position": [1.0, 0.0]}],
-        "force": [{"name": "rod", "type": "spring_damper", "body_i": "ground",
-                   "point_i": [0.0, 0.0], "body_j": "bob", "point_j": [0.0, 0.0],
-                   "stiffness": k, "damping": 0.0, "rest_length": 1.0}]})
+    """P1's scene with its pivot replaced by a spring of stiffness k (N/m), rest length 1 m,
+    from the pivot to the bob."""
+    with open(ref.SCENES / "pendulum.toml", "rb") as f:
+        data = tomllib.load(f)
+    pivot = data.pop("joint")[0]
+    data["force"] = [{"name": "rod", "type": "spring_damper", "body_i": pivot["body_i"],
+                      "point_i": pivot["point_i"], "body_j": pivot["body_j"],
+                      "point_j": [0.0, 0.0], "stiffness": k, "damping": 0.0,
+                      "rest_length": 1.0}]
+    return scene_from_dict(data)
 
 
 def bob_error(res) -> float:
