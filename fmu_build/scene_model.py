@@ -103,6 +103,7 @@ class Model(Slave):
         self.derivatives = None      # (first, second) output derivatives at this time
         # a state's place: (0 for q, 1 for q', index); the inputs' places in InputValues
         self.state_slot = {n: (k % 6 // 3, 3 * (k // 6) + k % 3) for k, n in enumerate(STATES)}
+        self.published = OUTPUTS + STATES + ACCELERATIONS      # what publish() sets, in order
         self.input_slot = input_slots(self.core.model.variables.input_layout(self.scene))
 
     def load_kernel(self) -> str:
@@ -215,10 +216,11 @@ class Model(Slave):
 
     def publish(self):
         self.derivatives = None
-        self.values.update(zip(OUTPUTS, self.sim.output_vector()[self.slots].tolist()))
-        x = (self.sim.q, self.sim.qd)
-        self.values.update((n, float(x[a][i])) for n, (a, i) in self.state_slot.items())
-        self.values.update(zip(ACCELERATIONS, map(float, self.sim.accelerations()[0])))
+        sim = self.sim
+        outputs = sim.output_vector()[self.slots]        # q'' of the same evaluation kept
+        states = np.hstack((sim.q.reshape(-1, 3), sim.qd.reshape(-1, 3)))   # STATES' order
+        self.values.update(zip(self.published, np.concatenate(
+            (outputs, states.ravel(), sim.accelerations()[0])).tolist()))
 
     STEP_CALCULATES = True          # publish() after every step sets the accelerations
 

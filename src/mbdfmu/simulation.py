@@ -214,6 +214,16 @@ class Simulation:
         ``dense``: whether an adaptive method may step past ``t_target`` and give the state
         there from its dense output (its step sequence then does not depend on the output
         times); None: when the inputs beyond it are known (``inputs_known_ahead``)."""
+        if dense is None:
+            dense = self.inputs_known_ahead()
+        if self.events is None and not self._inputs_changed and \
+                self.integrator.interpolates_to(t_target, dense):
+            # a time inside the last step: the state there from its dense output, which
+            # changes nothing a failure would have to undo (the common case of an FMU
+            # stepped at communication steps shorter than the method's steps)
+            self.integrator.advance(t_target, limit, dense=True)
+            self._cache = None
+            return
         # Only the integrator and the flag change while stepping (inputs do not), so that
         # is all the rollback keeps.
         snapshot, inputs_changed = self.integrator.rollback_point(), self._inputs_changed
@@ -221,8 +231,6 @@ class Simulation:
         try:
             if self._inputs_changed:
                 self._reinitialize()
-            if dense is None:
-                dense = self.inputs_known_ahead()
             if self.events is None:
                 self.integrator.advance(t_target, limit, dense=dense)
             else:       # located events: the steps land on them (no dense output)
@@ -258,9 +266,11 @@ class Simulation:
         kernel = self.equations.ckernel
         if kernel is not None and not self._inputs_changed:   # one call, q'' kept from the step
             u = self.inputs_at(self.t)
-            values = kernel.state_outputs(self.q, self.qd, self.equations.motion_values(self.t, u),
-                                          u.forces)
-            if values is not None:
+            done = kernel.state_outputs(self.q, self.qd, self.equations.motion_values(self.t, u),
+                                        u.forces)
+            if done is not None:
+                values, qdd, lam = done
+                self._cache = (qdd, lam)       # what accelerations() returns until a change
                 return values
         qdd, lam = self.accelerations()
         return self.equations.output_values(self.t, self.q, self.qd, qdd, lam,

@@ -31,7 +31,7 @@ import math
 import numpy as np
 from scipy.integrate import DOP853, RK45
 
-from ..equations.projection import project_positions, project_velocities
+from ..equations.projection import PROJECTION_MAX_ITER, project_positions, project_velocities
 from ..equations.sparsity import schur_solve
 from ..errors import SolverError
 from . import c_steps, dense_output, singular_zone
@@ -148,10 +148,15 @@ class ProjectedRK(AdaptiveStepping, Integrator):
     def _project(self, t_new, y_new):
         """Mass-weighted projection of y_new = (q, q') onto the constraints at t_new;
         SolverError when Newton does not converge."""
-        n = self.q.size
+        n, eq = self.q.size, self.equations
         u = self.inputs(t_new)
-        q, _ = project_positions(self.equations, t_new, y_new[:n], tol=projection_tol(self),
-                                 u=u)
+        if eq.ckernel is not None:      # None: the numpy path's case (it says why)
+            done = eq.ckernel.project(y_new[:n], y_new[n:], eq.motion_values(t_new, u),
+                                      projection_tol(self), PROJECTION_MAX_ITER)
+            if done is not None:
+                self.stats.nprojections += 1
+                return done
+        q, _ = project_positions(eq, t_new, y_new[:n], tol=projection_tol(self), u=u)
         qd = project_velocities(self.equations, t_new, q, y_new[n:], u)
         self.stats.nprojections += 1
         return q, qd
