@@ -144,7 +144,8 @@ class ALI3P(StepControl, ImplicitMethod):
         tols = newton_tolerances(self.atol, h, eq.length_scale, q_n, 0.25 * h * h, a_n)
         newton_iterate(evaluate, lambda: (self._augmented_matrix(t1, x["q"], x["qd"], x["J"],
                                                                 x["lam"], h, P), x["J"]),
-                       apply, self.matrix, h, tols, eq.mass, eq.length_scale, self.stats)
+                       apply, self.matrix, h, tols, eq.mass, eq.length_scale, self.stats,
+                       count_multipliers=False)
         q = q_n + x["dq"]
         qd, qdd = rates(x["dq"])
         # mass-orthogonal projections of q' and q'' (Bayo and Ledesma 1996)

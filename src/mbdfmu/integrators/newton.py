@@ -25,11 +25,14 @@ loses rank, and the noise grows like 1 / indicator^2: there the tolerance is a l
 that still shrinks like h^2 below T_NEAR (``near_singular``).
 
 The size of an increment, for all these tests, counts the multipliers too, as the
-displacement M^-1 Psi_q^T D dlam they cause (``IterationMatrix.increment_size``): near a
+displacement M^-1 Psi_q^T D dlam they cause (``IterationMatrix.increment_size``; genalpha's, not ali3p's: see below): near a
 singular configuration a kept matrix corrects the positions at once but the multipliers
 slowly, so a test on the position increment alone accepted steps whose equations of motion
 were still off by up to ~10 m/s^2 there; each crossing then left a velocity error that did
-not shrink with h (P2's error levelled off near 1e-7).
+not shrink with h (P2's error levelled off near 1e-7). ali3p's multipliers along the
+direction where Psi_q loses rank are set by its penalty and do not act on the motion, but
+through a kept matrix's Psi_q they seemed to (increments of 1e7 at P2's crossings at
+h = 2 ms, then halvings and a 20 times larger error): ali3p counts its positions only.
 """
 
 from __future__ import annotations
@@ -209,14 +212,16 @@ def _check_rate(matrix, tols, size, previous):
 
 
 def newton_iterate(evaluate, build_matrix, apply, matrix: IterationMatrix, h: float,
-                   tols: NewtonTolerances, mass: np.ndarray, length_scale: float, stats) -> None:
+                   tols: NewtonTolerances, mass: np.ndarray, length_scale: float, stats, *,
+                   count_multipliers: bool = True) -> None:
     """Newton's method on a step's equations until they hold to the rounding noise.
 
     ``evaluate()`` returns the residual at the current iterate as (dynamic (n,), Psi (m,)),
     the dynamic rows already scaled to a displacement times the mass; ``build_matrix()``
     the iteration matrix there and Psi_q (called only when the kept one is dropped);
     ``apply(dx)`` moves the iterate by the increment dx = -S^-1 (dynamic, Psi). Raises
-    NewtonFailure.
+    NewtonFailure. ``count_multipliers``: increments include the multipliers' part
+    (``IterationMatrix.increment_size``).
     """
     if not matrix.valid_for(h):
         matrix.lu = None
@@ -231,7 +236,7 @@ def newton_iterate(evaluate, build_matrix, apply, matrix: IterationMatrix, h: fl
         if _converged(tols, matrix, size, dynamic / mass, Psi):
             return
         if matrix.lu is None:
-            matrix.factor(*build_matrix(), h, stats, mass)
+            matrix.factor(*build_matrix(), h, stats, mass if count_multipliers else None)
         dx = -matrix.solve(np.concatenate((dynamic, Psi)))
         size = matrix.increment_size(dx, n)
         if not np.isfinite(size):
