@@ -17,18 +17,18 @@ from .equations import Equations
 from .equations.projection import (ASSEMBLY_TOL, PROJECTION_MAX_ITER, assemble,
                                    assembly_changes, initial_estimates, project_positions,
                                    project_velocities)
-from .errors import InputError, SettingError, SolverError
+from .errors import SettingError, SolverError
 from .integrators import make_integrator
 from .integrators.base import WorkLimit
 from .integrators.events import EventRunner, check_method, event_kernel
 from .integrators.settings import SolverSettings, settings_from_scene
 from .model.reader import load_scene
 from .model.scene import Scene, has_events
-from .model.variables import InputValues, inputs, outputs
+from .model.variables import inputs, outputs
 from .plain import decode, encode
 from .result import Result
-from .signals import (Held, SampledDriver, TaylorInput, apply_input_table, known_ahead,
-                      large_error_warnings)
+from .signals import Held, SampledDriver, apply_input_table, large_error_warnings
+from .simulation_inputs import SimulationInputs
 
 # After an input jump the state is re-projected to this many times the assembly tolerance.
 REINITIALIZE_TOL_FACTOR = 100
@@ -36,7 +36,7 @@ REINITIALIZE_TOL_FACTOR = 100
 DELTA = 2e-4
 
 
-class Simulation:
+class Simulation(SimulationInputs):
     """A scene being simulated: assembled at ``t0``, then advanced step by step.
 
     Inputs are set by name (``<driver>.position`` / ``.velocity`` / ``.acceleration``,
@@ -104,89 +104,6 @@ class Simulation:
 
     # ------------------------------------------------------------------ inputs
 
-    def inputs_at(self, t: float) -> InputValues:
-        """The input values at time t, as the equations take them."""
-        layout = self.equations.layout
-        if not self._drivers and not self._forces:
-            return self.equations.no_inputs
-        if self._held is not None:       # every input held: the same values at any t
-            return self._held
-        motions = np.array([self._drivers[n](t) for n in layout.drivers], dtype=float)
-        forces = [np.atleast_1d(np.asarray(self._forces[n](t), dtype=float))
-                  for n in layout.forces]
-        values = InputValues(motions.reshape(-1, 3),
-                             np.concatenate(forces) if forces else np.zeros(0))
-        if not self._drivers and all(type(f) is Held for f in self._forces.values()):
-            self._held = values
-        return values
-
-    def _split(self, name: str) -> tuple[str, str]:
-        if name not in self.input_names:
-            hint = (f"; this scene's inputs: {', '.join(self.input_names)}" if self.input_names
-                    else "; this scene has no inputs")
-            raise InputError(f'unknown input "{name}"{hint}')
-        item, _, field = name.rpartition(".")
-        return item, field
-
-    def set_input(self, name: str, value: float) -> None:
-        """Set an input at the current time; it holds until set again."""
-        item, field = self._split(name)
-        value = float(value)
-        if not math.isfinite(value):
-            raise InputError(f'input "{name}" is not finite ({value})')
-        if item in self._drivers:
-            driver = self._drivers[item]
-            if not isinstance(driver, SampledDriver):
-                driver = self._drivers[item] = SampledDriver(driver(self.t)[0])
-            driver.set(self.t, **{field: value})
-        else:
-            fields = self.equations.layout.fields[item]
-            values = np.array(self._forces[item](self.t), dtype=float)
-            values[fields.index(field)] = value
-            self._forces[item] = Held(values)
-        self._inputs_changed = True
-        self._cache = self._held = None
-
-    def set_input_derivative(self, name: str, order: int, value: float) -> None:
-        """The ``order``-th time derivative (1 or more) of an input at the current time: the
-        input then follows its Taylor polynomial until set again (``set_input`` holds it).
-
-        A force component takes any order; a driver's position takes 1 (its velocity) and
-        2 (its acceleration), its velocity 1 (the acceleration): the driver's motion over a
-        step is the quadratic ``p + v tau + a tau^2 / 2`` (``signals.SampledDriver``)."""
-        item, field = self._split(name)
-        value = float(value)
-        if not math.isfinite(value):
-            raise InputError(f'derivative {order} of input "{name}" is not finite ({value})')
-        if item in self._drivers:
-            slot = {("position", 1): "velocity", ("position", 2): "acceleration",
-                    ("velocity", 1): "acceleration"}.get((field, order))
-            if slot is None:
-                raise InputError(f'input "{name}": a driver\'s motion is quadratic over a '
-                                 f"step; derivative {order} of its {field} cannot be followed")
-            driver = self._drivers[item]
-            if not isinstance(driver, SampledDriver):
-                driver = self._drivers[item] = SampledDriver(driver(self.t)[0])
-            driver.set(self.t, **{slot: value})
-        else:
-            signal = self._forces[item]
-            if not (isinstance(signal, TaylorInput) and signal.t0 == self.t):
-                signal = self._forces[item] = TaylorInput(self.t, signal(self.t))
-            signal.set_derivative(self.equations.layout.fields[item].index(field), order, value)
-        self._inputs_changed = True
-        self._cache = self._held = None
-
-    def set_input_signal(self, item: str, signal) -> None:
-        """Drive a force item or a driver with a function of time (see ``signals``)."""
-        if item in self._drivers:
-            self._drivers[item] = signal
-        elif item in self._forces:
-            self._forces[item] = signal
-        else:
-            raise InputError(f'"{item}" is not an input-driven driver or force of this scene')
-        self._inputs_changed = True
-        self._cache = self._held = None
-
     def _reinitialize(self) -> None:
         """After inputs change: the state is made consistent with the new driver positions."""
         eq = self.equations if self.events is None else self.events.equations
@@ -199,10 +116,6 @@ class Simulation:
             done = q, project_velocities(eq, self.t, q, self.qd, u)
         self.integrator.reset_state(*done, self.t)
         self._inputs_changed = False
-
-    def inputs_known_ahead(self) -> bool:
-        """Whether the inputs beyond now are known (``signals.known_ahead``)."""
-        return known_ahead([*self._drivers.values(), *self._forces.values()])
 
     # ------------------------------------------------------------------ stepping
 
@@ -243,6 +156,19 @@ class Simulation:
             raise
         finally:
             self._cache = None
+
+    def dense_reads_ahead(self):
+        """The C kernel, holding the last step's dense output (``Kernel.load_dense``), when
+        the coming communication steps inside that step can only read it: no drivers (the
+        constraints' motion is constant), no events, no input changed, the inputs beyond
+        now known; else None. An FMU's wrapper then takes those steps by itself."""
+        integrator, kernel = self.integrator, self.equations.ckernel
+        if kernel is None or self.events is not None or self.scene.drivers or \
+                self._inputs_changed or not integrator.interpolates_to(integrator.t, True) or \
+                not self.inputs_known_ahead() or \
+                not getattr(integrator, "load_dense_output", lambda t: False)(self.t):
+            return None
+        return kernel
 
     def accelerations(self) -> tuple[np.ndarray, np.ndarray]:
         """q'' and lam at the current state and inputs (cached until either changes).
