@@ -117,11 +117,6 @@ class Integrator:
         self.audit = self._start_audit()
 
     @classmethod
-    def adaptive_with(cls, options: dict) -> bool:
-        """Whether the method controls its step with these options (its own settings)."""
-        return cls.adaptive
-
-    @classmethod
     def check_options(cls, options: dict, name: str = "options", where: str = "") -> None:
         """Every option known to this method and within its rule, else ``SettingError``."""
         rules = {o.name: o for o in cls.options}

@@ -61,10 +61,6 @@ class StepControl(AdaptiveStepping):
     implements ``_attempt(t, h) -> x`` (a step not yet taken, or NewtonFailure),
     ``_commit(x)`` and ``_local_error(x, h)`` (n,) in its coordinates' units."""
 
-    @classmethod
-    def adaptive_with(cls, options: dict) -> bool:
-        return options.get("step_control", "fixed") == "adaptive"
-
     def restart(self):
         super().restart()
         if self.adaptive and self.h is None:

@@ -33,6 +33,14 @@ DEFAULT_OUTPUT_POINTS = 500
 FIELDS = ("method", "step", "rtol", "atol", "options", "output_interval")
 
 
+def adaptive_with(cls, options: dict) -> bool:
+    """Whether method ``cls`` controls its step with these options (its own settings):
+    the adaptive methods always, genalpha and ali3p with step_control = "adaptive"."""
+    if "step_control" in cls.option_names:
+        return options.get("step_control", "fixed") == "adaptive"
+    return cls.adaptive
+
+
 def _positive(value: Any, name: str, where: str, unit: str = "") -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise SettingError(name, f"{name} must be a number, got {value!r}", where)
@@ -91,7 +99,7 @@ class SolverSettings:
         largest step)."""
         if self.step is not None:
             return self.step
-        adaptive = cls.adaptive_with(self.options if options is None else options)
+        adaptive = adaptive_with(cls, self.options if options is None else options)
         return math.inf if adaptive else cls.default_step
 
     def tolerances_for(self, cls, chosen: bool = False,
@@ -102,7 +110,7 @@ class SolverSettings:
         stated accuracy): the values given, else FIXED_STEP_RTOL and min(FIXED_STEP_ATOL,
         ATOL_PER_RTOL rtol)."""
         given = self.given
-        if cls.adaptive_with(self.options if options is None else options) or chosen:
+        if adaptive_with(cls, self.options if options is None else options) or chosen:
             rtol, atol = self.rtol, DEFAULT_ATOL
         else:
             rtol = self.rtol if "rtol" in given else FIXED_STEP_RTOL
