@@ -47,6 +47,7 @@ from .choose import STIFF_STEP_RATIO, stiff_reason
 from .genalpha import GeneralizedAlpha
 from .projected_rk import DOP853P, RK45P
 from .rk4p import RK4P
+from .settings import adaptive_with
 
 # Singularity indicator above which the mechanism is clear of a singular configuration
 # (twice the level at which dop853p starts planning a crossing).
@@ -179,10 +180,14 @@ class AutoWatch(Plain):
     def switch(self, old, to: str, reason: str):
         """A ``to`` integrator carrying old's state, counters and energy balance."""
         cls = AUTO_METHODS[to]
-        step = self.step if self.step is not None else (np.inf if cls.adaptive
-                                                        else cls.default_step)
+        # ali3p as make_integrator builds auto's choice (step control); genalpha for
+        # stiffness at its fixed step, whose steps are not held by stability (the step
+        # control follows the stiff spring's oscillation: more steps than dop853p's here)
+        options = {"step_control": "adaptive"} if cls is ALI3P else {}
+        step = self.step if self.step is not None else (
+            np.inf if adaptive_with(cls, options) else cls.default_step)
         new = cls(old.equations, old.t, old.q, old.qd, step=step, rtol=old.rtol,
-                  atol=old.atol, inputs=old.inputs)
+                  atol=old.atol, inputs=old.inputs, **options)
         if old.out is not None and old.out.t < old.t:
             new.out = old.out               # the last output, from old's dense output
         new.stats = old.stats
