@@ -297,8 +297,9 @@ def _add_bench_command(sub) -> None:
     p.add_argument("-o", "--output", default=None,
                    help="output folder (default bench, or the CSV's folder with --from-csv)")
     p.add_argument("--quick", action="store_true", help="a small sweep on short horizons")
-    p.add_argument("--from-csv", default=None, metavar="CSV",
-                   help="redraw charts and summary from a results.csv, without running")
+    p.add_argument("--from-csv", nargs="+", default=None, metavar="CSV",
+                   help="redraw charts and summary from results.csv files (several: merged "
+                   "into the output folder's results.csv), without running")
     add_progress_option(p)
 
 

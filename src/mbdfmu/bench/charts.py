@@ -207,7 +207,7 @@ def comm_map(rows, key, path):
         if any(r["status"] == "ok" for r in rows) else math.nan
     handles = [Rectangle((0, 0), 1, 1, color=c) for c in STABILITY_COLORS]
     fig.legend(handles, STABILITY_CLASSES, loc="upper right", ncol=4, fontsize=7)
-    fig.suptitle(f"Communication steps: {case.title.split(',')[0] if case else key}, "
+    fig.suptitle(f"Communication steps: {case.title.split(', t =')[0] if case else key}, "
                  f"t = {t_end:g} s", fontsize=10, x=0.02, ha="left")
     fig.tight_layout(rect=(0, 0, 1, 0.93))
     fig.savefig(path, dpi=DPI)
@@ -221,7 +221,7 @@ def comm_summary(rows) -> list[str]:
     for key, srows in _by_scene(rows, comm=True).items():
         labels, steps, cells = _comm_grid(srows)
         case = CASES.get(key)
-        lines += [f"## Communication steps: {case.title.split(',')[0] if case else key}", "",
+        lines += [f"## Communication steps: {case.title.split(', t =')[0] if case else key}", "",
                   "Error at the recorded communication points, or why and when (s) the run "
                   "stopped; CPU time in brackets.", "",
                   "| method, setting | " + " | ".join(f"h = {h:g} s" for h in steps) + " |",

@@ -286,14 +286,23 @@ def _run_note(scheduler, quick, wall, n):
             f"mbdfmu methods: {', '.join(METHOD_NAMES)}.")
 
 
-def redraw(csv_path, output=None) -> dict:
-    """Charts and summary again from an existing results.csv (no runs)."""
+def redraw(csv_paths, output=None) -> dict:
+    """Charts and summary again from existing results.csv files (no runs). Several CSVs
+    (e.g. the two sweeps run apart) are merged into ``output``/results.csv first."""
     from . import charts
 
-    csv_path = Path(csv_path)
-    out = Path(output) if output else csv_path.parent
+    paths = [Path(p) for p in ([csv_paths] if isinstance(csv_paths, (str, Path)) else csv_paths)]
+    out = Path(output) if output else paths[0].parent
     out.mkdir(parents=True, exist_ok=True)
-    rows = read_rows(csv_path)
+    rows = []
+    for p in paths:
+        if not p.is_file():
+            raise BenchError(f"--from-csv: {p}: no such file")
+        rows += read_rows(p)
+    csv_path = paths[0]
+    if len(paths) > 1:
+        csv_path = write_csv(rows, out / "results.csv")
+        rows = read_rows(csv_path)
     notes = {k: c.reference for k, c in CASES.items()}
     drawn = charts.draw_all(rows, out)
     summary = charts.write_summary(rows, out / "summary.md", notes=notes)
