@@ -2,7 +2,8 @@
 coupling error and the largest stable communication step; and the cross-check of masters
 (docs/cosimulation.md, "Every scenario and algorithm").
 
-    python benchmarks/coupling_table.py [--workers 2] [--only a,b] [--tables-only] [--write-docs]
+    python benchmarks/coupling_table.py [--workers 2] [--only a,b] [--rerun LABEL ...]
+                                        [--tables-only] [--write-docs]
 
 Algorithms (fmpy master unless said): Jacobi and Gauss-Seidel with zero-order hold, Jacobi
 with input extrapolation of order 1 and 2, the implicit coupling with the interface
@@ -25,7 +26,9 @@ from the fmpy master's Jacobi run, relative to the range, within 1e-9; the other
 error against the reference no larger than the fmpy Jacobi run's) and its error.
 
 Rows are cached in benchmarks/results/coupling_table.csv (a rerun computes only what is
-missing; delete the file to start over); charts: docs/figures/cosim_orders.png.
+missing; ``--rerun LABEL`` drops the cached rows of that algorithm, or of that cross-check
+master and algorithm such as "fmpy implicit", in the ``--only`` scenarios first; delete the
+file to start over); charts: docs/figures/cosim_orders.png.
 """
 
 from __future__ import annotations
@@ -319,12 +322,23 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--only", default=None, help="comma-separated scenarios")
+    parser.add_argument("--rerun", action="append", default=[], metavar="LABEL",
+                        help="recompute the cached rows of this algorithm (repeatable)")
     parser.add_argument("--write-docs", action="store_true")
     parser.add_argument("--tables-only", action="store_true",
                         help="no runs: the tables and chart from the cached rows")
     args = parser.parse_args(argv)
     names = args.only.split(",") if args.only else list(CASES)
     WORK.mkdir(parents=True, exist_ok=True)
+    unknown = [label for label in args.rerun if label not in ALGORITHMS
+               and label not in {f"{m} {a}" for m, a in CROSS}]
+    if unknown:
+        parser.error(f"--rerun {unknown[0]!r}: not an algorithm of the table "
+                     f"({', '.join(ALGORITHMS)}) nor a cross-check run")
+    if args.rerun:
+        kept = {k: r for k, r in load_rows().items()
+                if not (r["scenario"] in names and r["algorithm"] in args.rerun)}
+        save_rows(kept)
     rows = load_rows() if args.tables_only else measure(names, args.workers)
     _differences(rows, names)
     save_rows(rows)

@@ -19,7 +19,7 @@ from mbdfmu.equations import Equations, ckernel
 from mbdfmu.equations.projection import assemble
 from mbdfmu.model import scene_from_dict
 
-from test_kernel import SCENES, augmented_solve, scene
+from test_kernel import SCENES, augmented_solve, n_four_bar, scene
 
 pytestmark = pytest.mark.skipif(not ckernel.available(), reason="no C compiler for the kernel")
 
@@ -130,6 +130,28 @@ def test_c_kernel_equals_numpy_kernel(name, data):
     np.testing.assert_allclose(lam_c, lam, rtol=1e-7, atol=1e-7 * max(1.0, np.abs(lam).max()))
     y, y_c = plain.output_values(t, q, qd, qdd, lam, u), fast.output_values(t, q, qd, qdd, lam, u)
     np.testing.assert_allclose(y_c, y, rtol=1e-12, atol=1e-12 * max(1.0, np.nanmax(np.abs(y))))
+
+
+@pytest.mark.parametrize("name", ALL + ["n_four_bar_40"])
+def test_c_singularity_indicator_is_the_numpy_one(name):
+    """The C indicator against singular.singularity_indicator on the same Psi_q (dense and
+    banded), away from and right at P2's singular configuration (cranks horizontal)."""
+    from mbdfmu.equations.singular import singularity_indicator
+    from mbdfmu.integrators.singular_zone import REDUNDANT
+    sc = n_four_bar(40) if name == "n_four_bar_40" else any_scene(name)
+    plain, fast = Equations(sc, kernel="numpy"), Equations(sc, kernel="c")
+    rng = np.random.default_rng(3)
+    q0, _ = assemble(plain)
+    for q in (q0, q0 + rng.normal(scale=0.01, size=q0.size)):
+        u = plain.no_inputs
+        expected = singularity_indicator(plain.constraints(0.0, q, u=u, sparse=True)[1])
+        got = fast.ckernel.singularity_indicator(q, plain.motion_values(0.0, u))
+        if expected < REDUNDANT:      # rank-deficient S: its last pivot is round-off
+            assert got < REDUNDANT
+        else:
+            # Cholesky's round-off on the last pivot d (relative to the largest): about
+            # eps / d, which a nearly redundant row (the parallelogram) makes large
+            assert got == pytest.approx(expected, rel=1e-9, abs=1e-14 / expected)
 
 
 def test_c_kernel_accelerations_match_the_dense_augmented_solve():

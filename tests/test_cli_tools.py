@@ -90,9 +90,11 @@ def test_plot_reads_fmpy_csv_with_one_axis_per_unit(tmp_path):
 def test_plot_show_without_display_says_so(tmp_path, capsys, monkeypatch):
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.chdir(tmp_path)           # the chart goes to the working directory
     csv_path = mbdfmu.simulate("pendulum", t_end=0.1).to_csv(tmp_path / "r.csv")
     assert main(["plot", str(csv_path), "--show"]) == 0
     assert "no display" in capsys.readouterr().out
+    assert (tmp_path / "r.png").is_file()
 
 
 @pytest.mark.parametrize("command", [

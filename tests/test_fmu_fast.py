@@ -81,3 +81,31 @@ def test_a_discarded_step_leaves_values_that_are_read_through_python(scene_fmu, 
     before = run(h.init(), ["slider.x"], 3, "push.fx")
     assert h.status("fmi2DoStep", h.t, 1e6, 1) == DISCARD
     assert h.real("slider.x") == [before[-1, 0]]
+
+
+def test_steps_inside_the_solvers_step_are_the_wrappers_and_pythons_values(scene_fmu, scene_host):
+    """P2 N = 2 (dop853p: its steps are far longer than 1 ms; no drivers, no inputs): the
+    wrapper takes the communication steps that end inside the solver's last step by itself
+    (runtime/real_cache.py FastSteps, ckernel/dense.h) and says how many when the slave
+    catches up; every value it serves is bit for bit the one Python computes when the same
+    steps go through it (fmi2SetDebugLogging after each step sends the next one there)."""
+    path = scene_fmu("n_four_bar_2")
+    fast, slow = scene_host(path, "fast").init(), scene_host(path, "slow").init()
+    names = fast.outputs
+    got, expected = [], []
+    for _ in range(400):
+        assert fast.step(H) == OK and slow.step(H) == OK, (fast.messages[-3:], slow.messages[-3:])
+        got.append(fast.real(*names))
+        expected.append(slow.real(*names))
+        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+    np.testing.assert_array_equal(np.array(got), np.array(expected))
+    assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK    # the slave catches up
+
+    def taken(h):
+        return sum(int(m.split(": ")[1].split()[0]) for _, _, m in h.messages
+                   if "taken by the wrapper" in m)
+    assert taken(slow) == 0
+    # the integrator's steps are tens of ms long: all but about one doStep in each
+    assert taken(fast) > 300
+    # and the state it caught up with is the one it served
+    assert fast.real(*names) == got[-1]

@@ -108,7 +108,7 @@ typedef enum {
     M_REJECT, M_SET_DEBUG_LOGGING, M_SETUP_EXPERIMENT, M_ENTER_INIT, M_EXIT_INIT, M_TERMINATE,
     M_RESET, M_FREE, M_GET, M_SET, M_DO_STEP, M_CANCEL_STEP, M_GET_STATUS, M_GET_STATE,
     M_SET_STATE, M_SERIALIZE, M_DESERIALIZE, M_DIRECTIONAL, M_SET_INPUT_DER, M_GET_OUTPUT_DER,
-    M_ENTER_INIT3, M_DO_STEP3, M_TAKE_LOG, N_METHODS
+    M_ENTER_INIT3, M_DO_STEP3, M_SYNC, M_TAKE_LOG, N_METHODS
 } Method;
 
 static const char *const METHOD_NAMES[N_METHODS] = {
@@ -119,7 +119,7 @@ static const char *const METHOD_NAMES[N_METHODS] = {
     "fmi2_serialize_fmu_state", "fmi2_deserialize_fmu_state",
     "fmi2_get_directional_derivative", "fmi2_set_real_input_derivatives",
     "fmi2_get_real_output_derivatives", "fmi3_enter_initialization_mode", "fmi3_do_step",
-    "take_log",
+    "fmi_sync", "take_log",
 };
 
 typedef struct Instance Instance;
@@ -144,7 +144,16 @@ struct Instance {
     const unsigned char *fast_mask;
     volatile int64_t *fast_valid;
     size_t fast_count;
+    /* the slave's FastSteps block (runtime/real_cache.py): enabled, a step function and
+     * its two context pointers; fmi2DoSteps it takes leave the slave behind
+     * (fast_pending) until it catches up (M_SYNC) before any other call */
+    int64_t *fast_step;
+    int fast_pending;
 };
+
+/* runtime/real_cache.py FastSteps: 0 when it took the step and refreshed values. */
+typedef int (*FastStepFunction)(const void *model, void *context, double t, double h,
+                                double *values);
 
 typedef struct {
     unsigned magic;
@@ -347,7 +356,15 @@ static int call(Instance *in, Method m, PyObject *args, PyObject **payload) {
                      "failed earlier; only FreeInstance is possible", METHOD_NAMES[m]);
         return ST_FATAL;
     }
-    if (in->fast_valid && m != M_GET) *in->fast_valid = 0;   /* anything may change now */
+    if (in->fast_pending) {         /* the slave catches up with the steps taken here */
+        in->fast_pending = 0;
+        int synced = call(in, M_SYNC, py.Py_BuildValue("()"), NULL);
+        if (synced != ST_OK) {
+            if (args) py.Py_DecRef(args);
+            return synced;
+        }
+    }
+    if (in->fast_valid && m != M_GET && m != M_SYNC) *in->fast_valid = 0;  /* may change */
     PyObject *result = args ? py.PyObject_CallObject(in->methods[m], args) : NULL;
     if (args) py.Py_DecRef(args);
     long status = -1;
@@ -573,6 +590,29 @@ static void fast_real(Instance *in, PyObject *slave) {
     }
     if (t) py.Py_DecRef(t);
     py.PyErr_Clear();
+    if (!in->fast_valid) return;
+    PyObject *block = py.PyObject_GetAttrString(slave, "fast_step");
+    void *address = block ? py.PyLong_AsVoidPtr(block) : NULL;
+    if (!py.PyErr_Occurred() && address) in->fast_step = address;
+    if (block) py.Py_DecRef(block);
+    py.PyErr_Clear();
+}
+
+/* fmi2DoStep taken by the slave's FastSteps function without Python (the Real values
+ * valid: nothing called since the last step but gets); 1 when it did. */
+static int fast_do_step(void *c, double t, double h) {
+    Instance *in = as_instance(c);
+    if (!in || in->fatal || !in->fast_step || !in->fast_valid || !*in->fast_valid
+        || !in->fast_step[0] || !isfinite(t) || !isfinite(h) || !(h > 0) || !python_alive())
+        return 0;
+    FastStepFunction step = (FastStepFunction)(intptr_t)in->fast_step[1];
+    if (step((const void *)(intptr_t)in->fast_step[2], (void *)(intptr_t)in->fast_step[3], t, h,
+             (double *)in->fast_values) != 0)
+        return 0;
+    free_strings(in);
+    in->fast_pending = 1;
+    in->fast_step[4]++;
+    return 1;
 }
 
 /* Build the slave through resources/mbdfmu_boot.py; NULL with `error` filled on failure.
@@ -700,6 +740,7 @@ static int experiment(void *c, Method m, const char *function, int tolerance_def
  * payload; FMI 3.0: (terminate, lastSuccessfulTime)). */
 static int do_step(void *c, Method m, const char *function, double t, double h,
                    int no_set_prior, PyObject **payload) {
+    if (!payload && fast_do_step(c, t, h)) return ST_OK;      /* FMI 2.0 only */
     ENTER(c);
     char reason[200];
     if (payload) *payload = NULL;

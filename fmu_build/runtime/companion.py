@@ -189,7 +189,8 @@ class CompanionModel(Slave):
 
     def _anchor_inputs(self, time):
         """Inputs set (or given derivatives) since the last step start their polynomial now
-        (FMI 3.0's derivative inputs are not inputs of the companion)."""
+        (FMI 3.0's derivative inputs are not inputs of the companion). Idempotent at one
+        time: called again, a polynomial anchored now gives the same value."""
         for name in set(self.set_since_step) | set(self.pending):
             if name in self.pending and name not in self.set_since_step:
                 self.values[name] = self.input_at(name, time)
@@ -201,6 +202,9 @@ class CompanionModel(Slave):
 
     def output_derivatives(self, names, orders):
         check_derivatives(self.variables, names, orders, "output")
+        # an output that reads an input follows the input's derivatives set since the step
+        # (dy/du du/dt): without them the derivatives at t0 miss that term
+        self._anchor_inputs(self.time)
         exact = getattr(self.companion, "output_derivatives", None)
         table = exact(self.state) if exact else self._differenced()
         return [table[name][order - 1] for name, order in zip(names, orders)]
@@ -234,6 +238,9 @@ class CompanionModel(Slave):
         self.calculate()
 
     def calculate(self):
+        # inputs set since the step hold (or follow their new derivatives) from now, not
+        # from where the last polynomial started
+        self._anchor_inputs(self.time)
         out = self.companion.outputs(self.state)
         self.values.update({name: float(out[name]) for name in self.OUTPUTS})
         if self.STATE_VARIABLES:

@@ -17,6 +17,8 @@ from operator import itemgetter
 
 import numpy as np
 
+from . import status
+
 
 class RealCache:
     """The Real variables of a ``VariableTable``, as the wrapper reads them."""
@@ -45,3 +47,61 @@ class RealCache:
 
     def invalidate(self) -> None:
         self.valid[0] = 0
+
+
+class FastSteps:
+    """The communication steps the wrapper takes by itself: a control block of five
+    integers the wrapper reads at every fmi2DoStep while the Real values are valid
+    (``RealCache``): enabled, the address of a step function ``int f(model, context, t,
+    h, values)`` (0: it took the step and refreshed ``values``, else Python must), its
+    two context addresses, and the count of steps it took (the wrapper adds to it). The model arms it after a step when the next steps need no
+    Python; the wrapper then asks the slave to catch up (``fmi_sync``) before any other
+    call."""
+
+    def __init__(self):
+        self.block = np.zeros(5, dtype=np.int64)
+        self.address = self.block.ctypes.data
+
+    def arm(self, function: int, model: int, context: int) -> None:
+        self.block[1:4] = (function, model, context)
+        self.block[0] = 1
+
+    def taken(self) -> int:
+        """Steps the wrapper took since the last call (the count starts again)."""
+        count, self.block[4] = int(self.block[4]), 0
+        return count
+
+    def disarm(self) -> None:
+        self.block[0] = 0
+
+
+class FastStepProtocol:
+    """Mixin of ``Slave``: arming ``FastSteps`` (its ``_fmi_fast_steps``) and catching up
+    with the steps the wrapper took (``fmi_sync``, called by the wrapper)."""
+
+    def arm_fast_steps(self, function: int, model: int, context: int) -> None:
+        """Let the wrapper take the coming fmi2DoSteps by itself (``FastSteps``) until any
+        other call; ``catch_up`` then brings the model to the time they reached."""
+        self._fmi_fast_steps.arm(function, model, context)
+
+    def disarm_fast_steps(self) -> None:
+        self._fmi_fast_steps.disarm()
+
+    def catch_up(self) -> float | None:
+        """After steps the wrapper took by itself: the model's state at their end and
+        its time, or None when there were none (models that arm ``FastSteps``)."""
+        return None
+
+    def fmi_sync(self):
+        """Called by the wrapper before any call that follows steps it took by itself."""
+        taken = self._fmi_fast_steps.taken()
+        try:
+            t = self.catch_up()
+        except BaseException as exc:  # noqa: B902 - nothing may reach the C side
+            return self._fmi_error(f"fmi2DoStep (taken by the wrapper): {type(exc).__name__}: "
+                                   f"{exc}"), None
+        if t is not None:
+            self._fmi_at(t)
+            self.log(f"t = {t!r} s: {taken} communication steps taken by the wrapper without "
+                     "Python (inside the solver's last step)")
+        return status.OK, None

@@ -30,8 +30,8 @@ The model reads ``self.time`` (s), ``self.start_time``, ``self.stop_time``,
 ``self.resources`` (the FMU's resources folder) and logs with ``self.log(text)``. Names
 the base uses, which a model must not assign: ``values``, ``set_since_step``,
 ``variables``, ``time``, ``start_time``, ``stop_time``, ``tolerance``, ``resources``,
-``instance_name``, ``guid``, ``log_queue``, ``fast_real``,
-``take_log`` and everything starting with ``_fmi`` or ``fmi2_``.
+``instance_name``, ``guid``, ``log_queue``, ``fast_real``, ``fast_step``,
+``take_log``, ``fmi_sync`` and everything starting with ``_fmi`` or ``fmi2_``.
 
 The ``fmi2_*`` methods form the protocol with the C wrapper (one per FMI function, see
 ``docs/fmu_runtime.md``). Each returns ``(status, payload)`` and never raises.
@@ -44,7 +44,7 @@ from pathlib import Path
 
 from . import access, status
 from .log import LogQueue
-from .real_cache import RealCache
+from .real_cache import FastStepProtocol, FastSteps, RealCache
 from .machine import ALLOWED, State, fmi_function, refusal
 from .derivatives import DerivativeProtocol
 from .fmi3 import Fmi3Protocol, fmi3_text
@@ -61,7 +61,7 @@ STATUS_ANSWERS = {("Real", LAST_SUCCESSFUL_TIME), ("Boolean", TERMINATED)}
 GET_STATES, SET_STATES = ALLOWED["fmi2GetReal"], ALLOWED["fmi2SetReal"]
 
 
-class Slave(StateProtocol, DerivativeProtocol, Fmi3Protocol):
+class Slave(StateProtocol, DerivativeProtocol, Fmi3Protocol, FastStepProtocol):
     """Base class of every model; see the module docstring for what a model implements."""
 
     def __init__(self, instance_name: str, guid: str, resources: str, variables: VariableTable,
@@ -78,6 +78,8 @@ class Slave(StateProtocol, DerivativeProtocol, Fmi3Protocol):
         self._fmi_calculates = type(self).calculate is not Slave.calculate
         self._fmi_reals = RealCache(variables)
         self.fast_real = self._fmi_reals.address        # read by the C wrapper
+        self._fmi_fast_steps = FastSteps()
+        self.fast_step = self._fmi_fast_steps.address   # read by the C wrapper
         self._fmi_restart()
         self.setup()
 

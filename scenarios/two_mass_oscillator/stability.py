@@ -150,3 +150,26 @@ def from_scenario(scenario):
     connections = [((index[c.source_instance], c.source_variable),
                     (index[c.target_instance], c.target_variable)) for c in scenario.connections]
     return [mass(1), mass(2)], connections
+
+
+def start_state(masses, connections, states, p=0) -> np.ndarray:
+    """The co-simulation state z at t0 after the master's start: every input holds its
+    source's output and, with extrapolation order p, the source's derivatives 1..p, all
+    consistent (an output that reads an input has derivatives that need the input's, so
+    the exchange is repeated until the chain has settled)."""
+    s = [np.asarray(x, dtype=float) for x in states]
+    u = [np.zeros((3, K)), np.zeros((3, K))]
+    for _ in range(2 * (p + 1)):
+        for (si, out), (ti, inp) in connections:
+            u[ti][INPUTS.index(inp)][:p + 1] = [masses[si].output(out, s[si], u[si], k)
+                                                for k in range(p + 1)]
+    return np.concatenate([s[0], u[0].reshape(-1), s[1], u[1].reshape(-1)])
+
+
+def positions(masses, connections, z, h, n, algorithm="jacobi", p=0) -> np.ndarray:
+    """x1 and x2 at t0 + k h, k = 0..n, of the co-simulation started at z (n x 2 rows)."""
+    out = [(z[0], z[2 + K * 3])]
+    for _ in range(n):
+        z = macro_step(masses, connections, z, h, algorithm, p)
+        out.append((z[0], z[2 + K * 3]))
+    return np.array(out)

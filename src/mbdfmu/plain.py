@@ -21,6 +21,9 @@ class Plain:
     ``plain_fields`` (or override ``to_plain``/``from_plain``)."""
 
     plain_fields: tuple[str, ...] = ()
+    # Fields are numbers, strings or arrays that are replaced, never changed in place: a
+    # shallow copy is a snapshot (``Integrator.rollback_point``).
+    flat_fields = False
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)

@@ -17,18 +17,18 @@ from .equations import Equations
 from .equations.projection import (ASSEMBLY_TOL, PROJECTION_MAX_ITER, assemble,
                                    assembly_changes, initial_estimates, project_positions,
                                    project_velocities)
-from .errors import InputError, SettingError, SolverError
+from .errors import SettingError, SolverError
 from .integrators import make_integrator
 from .integrators.base import WorkLimit
 from .integrators.events import EventRunner, check_method, event_kernel
 from .integrators.settings import SolverSettings, settings_from_scene
 from .model.reader import load_scene
 from .model.scene import Scene, has_events
-from .model.variables import InputValues, inputs, outputs
+from .model.variables import inputs, outputs
 from .plain import decode, encode
 from .result import Result
-from .signals import (Held, SampledDriver, TaylorInput, apply_input_table, known_ahead,
-                      large_error_warnings)
+from .signals import Held, SampledDriver, apply_input_table, large_error_warnings
+from .simulation_inputs import SimulationInputs
 
 # After an input jump the state is re-projected to this many times the assembly tolerance.
 REINITIALIZE_TOL_FACTOR = 100
@@ -36,7 +36,7 @@ REINITIALIZE_TOL_FACTOR = 100
 DELTA = 2e-4
 
 
-class Simulation:
+class Simulation(SimulationInputs):
     """A scene being simulated: assembled at ``t0``, then advanced step by step.
 
     Inputs are set by name (``<driver>.position`` / ``.velocity`` / ``.acceleration``,
@@ -104,89 +104,6 @@ class Simulation:
 
     # ------------------------------------------------------------------ inputs
 
-    def inputs_at(self, t: float) -> InputValues:
-        """The input values at time t, as the equations take them."""
-        layout = self.equations.layout
-        if not self._drivers and not self._forces:
-            return self.equations.no_inputs
-        if self._held is not None:       # every input held: the same values at any t
-            return self._held
-        motions = np.array([self._drivers[n](t) for n in layout.drivers], dtype=float)
-        forces = [np.atleast_1d(np.asarray(self._forces[n](t), dtype=float))
-                  for n in layout.forces]
-        values = InputValues(motions.reshape(-1, 3),
-                             np.concatenate(forces) if forces else np.zeros(0))
-        if not self._drivers and all(type(f) is Held for f in self._forces.values()):
-            self._held = values
-        return values
-
-    def _split(self, name: str) -> tuple[str, str]:
-        if name not in self.input_names:
-            hint = (f"; this scene's inputs: {', '.join(self.input_names)}" if self.input_names
-                    else "; this scene has no inputs")
-            raise InputError(f'unknown input "{name}"{hint}')
-        item, _, field = name.rpartition(".")
-        return item, field
-
-    def set_input(self, name: str, value: float) -> None:
-        """Set an input at the current time; it holds until set again."""
-        item, field = self._split(name)
-        value = float(value)
-        if not math.isfinite(value):
-            raise InputError(f'input "{name}" is not finite ({value})')
-        if item in self._drivers:
-            driver = self._drivers[item]
-            if not isinstance(driver, SampledDriver):
-                driver = self._drivers[item] = SampledDriver(driver(self.t)[0])
-            driver.set(self.t, **{field: value})
-        else:
-            fields = self.equations.layout.fields[item]
-            values = np.array(self._forces[item](self.t), dtype=float)
-            values[fields.index(field)] = value
-            self._forces[item] = Held(values)
-        self._inputs_changed = True
-        self._cache = self._held = None
-
-    def set_input_derivative(self, name: str, order: int, value: float) -> None:
-        """The ``order``-th time derivative (1 or more) of an input at the current time: the
-        input then follows its Taylor polynomial until set again (``set_input`` holds it).
-
-        A force component takes any order; a driver's position takes 1 (its velocity) and
-        2 (its acceleration), its velocity 1 (the acceleration): the driver's motion over a
-        step is the quadratic ``p + v tau + a tau^2 / 2`` (``signals.SampledDriver``)."""
-        item, field = self._split(name)
-        value = float(value)
-        if not math.isfinite(value):
-            raise InputError(f'derivative {order} of input "{name}" is not finite ({value})')
-        if item in self._drivers:
-            slot = {("position", 1): "velocity", ("position", 2): "acceleration",
-                    ("velocity", 1): "acceleration"}.get((field, order))
-            if slot is None:
-                raise InputError(f'input "{name}": a driver\'s motion is quadratic over a '
-                                 f"step; derivative {order} of its {field} cannot be followed")
-            driver = self._drivers[item]
-            if not isinstance(driver, SampledDriver):
-                driver = self._drivers[item] = SampledDriver(driver(self.t)[0])
-            driver.set(self.t, **{slot: value})
-        else:
-            signal = self._forces[item]
-            if not (isinstance(signal, TaylorInput) and signal.t0 == self.t):
-                signal = self._forces[item] = TaylorInput(self.t, signal(self.t))
-            signal.set_derivative(self.equations.layout.fields[item].index(field), order, value)
-        self._inputs_changed = True
-        self._cache = self._held = None
-
-    def set_input_signal(self, item: str, signal) -> None:
-        """Drive a force item or a driver with a function of time (see ``signals``)."""
-        if item in self._drivers:
-            self._drivers[item] = signal
-        elif item in self._forces:
-            self._forces[item] = signal
-        else:
-            raise InputError(f'"{item}" is not an input-driven driver or force of this scene')
-        self._inputs_changed = True
-        self._cache = self._held = None
-
     def _reinitialize(self) -> None:
         """After inputs change: the state is made consistent with the new driver positions."""
         eq = self.equations if self.events is None else self.events.equations
@@ -200,10 +117,6 @@ class Simulation:
         self.integrator.reset_state(*done, self.t)
         self._inputs_changed = False
 
-    def inputs_known_ahead(self) -> bool:
-        """Whether the inputs beyond now are known (``signals.known_ahead``)."""
-        return known_ahead([*self._drivers.values(), *self._forces.values()])
-
     # ------------------------------------------------------------------ stepping
 
     def advance(self, t_target: float, limit: WorkLimit | None = None, *,
@@ -214,6 +127,16 @@ class Simulation:
         ``dense``: whether an adaptive method may step past ``t_target`` and give the state
         there from its dense output (its step sequence then does not depend on the output
         times); None: when the inputs beyond it are known (``inputs_known_ahead``)."""
+        if dense is None:
+            dense = self.inputs_known_ahead()
+        if self.events is None and not self._inputs_changed and \
+                self.integrator.interpolates_to(t_target, dense):
+            # a time inside the last step: the state there from its dense output, which
+            # changes nothing a failure would have to undo (the common case of an FMU
+            # stepped at communication steps shorter than the method's steps)
+            self.integrator.advance(t_target, limit, dense=True)
+            self._cache = None
+            return
         # Only the integrator and the flag change while stepping (inputs do not), so that
         # is all the rollback keeps.
         snapshot, inputs_changed = self.integrator.rollback_point(), self._inputs_changed
@@ -221,8 +144,6 @@ class Simulation:
         try:
             if self._inputs_changed:
                 self._reinitialize()
-            if dense is None:
-                dense = self.inputs_known_ahead()
             if self.events is None:
                 self.integrator.advance(t_target, limit, dense=dense)
             else:       # located events: the steps land on them (no dense output)
@@ -235,6 +156,19 @@ class Simulation:
             raise
         finally:
             self._cache = None
+
+    def dense_reads_ahead(self):
+        """The C kernel, holding the last step's dense output (``Kernel.load_dense``), when
+        the coming communication steps inside that step can only read it: no drivers (the
+        constraints' motion is constant), no events, no input changed, the inputs beyond
+        now known; else None. An FMU's wrapper then takes those steps by itself."""
+        integrator, kernel = self.integrator, self.equations.ckernel
+        if kernel is None or self.events is not None or self.scene.drivers or \
+                self._inputs_changed or not integrator.interpolates_to(integrator.t, True) or \
+                not self.inputs_known_ahead() or \
+                not getattr(integrator, "load_dense_output", lambda t: False)(self.t):
+            return None
+        return kernel
 
     def accelerations(self) -> tuple[np.ndarray, np.ndarray]:
         """q'' and lam at the current state and inputs (cached until either changes).
@@ -258,9 +192,11 @@ class Simulation:
         kernel = self.equations.ckernel
         if kernel is not None and not self._inputs_changed:   # one call, q'' kept from the step
             u = self.inputs_at(self.t)
-            values = kernel.state_outputs(self.q, self.qd, self.equations.motion_values(self.t, u),
-                                          u.forces)
-            if values is not None:
+            done = kernel.state_outputs(self.q, self.qd, self.equations.motion_values(self.t, u),
+                                        u.forces)
+            if done is not None:
+                values, qdd, lam = done
+                self._cache = (qdd, lam)       # what accelerations() returns until a change
                 return values
         qdd, lam = self.accelerations()
         return self.equations.output_values(self.t, self.q, self.qd, qdd, lam,

@@ -89,11 +89,14 @@ def _simulate(execution, index, vr, names, t_end, capacity):
 
 def run_ecco(scenario: Scenario, fmus, step: float | None = None, t_end: float | None = None,
              record: list[str] | None = None, rtol: float | None = None,
-             atol: float | None = None, structure: Path | None = None) -> Result:
-    """Run the scenario with libcosim's ECCO algorithm (initial step ``step``) from the
+             atol: float | None = None, structure: Path | None = None,
+             start_step: float | None = None) -> Result:
+    """Run the scenario with libcosim's ECCO algorithm (step bounds from ``step``) from the
     ``OspSystemStructure.xml`` written for the FMUs' power bond (at ``structure``, by
     default beside the first FMU); every recorded variable and the bond's variables at
-    every macro step, and the interface energy residual."""
+    every macro step, and the interface energy residual. ``start_step`` (default
+    ``step``): libcosim's controller takes its first two steps at it, whatever the
+    tolerance, and then changes each step by a factor from ``MIN_CHANGE`` to ``MAX_CHANGE``."""
     from fmpy import read_model_description
     from libcosimpy.CosimExecution import CosimExecution, get_last_error_message
     from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
@@ -112,7 +115,10 @@ def run_ecco(scenario: Scenario, fmus, step: float | None = None, t_end: float |
             for inst, md in descriptions.items()}
     types = {f"{inst}.{v.name}": v.type for inst, md in descriptions.items()
              for v in md.modelVariables}
-    params = {"SafetyFactor": SAFETY, "StepSize": h, "MinimumStepSize": MIN_STEP_FACTOR * h,
+    first = float(start_step or h)
+    _ns(first, "the start step")
+    params = {"SafetyFactor": SAFETY, "StepSize": first,
+              "MinimumStepSize": min(MIN_STEP_FACTOR * h, first),
               "MaximumStepSize": MAX_STEP_FACTOR * h, "MinimumChangeRate": MIN_CHANGE,
               "MaximumChangeRate": MAX_CHANGE, "ProportionalGain": P_GAIN,
               "IntegralGain": I_GAIN, "RelativeTolerance": rtol or ECCO_RTOL,
@@ -128,7 +134,7 @@ def run_ecco(scenario: Scenario, fmus, step: float | None = None, t_end: float |
     names = list(dict.fromkeys(list(record if record is not None else scenario.recorded())
                                + bond_variables(bonds)))
     times, columns = _simulate(execution, index, vr, names, t_end,
-                               int(10 * t_end / (MIN_STEP_FACTOR * h)) + 16)
+                               int(10 * t_end / params["MinimumStepSize"]) + 16)
     columns[RESIDUAL] = energy_residual(times, columns, bonds)
     n = len(times)
     del execution

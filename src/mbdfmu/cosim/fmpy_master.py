@@ -177,6 +177,8 @@ class CoupledSystem:
         if start == "zero":
             for m in self.members:
                 self.write_inputs(m, zero=True)
+        else:
+            self.extrapolation.settle(t0)
         self.update_nominal()
 
     def sample(self) -> list[float]:

@@ -55,6 +55,7 @@ class OutputPoint(Plain):
     """The state at an output time inside an adaptive method's last step."""
 
     plain_fields = ("t", "q", "qd")
+    flat_fields = True
 
     def __init__(self, t: float, q: np.ndarray, qd: np.ndarray):
         self.t, self.q, self.qd = float(t), q, qd
@@ -245,6 +246,12 @@ class Integrator:
         else:
             self._advance_fixed(t_target)
 
+    def interpolates_to(self, t_target: float, dense: bool) -> bool:
+        """Whether ``advance(t_target, dense=dense)`` only reads the dense output of the
+        last step (no step taken, nothing but the output state changes)."""
+        return dense and self.dense_output and self.adaptive and \
+            self.output_state[0] < t_target <= self.t
+
     def fixed_grid(self, t_target: float) -> tuple[float, int, float]:
         """(t0, steps, step) of equal steps no longer than ``self.h`` up to ``t_target``."""
         t0 = self.t
@@ -287,16 +294,16 @@ class Integrator:
         return ("t", "q", "qd", "h", "stats", "audit", "out", "accuracy") + self.state_fields
 
     def rollback_point(self) -> dict:
-        """``get_state()`` for a rollback within the process, cheaper: arrays copied, the
-        counters and the energy audit (flat: numbers and strings) copied shallowly,
-        anything else encoded; ``set_state`` restores it."""
+        """``get_state()`` for a rollback within the process, cheaper: arrays copied,
+        ``Plain.flat_fields`` objects copied shallowly, anything else encoded; ``set_state``
+        restores it."""
         state = {}
         for name in self._state_names():
             value = getattr(self, name)
             kind = type(value)
             if kind is np.ndarray:
                 state[name] = value.copy()
-            elif kind is Counters or kind is EnergyAudit:
+            elif issubclass(kind, Plain) and kind.flat_fields:
                 copied = object.__new__(kind)
                 copied.__dict__.update(value.__dict__)
                 state[name] = copied

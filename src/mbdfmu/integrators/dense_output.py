@@ -22,6 +22,7 @@ class DenseStep(Plain):
     coefficients of its interpolant."""
 
     plain_fields = ("t_old", "h", "y_old", "y_new", "K", "coefficients")
+    flat_fields = True
 
     def __init__(self, t_old: float, h: float, y_old: np.ndarray, y_new: np.ndarray,
                  K: np.ndarray):
@@ -62,8 +63,9 @@ def dop853_interpolant(step: DenseStep, rhs) -> np.ndarray:
 
 
 def dop853_value(step: DenseStep, x: float) -> np.ndarray:
-    y = np.zeros_like(step.y_old)
-    for i, f in enumerate(step.coefficients[::-1]):
-        y += f
-        y *= x if i % 2 == 0 else 1.0 - x
-    return y + step.y_old
+    """scipy's ``Dop853DenseOutput`` at x in [0, 1]: the rows, from the last, alternately
+    multiplied by x and 1 - x; as one product with each row's weight."""
+    F = step.coefficients
+    factors = [x if i % 2 == 0 else 1.0 - x for i in range(F.shape[0])]
+    weights = np.cumprod(factors[::-1])         # row r's weight: the factors from its turn on
+    return step.y_old + weights @ F

@@ -135,3 +135,4 @@ class EnergyAudit(Plain):
 
 
 EnergyAudit.plain_fields = tuple(f.name for f in fields(EnergyAudit))
+EnergyAudit.flat_fields = True

@@ -31,7 +31,7 @@ import math
 import numpy as np
 from scipy.integrate import DOP853, RK45
 
-from ..equations.projection import project_positions, project_velocities
+from ..equations.projection import PROJECTION_MAX_ITER, project_positions, project_velocities
 from ..equations.sparsity import schur_solve
 from ..errors import SolverError
 from . import c_steps, dense_output, singular_zone
@@ -84,6 +84,7 @@ class ProjectedRK(AdaptiveStepping, Integrator):
     adaptive = True
     dense_output = True
     local_tolerance = 1e-2   # the step control's target, times rtol and atol, per step
+    interpolant: str | None = None     # dense output: a key of ckernel.DENSE_KINDS
     state_fields = ("f", "energy_rejected", "dense", "zone")
     A: np.ndarray
     B: np.ndarray
@@ -148,10 +149,15 @@ class ProjectedRK(AdaptiveStepping, Integrator):
     def _project(self, t_new, y_new):
         """Mass-weighted projection of y_new = (q, q') onto the constraints at t_new;
         SolverError when Newton does not converge."""
-        n = self.q.size
+        n, eq = self.q.size, self.equations
         u = self.inputs(t_new)
-        q, _ = project_positions(self.equations, t_new, y_new[:n], tol=projection_tol(self),
-                                 u=u)
+        if eq.ckernel is not None:      # None: the numpy path's case (it says why)
+            done = eq.ckernel.project(y_new[:n], y_new[n:], eq.motion_values(t_new, u),
+                                      projection_tol(self), PROJECTION_MAX_ITER)
+            if done is not None:
+                self.stats.nprojections += 1
+                return done
+        q, _ = project_positions(eq, t_new, y_new[:n], tol=projection_tol(self), u=u)
         qd = project_velocities(self.equations, t_new, q, y_new[n:], u)
         self.stats.nprojections += 1
         return q, qd
@@ -234,6 +240,12 @@ class ProjectedRK(AdaptiveStepping, Integrator):
         step = self.dense
         if step is None or not step.contains(t):
             raise SolverError(f"{self.name}: no step holds the output time {t:.9g} s", self.t)
+        if self.load_dense_output(t):
+            # the C kernel's: what an FMU's wrapper serves by itself (ckernel/dense.h)
+            done = self.equations.ckernel.dense_state(t)
+            if done is not None:
+                self.stats.nprojections += 1
+                return OutputPoint(t, *done)
         if step.coefficients is None:
             step.coefficients = self._interpolant(step)
         y = self._interpolated(step, (t - step.t_old) / step.h)
@@ -243,6 +255,19 @@ class ProjectedRK(AdaptiveStepping, Integrator):
             n = self.q.size
             q, qd = y[:n], y[n:]
         return OutputPoint(t, q, qd)
+
+    def load_dense_output(self, t: float) -> bool:
+        """Put the last step's dense output, with the inputs at t held over it, into the C
+        kernel (``Kernel.load_dense``); False without a kernel, an interpolant or a step."""
+        eq, step = self.equations, self.dense
+        if eq.ckernel is None or self.interpolant is None or step is None:
+            return False
+        if step.coefficients is None:
+            step.coefficients = self._interpolant(step)
+        u = self.inputs(t)
+        eq.ckernel.load_dense(self.interpolant, step, eq.motion_values(t, u), u.forces,
+                              projection_tol(self), PROJECTION_MAX_ITER)
+        return True
 
     def _interpolant(self, step):
         raise NotImplementedError
@@ -257,6 +282,7 @@ class RK45P(ProjectedRK):
     name = "rk45p"
     summary = "index-1, Dormand-Prince 5(4), adaptive, mass-weighted coordinate projection"
     A, B, C, E, P, n_stages, order = RK45.A, RK45.B, RK45.C, RK45.E, RK45.P, RK45.n_stages, 4
+    interpolant = "rk45"
 
     def _error_norm(self, K, h, scale, tangent=None):
         e = h * (K.T @ self.E)
@@ -278,6 +304,7 @@ class DOP853P(ProjectedRK):
     summary = "index-1, Dormand-Prince 8(5,3), adaptive, mass-weighted coordinate projection"
     A, B, C, n_stages, order = DOP853.A, DOP853.B, DOP853.C, DOP853.n_stages, 7
     E3, E5 = DOP853.E3, DOP853.E5
+    interpolant = "dop853"
 
     def _error_norm(self, K, h, scale, tangent=None):
         # Hairer's combined 5th/3rd order estimate, as in scipy's DOP853.

@@ -64,6 +64,7 @@ class SingularZone(Plain):
     being tried is a planned crossing or ends on an output time."""
 
     plain_fields = ("indicator", "crossing", "landing")
+    flat_fields = True
 
     def __init__(self):
         self.indicator = None
@@ -72,8 +73,11 @@ class SingularZone(Plain):
 
 
 def indicator(integrator, t: float, q: np.ndarray) -> float:
-    if integrator.equations.m == 0:
+    eq = integrator.equations
+    if eq.m == 0:
         return math.inf
+    if eq.ckernel is not None:
+        return eq.ckernel.singularity_indicator(q, eq.motion_values(t, integrator.inputs(t)))
     return singularity_indicator(integrator.constraints(t, q, sparse=True)[1])
 
 

@@ -42,6 +42,7 @@ class ErrorEstimate(Plain):
     steps charged with errors so far and the steps since the last check."""
 
     plain_fields = ("local", "charged", "unchecked")
+    flat_fields = True
 
     def __init__(self):
         self.local, self.charged, self.unchecked = 0.0, 0, SPOT_CHECK_EVERY

@@ -29,6 +29,7 @@ class Counters(Plain):
 
 
 Counters.plain_fields = tuple(f.name for f in fields(Counters))
+Counters.flat_fields = True
 
 
 class WorkLimit:

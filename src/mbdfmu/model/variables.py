@@ -377,3 +377,14 @@ def input_layout(scene: Scene) -> InputLayout:
             k += len(suffixes)
     return InputLayout(tuple(d.name for d in drivers), tuple(d.motion.initial for d in drivers),
                        forces, fields)
+
+
+def input_slots(layout) -> dict:
+    """Input name -> ("motion", index in the flattened (drivers, 3) motions) or ("force",
+    index in the forces vector)."""
+    slots = {f"{d}.{field}": ("motion", 3 * k + j) for k, d in enumerate(layout.drivers)
+             for j, field in enumerate(("position", "velocity", "acceleration"))}
+    for item, where in layout.forces.items():
+        for j, field in enumerate(layout.fields[item]):
+            slots[f"{item}.{field}"] = ("force", where.start + j)
+    return slots

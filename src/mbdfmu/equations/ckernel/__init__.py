@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ...model.scene import PointForce, RotationalSpringDamper, SpringDamper, Torque
+from .dense import DENSE_KINDS, DenseRead, DenseReads  # noqa: F401 (DENSE_KINDS: public here)
 
 # Return codes of kernel.c (ST_*).
 OK, SINGULAR, PROJECTION, NOT_FINITE, SPRING, ENERGY, ERROR_NORM = range(7)
@@ -168,7 +169,7 @@ class Buffers:
         self.p_done = self.done.ctypes.data
 
 
-class Kernel:
+class Kernel(DenseReads):
     """The C kernel bound to one scene's ``Equations``; every method returns None where
     kernel.c hands the case back to the numpy path (a singular Schur complement, a spring
     of zero length), which then says or does what it always does."""
@@ -202,6 +203,10 @@ class Kernel:
         self.buf = Buffers(self.n, self.m, self.nf, self.nout)
         self._tableaus: dict = {}
         self.static_rows = 0          # rows of buf.motions holding a driverless scene's block
+        self.dense, self._dense_arrays, self._publish = DenseRead(), (), None
+        self._dense_scratch = np.zeros(self.nout + 3 * self.n + max(self.m, 1))
+        self.dense.V = self._dense_scratch.ctypes.data
+        self.library = lib
         self._bind(lib)
 
     def _bind(self, lib) -> None:
@@ -210,6 +215,8 @@ class Kernel:
                       "mbd_state_outputs": [_P] * 8,
                       "mbd_project_positions": [_P, _P, _P, ctypes.c_double, _I],
                       "mbd_project_velocities": [_P] * 5,
+                      "mbd_singularity_indicator": [_P] * 4,
+                      "mbd_dense_state": [_P, _P, d, _P],
                       "mbd_rk4p_steps": [_P, _P, _P, d, _I, _P, _I, _P, _I, d, _I, _P, d, d, _P],
                       "mbd_prk_trial": [_P, _I, _P, _P, _P, _P, d, _P, _P, _P, _P, d, d, d, _I,
                                         _P, _P, _P, _P],
@@ -263,15 +270,23 @@ class Kernel:
             return None
         return b.q.copy(), b.qd.copy()
 
+    def singularity_indicator(self, q, motion) -> float:
+        """``singular.singularity_indicator`` of Psi_q at q (motion: (c, c', c''))."""
+        b = self.buf
+        self._load(q, b.qd, motion, None)
+        self._singularity_indicator(self.address, b.p_q, b.p_motion, b.p_err)
+        return float(b.err[0])
+
     def state_outputs(self, q, qd, motion, uf):
-        """The output vector at (q, q') with q'' and lam of eq. (14) at that state (those the
-        last step computed when it ended there): one call. None: the numpy path's case."""
+        """(outputs, q'', lam) at (q, q'): the output vector with q'' and lam of eq. (14) at
+        that state (those the last step computed when it ended there), in one call. None:
+        the numpy path's case."""
         b = self.buf
         self._load(q, qd, motion, uf)
         if self._state_outputs(self.address, b.p_q, b.p_qd, b.p_motion, b.p_uf, b.p_qdd, b.p_lam,
                                b.p_out) != OK:
             return None
-        return b.out.copy()
+        return b.out.copy(), b.qdd.copy(), b.lam[:self.m].copy()
 
     def rk4p_steps(self, q, qd, qdd, h, steps, tol, max_iter, audit, divergence, roundoff):
         """``steps`` steps of rk4p (``mbd_rk4p_steps``) with the inputs the caller put in

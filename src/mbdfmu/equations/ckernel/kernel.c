@@ -14,6 +14,9 @@
  *   mbd_prk_trial    projected_rk.py ProjectedRK._step_impl's arithmetic: stages, error
  *                    norm, projections, the next q'' (the decisions stay in Python)
  *   mbd_outputs      dynamics.py Equations.output_values (reactions eqs. 16-17, 28)
+ *   mbd_singularity_indicator  singular.py singularity_indicator
+ *   mbd_dense_state  ProjectedRK._output_at: the projected dense output inside a step
+ *   mbd_dense_step   an FMU's communication step that only reads it (dense.h)
  *
  * Where the numpy path has a minimum-norm fallback (a singular Schur complement) this
  * kernel returns ST_SINGULAR and the caller redoes the work on the numpy path; a spring of
@@ -430,5 +433,60 @@ int mbd_project_velocities(const Model *M, const double *q, double *qd, const do
     return project_velocities(M, &s, qd, cd);
 }
 
+/* singular.py singularity_indicator: the smallest over the largest pivot of the Cholesky
+ * factor of Psi_q D Psi_q^T, D scaling Psi_q's columns to unit norm; in band storage in
+ * the band's order when M->banded, else dense in the rows' order (as numpy factorises
+ * each); 0 where the factorisation fails. */
+int mbd_singularity_indicator(const Model *M, const double *q, const double *cval,
+                              double *out) {
+    Scratch s = scratch(M, M->work);
+    I n = M->n, m = M->m, kd = M->kd;
+    if (m == 0) { *out = INFINITY; return ST_OK; }
+    extend(M, q, s.qe);
+    terms(M, s.qe, NULL, cval, s.psi, s.raw, NULL, s.cs);
+    merged(M, s.raw, s.data, s.values);
+    double *scale = s.nv, dmin = INFINITY, dmax = 0.0;
+    for (I k = 0; k < n; k++) scale[k] = 0.0;
+    for (I k = 0; k < M->nkeep; k++) scale[M->cols[k]] += s.values[k] * s.values[k];
+    for (I k = 0; k < n; k++) scale[k] = 1.0 / (scale[k] > 0.0 ? scale[k] : 1.0);
+    int ok = 1;
+    if (M->banded) {
+        I size = (kd + 1) * m;
+        double *L = s.band;
+        memset(L, 0, (size_t)size * sizeof(double));
+        for (I p = 0; p < M->npairs; p++)
+            L[M->band_index[p]] += s.values[M->pair_a[p]] * s.values[M->pair_b[p]]
+                                   * scale[M->cols[M->pair_a[p]]];
+        ok = band_cholesky(L, m, kd, &dmin, &dmax);
+    } else {
+        double *U = s.band;
+        memset(U, 0, (size_t)(m * m) * sizeof(double));
+        for (I p = 0; p < M->npairs; p++) {
+            I ra = M->rows[M->pair_a[p]], rb = M->rows[M->pair_b[p]];
+            double w = s.values[M->pair_a[p]] * s.values[M->pair_b[p]]
+                       * scale[M->cols[M->pair_a[p]]];
+            U[ra * m + rb] += w;
+            if (ra != rb) U[rb * m + ra] += w;
+        }
+        for (I j = 0; j < m && ok; j++) {           /* potrf 'U' in the rows' order */
+            double d = U[j * m + j];
+            for (I k = 0; k < j; k++) d -= U[k * m + j] * U[k * m + j];
+            if (!(d > 0.0)) { ok = 0; break; }
+            d = sqrt(d);
+            U[j * m + j] = d;
+            dmax = fmax(dmax, d);
+            dmin = fmin(dmin, d);
+            for (I i = j + 1; i < m; i++) {
+                double t = U[j * m + i];
+                for (I k = 0; k < j; k++) t -= U[k * m + j] * U[k * m + i];
+                U[j * m + i] = t / d;
+            }
+        }
+    }
+    *out = ok && isfinite(dmin) && isfinite(dmax) && dmax > 0.0 ? dmin / dmax : 0.0;
+    return ST_OK;
+}
+
 #include "stepping.h"
 #include "outputs.h"
+#include "dense.h"
