@@ -36,7 +36,7 @@ from fmu_speed import CASES, stepper  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 # The Kernel methods that cross into C (each is one ctypes call, or two for ``project``).
 C_CALLS = ("accelerations", "outputs", "project", "state_outputs", "rk4p_steps",
-           "prk_trial", "mc_trial")
+           "prk_trial", "mc_trial", "singularity_indicator", "dense_state")
 
 
 class CallTimer:

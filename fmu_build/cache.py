@@ -31,10 +31,11 @@ def _tools_digest(kind: str) -> bytes:
     return _tree_digest(Path(core_init).resolve().parent, HERE)
 
 
-def build_fmus(sources: dict[str, Path], folder: str | Path) -> dict[str, Path]:
-    """Build (or reuse) the FMU of each ``{instance: source}`` in ``folder``; returns
-    ``{instance: fmu}``. Instances of one source share one FMU, named after the source
-    (``slider_crank.fmu``)."""
+def build_fmus(sources: dict[str, Path], folder: str | Path,
+               fmi_version: int = 2) -> dict[str, Path]:
+    """Build (or reuse) the FMU (FMI ``fmi_version``.0) of each ``{instance: source}`` in
+    ``folder``; returns ``{instance: fmu}``. Instances of one source share one FMU, named
+    after the source (``slider_crank.fmu``, ``slider_crank.fmi3.fmu``)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     built: dict[Path, Path] = {}
@@ -43,11 +44,12 @@ def build_fmus(sources: dict[str, Path], folder: str | Path) -> dict[str, Path]:
         kind = src.suffix
         if kind not in tools:
             tools[kind] = _tools_digest(kind)
-        digest = hashlib.sha256(tools[kind] + src.read_bytes()).hexdigest()
-        fmu = folder / f"{src.stem}.fmu"
-        stamp = folder / f"{src.stem}.fmu.sha256"
+        digest = hashlib.sha256(tools[kind] + src.read_bytes()
+                                + str(fmi_version).encode()).hexdigest()
+        fmu = folder / f"{src.stem}{'.fmi3' if fmi_version == 3 else ''}.fmu"
+        stamp = fmu.with_name(fmu.name + ".sha256")
         if not (fmu.is_file() and stamp.is_file() and stamp.read_text().strip() == digest):
-            build(src, fmu)
+            build(src, fmu, fmi_version=fmi_version)
             stamp.write_text(digest + "\n")
         built[src] = fmu
     return {name: built[src] for name, src in sources.items()}

@@ -30,7 +30,8 @@ def cmd_cosim(args) -> int:
         run = cosimulate(args.scenario, CosimSettings(
             master=args.master, algorithm=args.algorithm, step=args.step, t_end=args.t_end,
             variable_step=args.variable_step, rtol=args.rtol, start=args.start,
-            extrapolation=args.extrapolation, jacobian=args.jacobian),
+            extrapolation=args.extrapolation, jacobian=args.jacobian,
+            fmi_version=args.fmi_version),
             work_dir=out / "fmus")
     r = run.result
     stats = ", ".join(f"{k} {v:g}" for k, v in r.stats.items())
@@ -65,7 +66,8 @@ def add_fmu_commands(sub, _command) -> None:
                           "mbdfmu cosim hydraulic_crane --algorithm implicit --step 0.05",
                           "mbdfmu cosim hydraulic_crane --algorithm implicit --jacobian "
                           "directional --step 0.05",
-                          "mbdfmu cosim prescribed_motion:derivatives --master ssp"),
+                          "mbdfmu cosim prescribed_motion:derivatives --master ssp",
+                          "mbdfmu cosim dc_motor_slider_crank --fmi-version 3"),
                  description="Run a scenario of scenarios/ (NAME, NAME:VARIANT, a folder or a "
                  "connections file) with the fmpy master, fmpy's SSP runner or OSP libcosim.")
     p.add_argument("scenario")
@@ -80,6 +82,8 @@ def add_fmu_commands(sub, _command) -> None:
     p.add_argument("--jacobian", choices=["differences", "directional"], default="differences",
                    help="implicit coupling: the interface Jacobian from finite differences of "
                    "whole steps (default) or from the FMUs' directional derivatives")
+    p.add_argument("--fmi-version", type=int, choices=[2, 3], default=2,
+                   help="build and run FMI 2.0 (default) or FMI 3.0 FMUs (fmpy master)")
     p.add_argument("--step", type=float, default=None, help="communication step (s)")
     p.add_argument("--t-end", type=float, default=None, help="end time (s)")
     p.add_argument("--variable-step", action="store_true",

@@ -45,7 +45,8 @@ def cosimulate(scenario: Scenario | str, settings: CosimSettings = CosimSettings
     # One folder per scenario folder: variants share their FMUs, other scenarios may have
     # sources of the same name.
     work_dir = Path(work_dir) / scenario.folder.name
-    fmus = build_fmus({i.name: i.source for i in scenario.instances}, work_dir)
+    fmus = build_fmus({i.name: i.source for i in scenario.instances}, work_dir,
+                      fmi_version=settings.fmi_version)
     algorithm = settings.algorithm_for(scenario)
     t0 = time.perf_counter()
     if settings.master == "fmpy":

@@ -32,10 +32,9 @@ class Extrapolation:
         self.derivatives: dict[str, list[float]] = {}   # source -> [y', y''][:order]
         self.start: dict[str, list[float]] = {}          # the same at the step's start
         self.history: dict[str, list[tuple[float, float]]] = {}  # source -> [(t, y)]
-        self.provides = {m: getattr(member.md.coSimulation, "maxOutputDerivativeOrder", 0) or 0
+        self.provides = {m: member.max_output_derivative_order
                          for m, member in system.members.items()}
-        self.interpolates = {m: bool(getattr(member.md.coSimulation, "canInterpolateInputs",
-                                             False)) for m, member in system.members.items()}
+        self.interpolates = {m: member.interpolates_inputs for m, member in system.members.items()}
 
     # ------------------------------------------------------------------ outputs
 

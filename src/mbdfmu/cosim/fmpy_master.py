@@ -1,4 +1,4 @@
-"""Co-simulation masters on fmpy's ``FMU2Slave``: Jacobi and Gauss-Seidel with a fixed
+"""Co-simulation masters on fmpy's ``FMU2Slave`` / ``FMU3Slave`` (``member.py``): Jacobi and Gauss-Seidel with a fixed
 communication step, and an error-controlled variable step that rolls back.
 
 One macro step from t to t + h:
@@ -158,8 +158,7 @@ class CoupledSystem:
     def initialize(self, t0: float, t_end: float, start: str) -> None:
         members = list(self.members.values())
         for m in members:
-            m.fmu.setupExperiment(startTime=t0, stopTime=t_end)
-            m.fmu.enterInitializationMode()
+            m.enter_initialization(t0, t_end)
             params = self.scenario.instance_parameters(m.name)
             m.set(list(params), list(params.values()))
         for _ in range(len(members) if start == "exchange" else 0):
@@ -168,7 +167,7 @@ class CoupledSystem:
             for m in self.members:
                 self.write_inputs(m)
         for m in members:
-            m.fmu.exitInitializationMode()
+            m.exit_initialization()
             failed = [msg for status, _, msg in m.messages if status >= ERROR]
             if failed:
                 raise CosimError(f"initialization failed: {failed[-1]}", t0, m.name)
@@ -189,19 +188,19 @@ class CoupledSystem:
         return [values[r] for r in self.record]
 
     def get_states(self):
-        return {m: member.fmu.getFMUstate() for m, member in self.members.items()}, \
+        return {m: member.get_state() for m, member in self.members.items()}, \
             dict(self.out), dict(self.used), self.extrapolation.snapshot()
 
     def set_states(self, saved) -> None:
         states, out, used, extrapolation = saved
         for m, member in self.members.items():
-            member.fmu.setFMUstate(states[m])
+            member.set_state(states[m])
         self.out, self.used = dict(out), dict(used)
         self.extrapolation.restore(extrapolation)
 
     def free_states(self, saved) -> None:
         for m, member in self.members.items():
-            member.fmu.freeFMUstate(saved[0][m])
+            member.free_state(saved[0][m])
 
     def close(self) -> None:
         for m in self.members.values():

@@ -28,7 +28,7 @@ from .settings import CosimError
 def check_members(system) -> None:
     """Every instance with inputs must provide directional derivatives."""
     for m, pairs in system.inputs_of.items():
-        if pairs and not system.members[m].md.coSimulation.providesDirectionalDerivative:
+        if pairs and not system.members[m].provides_directional:
             raise CosimError('the implicit coupling with jacobian="directional" needs '
                              "directional derivatives (providesDirectionalDerivative) from "
                              "every instance with inputs", instance=m)
@@ -37,7 +37,9 @@ def check_members(system) -> None:
 def linearization(member, inputs: list[str], outputs: list[str]):
     """(A, B, C, D) of ``member`` at its communication point: its continuous states (the
     variables its state derivatives name), ``inputs`` and ``outputs`` by name."""
-    derivatives = [v for v in member.md.modelVariables if v.derivative is not None]
+    # (FMI 3.0's derivative inputs der(u) also name what they are the derivative of)
+    derivatives = [v for v in member.md.modelVariables
+                   if v.derivative is not None and v.causality != "input"]
     states = [v.derivative.name for v in derivatives]
     unknowns = [v.name for v in derivatives] + list(outputs)
     knowns = states + list(inputs)

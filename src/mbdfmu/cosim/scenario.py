@@ -77,6 +77,7 @@ SCENARIOS = _scenarios_folder()
 CONNECTIONS_FILE = "connections.toml"
 ALGORITHMS = ("jacobi", "gauss-seidel")
 IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+REAL = ("Real", "Float64")        # FMI 2.0's and FMI 3.0's type of the connected variables
 TOP_KEYS = {"name", "description", "t_end", "step", "algorithm", "order", "record", "plot",
             "compare", "reference", "instances", "connections", "parameters", "variable_step",
             "power_bonds"}
@@ -215,7 +216,7 @@ def check_variables(scenario: Scenario, descriptions: dict) -> None:
         a = lookup(c.source, ("output",), "connection from")
         b = lookup(c.target, ("input",), "connection to")
         if a is not None and b is not None:
-            if a.type != "Real" or b.type != "Real":
+            if a.type not in REAL or b.type not in REAL:
                 problems.append(f'{where}: connection "{c.source}" -> "{c.target}": only Real '
                                 "variables are connected")
             elif (a.unit or "") != (b.unit or "") and a.unit and b.unit:
@@ -223,7 +224,7 @@ def check_variables(scenario: Scenario, descriptions: dict) -> None:
                                 f"({b.unit}): units differ")
     for key in scenario.parameters:
         v = lookup(key, ("parameter", "input"), "parameter")
-        if v is not None and v.type != "Real":
+        if v is not None and v.type not in REAL:
             problems.append(f'{where}: parameter "{key}" is a {v.type}; set it in the scene file')
     for key in ("record", "plot", "compare"):
         for ref in getattr(scenario, key):

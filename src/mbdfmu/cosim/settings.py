@@ -45,7 +45,8 @@ class CosimSettings:
     runner does); ``extrapolation`` (fmpy master): the order of the polynomial each input
     follows over a step, 0 (zero-order hold), 1 or 2 (``extrapolation.py``); ``jacobian``
     (implicit coupling): the interface Jacobian from finite differences of whole steps
-    ("differences") or from the FMUs' directional derivatives ("directional").
+    ("differences") or from the FMUs' directional derivatives ("directional");
+    ``fmi_version``: the FMUs built and run, FMI 2.0 or (fmpy master) FMI 3.0.
     """
 
     master: str = "fmpy"
@@ -60,8 +61,14 @@ class CosimSettings:
     start: str = "exchange"
     extrapolation: int = 0
     jacobian: str = "differences"
+    fmi_version: int = 2
 
     def __post_init__(self):
+        if self.fmi_version not in (2, 3) or isinstance(self.fmi_version, bool):
+            raise SettingError("fmi_version", f"fmi_version must be 2 or 3, got {self.fmi_version!r}")
+        if self.fmi_version == 3 and self.master != "fmpy":
+            raise SettingError("fmi_version", "FMI 3.0 FMUs run with the fmpy master (--master "
+                               f"fmpy); {self.master} runs FMI 2.0 here")
         if self.extrapolation not in (0, 1, 2) or isinstance(self.extrapolation, bool):
             raise SettingError("extrapolation", "extrapolation must be 0 (zero-order hold), 1 "
                                f"or 2 (the inputs' polynomial order), got {self.extrapolation!r}")

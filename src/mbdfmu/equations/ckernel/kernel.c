@@ -468,20 +468,7 @@ int mbd_singularity_indicator(const Model *M, const double *q, const double *cva
             U[ra * m + rb] += w;
             if (ra != rb) U[rb * m + ra] += w;
         }
-        for (I j = 0; j < m && ok; j++) {           /* potrf 'U' in the rows' order */
-            double d = U[j * m + j];
-            for (I k = 0; k < j; k++) d -= U[k * m + j] * U[k * m + j];
-            if (!(d > 0.0)) { ok = 0; break; }
-            d = sqrt(d);
-            U[j * m + j] = d;
-            dmax = fmax(dmax, d);
-            dmin = fmin(dmin, d);
-            for (I i = j + 1; i < m; i++) {
-                double t = U[j * m + i];
-                for (I k = 0; k < j; k++) t -= U[k * m + j] * U[k * m + i];
-                U[j * m + i] = t / d;
-            }
-        }
+        ok = dense_cholesky(U, m, &dmin, &dmax);
     }
     *out = ok && isfinite(dmin) && isfinite(dmax) && dmax > 0.0 ? dmin / dmax : 0.0;
     return ST_OK;

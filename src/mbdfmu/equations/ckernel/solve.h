@@ -40,6 +40,28 @@ static int band_cholesky(double *L, I m, I kd, double *dmin, double *dmax) {
     return 1;
 }
 
+/* Cholesky S = U^T U of a dense m x m S in place in the rows' order (potrf 'U': U's rows
+ * kept in U); pivots' range in *dmin, *dmax; 0 when S is not positive definite. */
+static int dense_cholesky(double *U, I m, double *dmin, double *dmax) {
+    *dmax = 0.0;
+    *dmin = INFINITY;
+    for (I j = 0; j < m; j++) {
+        double s = U[j * m + j];
+        for (I k = 0; k < j; k++) s -= U[k * m + j] * U[k * m + j];
+        if (!(s > 0.0)) return 0;
+        double d = sqrt(s);
+        U[j * m + j] = d;
+        *dmax = fmax(*dmax, d);
+        *dmin = fmin(*dmin, d);
+        for (I i = j + 1; i < m; i++) {
+            double t = U[j * m + i];
+            for (I k = 0; k < j; k++) t -= U[k * m + j] * U[k * m + i];
+            U[j * m + i] = t / d;
+        }
+    }
+    return 1;
+}
+
 /* L L^T y = y in place for a band factor. */
 static void band_substitute(const double *L, I m, I kd, double *y) {
     for (I i = 0; i < m; i++) {
@@ -117,24 +139,9 @@ static int dense_solve(const Model *M, const double *values, const double *b, do
         S[ra * m + rb] += w;
         if (ra != rb) S[rb * m + ra] += w;
     }
-    /* Cholesky S = U^T U in the rows' order (potrf 'U'), U's rows kept in U */
-    double dmax = 0.0, dmin = INFINITY;
-    int ok = 1;
+    double dmax, dmin;
     memcpy(U, S, (size_t)(m * m) * sizeof(double));
-    for (I j = 0; j < m && ok; j++) {
-        double s = U[j * m + j];
-        for (I k = 0; k < j; k++) s -= U[k * m + j] * U[k * m + j];
-        if (!(s > 0.0)) { ok = 0; break; }
-        double d = sqrt(s);
-        U[j * m + j] = d;
-        dmax = fmax(dmax, d);
-        dmin = fmin(dmin, d);
-        for (I i = j + 1; i < m; i++) {
-            double t = U[j * m + i];
-            for (I k = 0; k < j; k++) t -= U[k * m + j] * U[k * m + i];
-            U[j * m + i] = t / d;
-        }
-    }
+    int ok = dense_cholesky(U, m, &dmin, &dmax);
     if (ok && dmin > sqrt(M->rank_tol) * dmax) {
         for (I i = 0; i < m; i++) {                 /* U^T y = b */
             double s = b[i];
