@@ -14,9 +14,12 @@ in alternating order; error: the largest distance of the bob from the closed for
 the run's outputs, against the tolerance rtol x 1 m + atol of the default settings.
 Target: k = 1e10 under auto in under 0.2 s of CPU time with the error within tolerance.
 
-    python benchmarks/stiff.py [--t-end 0.02] [--interval 0.001] [--repeat 5] [-o DIR]
+    python benchmarks/stiff.py [--t-end 0.02] [--interval 0.001] [--repeat 5]
+                               [--methods auto,dop853p] [--name stiff] [-o DIR]
 
-Writes ``stiff.md`` and ``stiff.csv`` into DIR (default docs/figures/performance).
+Writes NAME.md and NAME.csv into DIR (default stiff.md, stiff.csv in docs/figures/performance).
+Over 1 s (``--t-end 1 --interval 0.01 --methods auto --name stiff_1s``) dop853p at 1e12 alone
+takes about a minute: leave it out there.
 """
 
 from __future__ import annotations
@@ -69,26 +72,29 @@ def main(argv=None) -> int:
     ap.add_argument("--t-end", type=float, default=0.02)
     ap.add_argument("--interval", type=float, default=1e-3)
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--name", default="stiff")
     ap.add_argument("-o", "--out", type=Path, default=ROOT / "docs/figures/performance")
     args = ap.parse_args(argv)
+    methods = tuple(args.methods.split(","))
     tol = DEFAULT_RTOL * 1.0 + DEFAULT_ATOL
     run(1e10, "auto", args.t_end, args.interval)        # imports and the kernel's first load
     best = {}
     for _ in range(args.repeat):
         for k in STIFFNESSES:
-            for method in METHODS:
+            for method in methods:
                 cpu, err, name, steps = run(k, method, args.t_end, args.interval)
                 old = best.get((k, method))
                 best[(k, method)] = (min(cpu, old[0]) if old else cpu, err, name, steps)
     rows = []
     for k in STIFFNESSES:
-        for method in METHODS:
+        for method in methods:
             cpu, err, name, steps = best[(k, method)]
             rows.append({"k (N/m)": f"{k:g}", "method": name, "steps": steps,
                          "CPU s": f"{cpu:.4g}", "CPU s per simulated s": f"{cpu / args.t_end:.3g}",
                          "error (m)": f"{err:.2g}", "within tolerance": "yes" if err <= tol else "no"})
     head = (f"`python benchmarks/stiff.py --t-end {args.t_end:g} --interval {args.interval:g} "
-            f"--repeat {args.repeat}`: spring pendulum (1 kg, rest length 1 m), t = 0..{args.t_end:g} s, "
+            f"--repeat {args.repeat} --methods {args.methods} --name {args.name}`: spring pendulum (1 kg, rest length 1 m), t = 0..{args.t_end:g} s, "
             f"outputs every {args.interval:g} s, default settings (rtol = {DEFAULT_RTOL:g}, "
             f"atol = {DEFAULT_ATOL:g}: tolerance {tol:.3g} m); CPU time best of {args.repeat}; "
             "error against the rigid pendulum's closed form.\n")
@@ -99,11 +105,13 @@ def main(argv=None) -> int:
     verdict = (f"\nTarget (k = {TARGET_K:g} under auto, CPU under {TARGET_CPU:g} s, error within "
                f"tolerance): {target[2]} {target[0]:.4g} s, error {target[1]:.2g} m: "
                + ("met" if target[0] < TARGET_CPU and target[1] <= tol else "not met") + ".\n")
+    if args.t_end != 0.02:
+        verdict = ""          # the target is for 20 ms
     text = head + "\n" + "\n".join(table) + "\n" + verdict
     print(text)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "stiff.md").write_text(text)
-    with open(args.out / "stiff.csv", "w", newline="") as fh:
+    (args.out / f"{args.name}.md").write_text(text)
+    with open(args.out / f"{args.name}.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=cols)
         writer.writeheader()
         writer.writerows(rows)

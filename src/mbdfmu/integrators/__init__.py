@@ -11,6 +11,7 @@ import numpy as np
 
 from .base import Integrator
 from .choose import choose_method
+from .implicit_control import STEP_CONTROL
 from .registry import AUTO, METHOD_NAMES, METHODS, SUMMARIES, Auto, method_class
 from .settings import DEFAULT_METHOD, SolverSettings
 
@@ -31,9 +32,12 @@ def make_integrator(method, equations, t0: float, q0: np.ndarray, qd0: np.ndarra
         u = inputs(t0) if inputs is not None else None
         cls, reason = choose_method(equations, t0, np.asarray(q0, dtype=float), interval, u,
                                     rtol=settings.rtol)
-    rtol, atol = settings.tolerances_for(cls, chosen=bool(reason))
-    integrator = cls(equations, t0, q0, qd0, step=settings.step_for(cls), rtol=rtol, atol=atol,
-                     inputs=inputs, **settings.options)
+    options = dict(settings.options)
+    if reason and STEP_CONTROL.name in cls.option_names:
+        options[STEP_CONTROL.name] = "adaptive"    # auto's implicit methods control their step
+    rtol, atol = settings.tolerances_for(cls, chosen=bool(reason), options=options)
+    integrator = cls(equations, t0, q0, qd0, step=settings.step_for(cls, options), rtol=rtol,
+                     atol=atol, inputs=inputs, **options)
     integrator.picked_by = AUTO if reason else ""
     integrator.reason = reason
     return integrator

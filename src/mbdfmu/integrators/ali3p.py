@@ -49,6 +49,7 @@ import numpy as np
 
 from ..equations.sparsity import spd_solver
 from .base import Option, number_in
+from .implicit_control import STEP_CONTROL, StepControl
 from .newton import ImplicitMethod, IterationMatrix, newton_iterate, newton_tolerances
 
 # How much the penalty outweighs the largest mass (per unit of constraint gradient): large,
@@ -69,17 +70,22 @@ def mass_projector(equations, J: np.ndarray):
     return lambda x, rhs: x - JMi.T @ solve(J @ x - rhs)
 
 
-class ALI3P(ImplicitMethod):
-    """Augmented Lagrangian index-3 with projections (trapezoidal rule, fixed step)."""
+class ALI3P(StepControl, ImplicitMethod):
+    """Augmented Lagrangian index-3 with projections (trapezoidal rule, fixed step or step
+    control, ``implicit_control.py``)."""
 
     name = "ali3p"
     summary = ("augmented Lagrangian index-3 with mass-orthogonal projections (ALI3-P), "
-               "trapezoidal, fixed step; passes singular and redundant constraints")
+               "trapezoidal, fixed step or step_control = \"adaptive\"; passes singular and "
+               "redundant constraints")
     default_step = 1e-3
-    options = (Option("alpha", "a positive number (N/m)", number_in(0.0, np.inf, low_open=True)),)
+    options = (Option("alpha", "a positive number (N/m)", number_in(0.0, np.inf, low_open=True)),
+               STEP_CONTROL)
 
-    def __init__(self, equations, t0, q0, qd0, *, alpha: float | None = None, **common):
+    def __init__(self, equations, t0, q0, qd0, *, alpha: float | None = None,
+                 step_control: str = "fixed", **common):
         self.alpha_option = None if alpha is None else float(alpha)
+        self.adaptive = step_control == "adaptive"
         self.matrix = IterationMatrix()
         super().__init__(equations, t0, q0, qd0, **common)
         self.penalty_base = self._penalty_base()
@@ -110,7 +116,8 @@ class ALI3P(ImplicitMethod):
             K = K - (0.5 * h * dFdv + 0.25 * h * h * dFdq)
         return self.saddle_matrix(K, J, -np.eye(eq.m) / P)
 
-    def _try_step(self, t, h):
+    def _attempt(self, t, h) -> dict:
+        """One step to t + h, not yet taken (``_commit`` takes it); raises NewtonFailure."""
         eq, n = self.equations, self.equations.n
         t1 = t + h
         P = 0.25 * h * h * self.alpha(h)
@@ -137,8 +144,9 @@ class ALI3P(ImplicitMethod):
         tols = newton_tolerances(self.atol, h, eq.length_scale, q_n, 0.25 * h * h, a_n)
         newton_iterate(evaluate, lambda: (self._augmented_matrix(t1, x["q"], x["qd"], x["J"],
                                                                 x["lam"], h, P), x["J"]),
-                       apply, self.matrix, h, tols, eq.mass, eq.length_scale, self.stats)
-        q, lam = q_n + x["dq"], x["lam"]
+                       apply, self.matrix, h, tols, eq.mass, eq.length_scale, self.stats,
+                       count_multipliers=False)
+        q = q_n + x["dq"]
         qd, qdd = rates(x["dq"])
         # mass-orthogonal projections of q' and q'' (Bayo and Ledesma 1996)
         u = self.inputs(t1)
@@ -146,8 +154,17 @@ class ALI3P(ImplicitMethod):
         project = mass_projector(eq, J)
         qd = project(qd, nu)
         _, _, _, gamma = eq.constraints(t1, q, qd, u)
-        qdd = project(qdd, gamma)
+        x["qd"], x["qdd"], x["t1"] = qd, project(qdd, gamma), t1
+        return x
+
+    def _local_error(self, x: dict, h: float) -> np.ndarray:
+        """The trapezoidal rule's local position error, -h^3 q^(3) / 12, with
+        h q^(3) ~ q''_{n+1} - q''_n."""
+        return (h * h / 12.0) * (x["qdd"] - self.qdd)
+
+    def _commit(self, x: dict) -> None:
+        q = self.qw + x["dq"]
         self.stats.nprojections += 1
-        self.check_finite(t1, q, qd, qdd)
-        self.qd, self.qdd, self.lam = qd, qdd, lam
+        self.check_finite(x["t1"], q, x["qd"], x["qdd"])
+        self.qd, self.qdd, self.lam = x["qd"], x["qdd"], x["lam"]
         self._set_positions(q)

@@ -22,7 +22,8 @@ named method (scipy keeps the choice outside the solver classes too):
    that cost would grow as sqrt(k)): ``genalpha``, implicit, whose cost per simulated
    second does not depend on k, and which damps what the output cannot show instead of
    resolving it with tiny explicit steps; ``ali3p`` if the constraints are also redundant
-   (genalpha's matrix would be singular). A spring stretched at t0 makes the motion's own
+   (genalpha's matrix would be singular). Chosen by auto, both control their step
+   (``implicit_control.py``), so the run meets rtol as with dop853p. A spring stretched at t0 makes the motion's own
    time scale short (its acceleration enters it), so its visible oscillation stays with
    dop853p, which resolves it.
 3. Otherwise ``dop853p``: adaptive, high order, coordinate projection. Consistent redundant

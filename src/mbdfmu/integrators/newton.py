@@ -23,6 +23,16 @@ mechanism. Near a singular configuration (``singularity_indicator`` of the matri
 below NEAR_SINGULAR_INDICATOR) the iteration contracts slowly along the direction that
 loses rank, and the noise grows like 1 / indicator^2: there the tolerance is a looser one
 that still shrinks like h^2 below T_NEAR (``near_singular``).
+
+The size of an increment, for all these tests, counts the multipliers too, as the
+displacement M^-1 Psi_q^T D dlam they cause (``IterationMatrix.increment_size``; genalpha's, not ali3p's: see below): near a
+singular configuration a kept matrix corrects the positions at once but the multipliers
+slowly, so a test on the position increment alone accepted steps whose equations of motion
+were still off by up to ~10 m/s^2 there; each crossing then left a velocity error that did
+not shrink with h (P2's error levelled off near 1e-7). ali3p's multipliers along the
+direction where Psi_q loses rank are set by its penalty and do not act on the motion, but
+through a kept matrix's Psi_q they seemed to (increments of 1e7 at P2's crossings at
+h = 2 ms, then halvings and a 20 times larger error): ali3p counts its positions only.
 """
 
 from __future__ import annotations
@@ -102,18 +112,20 @@ class IterationMatrix(Plain):
     """An LU factorisation kept between Newton iterations and steps, with its step size and
     the singularity indicator of the Psi_q it was evaluated with."""
 
-    plain_fields = ("lu", "h", "fresh", "indicator")
+    plain_fields = ("lu", "h", "fresh", "indicator", "reach")
 
     def __init__(self):
         self.lu = None
         self.h = None
         self.fresh = False   # evaluated at the current step's iterate
         self.indicator = 1.0
+        self.reach = None    # M^-1 Psi_q^T: a scaled multiplier increment as a displacement
 
     def valid_for(self, h: float) -> bool:
         return self.lu is not None and self.h == h
 
-    def factor(self, S: np.ndarray, J: np.ndarray, h: float, stats) -> None:
+    def factor(self, S: np.ndarray, J: np.ndarray, h: float, stats,
+               mass: np.ndarray | None = None) -> None:
         stats.njev += 1
         stats.nlu += 1
         if not np.all(np.isfinite(S)):
@@ -126,6 +138,18 @@ class IterationMatrix(Plain):
                                 "singular configuration)")
         self.lu, self.h, self.fresh = (lu, piv), h, True
         self.indicator = singularity_indicator(J) if J.shape[0] else math.inf
+        # a multiplier increment D dlam changes the accelerations by M^-1 J^T dlam, i.e.
+        # moves the positions by M^-1 J^T D dlam (nothing along the null space of J^T)
+        self.reach = (J / mass).T if J.shape[0] and mass is not None else None
+
+    def increment_size(self, dx: np.ndarray, n: int) -> float:
+        """Max-norm of a Newton increment as a displacement: the positions' part and what
+        the multipliers' part does to them (a multiplier left unconverged is an error in
+        the accelerations however small the position increment)."""
+        size = float(np.max(np.abs(dx[:n])))
+        if dx.size > n and self.reach is not None:
+            size = max(size, float(np.max(np.abs(self.reach @ dx[n:]))))
+        return size
 
     def near_singular(self) -> bool:
         return self.indicator < NEAR_SINGULAR_INDICATOR
@@ -188,14 +212,16 @@ def _check_rate(matrix, tols, size, previous):
 
 
 def newton_iterate(evaluate, build_matrix, apply, matrix: IterationMatrix, h: float,
-                   tols: NewtonTolerances, mass: np.ndarray, length_scale: float, stats) -> None:
+                   tols: NewtonTolerances, mass: np.ndarray, length_scale: float, stats, *,
+                   count_multipliers: bool = True) -> None:
     """Newton's method on a step's equations until they hold to the rounding noise.
 
     ``evaluate()`` returns the residual at the current iterate as (dynamic (n,), Psi (m,)),
     the dynamic rows already scaled to a displacement times the mass; ``build_matrix()``
     the iteration matrix there and Psi_q (called only when the kept one is dropped);
     ``apply(dx)`` moves the iterate by the increment dx = -S^-1 (dynamic, Psi). Raises
-    NewtonFailure.
+    NewtonFailure. ``count_multipliers``: increments include the multipliers' part
+    (``IterationMatrix.increment_size``).
     """
     if not matrix.valid_for(h):
         matrix.lu = None
@@ -210,9 +236,9 @@ def newton_iterate(evaluate, build_matrix, apply, matrix: IterationMatrix, h: fl
         if _converged(tols, matrix, size, dynamic / mass, Psi):
             return
         if matrix.lu is None:
-            matrix.factor(*build_matrix(), h, stats)
+            matrix.factor(*build_matrix(), h, stats, mass if count_multipliers else None)
         dx = -matrix.solve(np.concatenate((dynamic, Psi)))
-        size = float(np.max(np.abs(dx[:n])))
+        size = matrix.increment_size(dx, n)
         if not np.isfinite(size):
             raise NewtonFailure("non-finite Newton increment")
         apply(dx)
@@ -283,6 +309,13 @@ class ImplicitMethod(Integrator):
         return True, h
 
     def _try_step(self, t: float, h: float) -> None:
+        """One step from t to t + h (updates the state) or NewtonFailure."""
+        self._commit(self._attempt(t, h))
+
+    def _attempt(self, t: float, h: float) -> dict:
+        raise NotImplementedError
+
+    def _commit(self, x: dict) -> None:
         raise NotImplementedError
 
     def saddle_matrix(self, top_left: np.ndarray, J: np.ndarray,

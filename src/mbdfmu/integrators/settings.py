@@ -33,6 +33,14 @@ DEFAULT_OUTPUT_POINTS = 500
 FIELDS = ("method", "step", "rtol", "atol", "options", "output_interval")
 
 
+def adaptive_with(cls, options: dict) -> bool:
+    """Whether method ``cls`` controls its step with these options (its own settings):
+    the adaptive methods always, genalpha and ali3p with step_control = "adaptive"."""
+    if "step_control" in cls.option_names:
+        return options.get("step_control", "fixed") == "adaptive"
+    return cls.adaptive
+
+
 def _positive(value: Any, name: str, where: str, unit: str = "") -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise SettingError(name, f"{name} must be a number, got {value!r}", where)
@@ -85,21 +93,24 @@ class SolverSettings:
     def method_name(self) -> str:
         return self.method if isinstance(self.method, str) else self.method.name
 
-    def step_for(self, cls) -> float:
-        """The step a method runs with: the given one, else the method's default (fixed
-        step), or no limit (adaptive: ``step`` is the largest step)."""
+    def step_for(self, cls, options: dict | None = None) -> float:
+        """The step a method runs with (with ``options``, default this run's): the given
+        one, else the method's default (fixed step), or no limit (adaptive: ``step`` is the
+        largest step)."""
         if self.step is not None:
             return self.step
-        return math.inf if cls.adaptive else cls.default_step
+        adaptive = adaptive_with(cls, self.options if options is None else options)
+        return math.inf if adaptive else cls.default_step
 
-    def tolerances_for(self, cls, chosen: bool = False) -> tuple[float, float]:
+    def tolerances_for(self, cls, chosen: bool = False,
+                       options: dict | None = None) -> tuple[float, float]:
         """(rtol, atol) a method runs with. Adaptive methods, and any method ``auto`` chose
         (the run was asked for rtol, whatever ran it): rtol, and atol as given, else
         min(DEFAULT_ATOL, ATOL_PER_RTOL rtol). Fixed-step methods the user named (their
         stated accuracy): the values given, else FIXED_STEP_RTOL and min(FIXED_STEP_ATOL,
         ATOL_PER_RTOL rtol)."""
         given = self.given
-        if cls.adaptive or chosen:
+        if adaptive_with(cls, self.options if options is None else options) or chosen:
             rtol, atol = self.rtol, DEFAULT_ATOL
         else:
             rtol = self.rtol if "rtol" in given else FIXED_STEP_RTOL
