@@ -11,7 +11,7 @@ import pytest
 
 import exact_solutions as ref  # tests/exact_solutions.py: independent of mbdfmu
 from mbdfmu import METHODS, cli
-from mbdfmu import load_scene
+from mbdfmu import Simulation, load_scene
 from mbdfmu.bench import cases, sweep
 from mbdfmu.bench import charts as bench_charts
 from mbdfmu.bench import closed_forms as pkg_ref
@@ -101,18 +101,69 @@ def test_summary_on_synthetic_rows(tmp_path):
 def test_bench_command_quick_synchronous(tmp_path, capsys):
     out = tmp_path / "bench"
     code = cli.main(["bench", "P1", "--quick", "--methods", "rk4p", "taylor", "dop853p",
-                     "--scheduler", "synchronous", "--no-progress", "-o", str(out)])
+                     "--comm-steps", "0.1", "--scheduler", "synchronous", "--no-progress",
+                     "-o", str(out)])
     assert code == 0
     rows = sweep.read_rows(out / "results.csv")
     assert {r["method"] for r in rows} == {"rk4p", "taylor", "dop853p"}
     assert all(r["stability"] in bench_charts.STABILITY_CLASSES for r in rows)
-    for name in ("summary.md", "work_precision_P1.png", "stability_P1.png"):
+    comm_rows = [r for r in rows if bench_charts.is_comm(r)]
+    assert {r["comm_step"] for r in comm_rows} == {0.1}
+    assert len(comm_rows) == 1 + 1 + len(cases.COMM_TOLS)   # rk4p, taylor: one step each
+    for name in ("summary.md", "work_precision_P1.png", "stability_P1.png", "comm_steps_P1.png"):
         assert (out / name).stat().st_size > 0
     (out / "summary.md").unlink()
     assert cli.main(["bench", "--from-csv", str(out / "results.csv")]) == 0  # charts from CSV only
     assert (out / "summary.md").exists()
+    # the two sweeps run apart, merged by --from-csv into one results.csv
+    settings_csv = sweep.write_csv([r for r in rows if r not in comm_rows], tmp_path / "a.csv")
+    comm_csv = sweep.write_csv(comm_rows, tmp_path / "b.csv")
+    merged = tmp_path / "merged"
+    assert cli.main(["bench", "--from-csv", str(settings_csv), str(comm_csv), "-o",
+                     str(merged)]) == 0
+    assert len(sweep.read_rows(merged / "results.csv")) == len(rows)
+    text = (merged / "summary.md").read_text()
+    assert "## P1 pendulum, t = 10 s" in text and "## Communication steps: P1 pendulum" in text
     assert cli.main(["bench", "P99", "--scheduler", "synchronous", "-o", str(out)]) == 2
     assert 'unknown bench scene "P99"' in capsys.readouterr().err
+    assert cli.main(["bench", "P1", "--comm-steps", "1e-3,fast", "-o", str(out)]) == 2
+    assert '--comm-steps: "fast" is not a positive step in s' in capsys.readouterr().err
+
+
+def test_comm_step_sweep_rows_map_and_silent_count(tmp_path):
+    """The communication-step sweep through run_bench: its rows, their errors against the
+    elliptic solution at every communication point (stepped here, not by the bench), the map
+    and the silent-failure count of summary.md."""
+    steps = (0.1, 0.02)
+    done = sweep.run_bench(["P1"], methods=["rk4p", "dop853p"], scheduler="synchronous",
+                           output=tmp_path, quick=True, progress=False, comm_steps=steps,
+                           settings_sweep=False)
+    rows = done["rows"]
+    case = cases.CASES["P1"]
+    expected = {("rk4p", "step", case.comm_step, h) for h in steps} | \
+        {("dop853p", "rtol", rtol, h) for rtol in cases.COMM_TOLS for h in steps}
+    assert {(r["method"], r["kind"], r["setting"], r["comm_step"]) for r in rows} == expected
+    scene = load_scene(bundled_scene(case.scene))
+    bob = scene.bodies[0]
+    silent = 0
+    for r in rows:
+        assert r["status"] == "ok" and r["t_reached"] == pytest.approx(case.quick_comm_t_end)
+        kw = {"step": r["setting"]} if r["kind"] == "step" else {"rtol": r["setting"]}
+        sim = Simulation(scene, method=r["method"], **kw)
+        n = round(case.quick_comm_t_end / r["comm_step"])
+        t = np.arange(1, n + 1) * r["comm_step"]
+        pos = []
+        for tk in t:
+            sim.advance(float(tk))
+            pos.append((sim.outputs()["bob.x"], sim.outputs()["bob.y"]))
+        exact = ref.simple_pendulum(t, m=bob.mass, J=bob.inertia)
+        error = np.max(np.hypot(np.array(pos)[:, 0] - exact["x"], np.array(pos)[:, 1] - exact["y"]))
+        assert r["error"] == pytest.approx(error, rel=1e-6, abs=1e-15)
+        silent += r["kind"] == "rtol" and error > 100 * r["setting"]
+    assert (tmp_path / "comm_steps_P1.png").stat().st_size > 0
+    text = done["summary"].read_text()
+    assert f"both sweeps): {silent}." in text
+    assert "| dop853p rtol 1e-10 | " in text
 
 
 def test_summary_lists_silently_wrong_runs(tmp_path):
@@ -122,6 +173,10 @@ def test_summary_lists_silently_wrong_runs(tmp_path):
     silent = bench_charts.silently_wrong(rows)
     assert [(r["method"], r["setting"]) for r in silent] == [("a", 1e-8)]
     text = bench_charts.write_summary(rows, tmp_path / "summary.md").read_text()
-    assert "Silently wrong runs (an adaptive method claiming success with an error above " \
-           "100 x rtol): 1." in text
+    assert "Silently wrong runs (an adaptive method or auto claiming success with an error " \
+           "above 100 x rtol, both sweeps): 1." in text
     assert "rtol 1e-08: error 2e-06" in text
+    comm = dict(_row("a", 1e-6, 1.0, 3e-4), comm_step=1e-3)              # 300 x, at h = 1 ms
+    assert bench_charts.silently_wrong(rows + [comm])[-1] is comm
+    text = bench_charts.write_summary(rows + [comm], tmp_path / "summary.md").read_text()
+    assert "P1 a rtol 1e-06 at communication step 0.001 s: error 0.0003" in text

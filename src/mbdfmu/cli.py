@@ -205,8 +205,11 @@ def cmd_bench(args) -> int:
     if args.from_csv:
         done = sweep.redraw(args.from_csv, args.output)
     else:
+        from .bench.comm import parse_comm_steps
         done = sweep.run_bench(args.scenes, methods=args.methods, scheduler=args.scheduler,
-                               output=args.output, quick=args.quick, progress=show_progress(args))
+                               output=args.output, quick=args.quick, progress=show_progress(args),
+                               comm_steps=parse_comm_steps(args.comm_steps),
+                               settings_sweep=not args.comm_only)
     print(f"{len(done['rows'])} runs -> {done['csv']}, {done['summary']}, "
           f"{len(done['charts'])} charts in {Path(done['summary']).parent}")
     return 0
@@ -268,26 +271,37 @@ def _add_run_commands(sub) -> None:
 
 
 def _add_bench_command(sub) -> None:
-    from .bench.cases import CASES
-    from .integrators import METHODS
+    from .bench.cases import CASES, COMM_STEPS
+    from .integrators import METHOD_NAMES
+    comm = [k for k, c in CASES.items() if c.comm_t_end is not None]
     p = _command(sub, "bench", cmd_bench, "work-precision and stability benchmark of every "
-                 "method (needs mbdfmu[bench])",
+                 "method, and the FMU's use pattern (needs mbdfmu[bench])",
                  ("mbdfmu bench -o bench",
                   "mbdfmu bench P1 P3 --methods rk4p dop853p --scheduler tcp://10.0.0.5:8786",
-                  "mbdfmu bench --quick --scheduler synchronous"),
-                 epilog="scenes: " + "; ".join(f"{k}: {c.title}" for k, c in CASES.items()))
+                  "mbdfmu bench --quick --scheduler synchronous",
+                  "mbdfmu bench P2N2 --comm-only --comm-steps 1e-3,0.1",
+                  "mbdfmu bench --comm-steps none"),
+                 epilog="scenes: " + "; ".join(f"{k}: {c.title}" for k, c in CASES.items()) +
+                 f"\ncommunication-step sweep (Simulation.advance at each step, as an FMU's "
+                 f"master): {', '.join(comm)}")
     p.add_argument("scenes", nargs="*", metavar="SCENE",
                    help=f"scenes to run: {' '.join(CASES)} (default all)")
-    p.add_argument("--methods", nargs="+", choices=list(METHODS), default=None,
-                   help="methods to run (default all)")
+    p.add_argument("--methods", nargs="+", choices=list(METHOD_NAMES), default=None,
+                   help="methods to run (default all, auto included)")
+    p.add_argument("--comm-steps", default=None, metavar="H,H,...",
+                   help="communication steps (s) of the communication-step sweep, comma-"
+                   f"separated, or none (default {','.join(f'{h:g}' for h in COMM_STEPS)})")
+    p.add_argument("--comm-only", action="store_true",
+                   help="only the communication-step sweep (no settings sweep)")
     p.add_argument("--scheduler", default=None, help="address of a running Dask scheduler, or "
                    "'synchronous' (default: a local cluster, one single-threaded worker per "
                    "core)")
     p.add_argument("-o", "--output", default=None,
                    help="output folder (default bench, or the CSV's folder with --from-csv)")
     p.add_argument("--quick", action="store_true", help="a small sweep on short horizons")
-    p.add_argument("--from-csv", default=None, metavar="CSV",
-                   help="redraw charts and summary from a results.csv, without running")
+    p.add_argument("--from-csv", nargs="+", default=None, metavar="CSV",
+                   help="redraw charts and summary from results.csv files (several: merged "
+                   "into the output folder's results.csv), without running")
     add_progress_option(p)
 
 

@@ -34,6 +34,9 @@ class Case:
     ``steps`` are the fixed steps (s) of fixed-step methods, ``tols`` the rtol of adaptive
     ones (atol = rtol * ATOL_FACTOR); the ``quick_*`` ones are the ``--quick`` sweep.
     ``reference`` says what the error is measured against (shown in the summary).
+    ``comm_t_end`` (s), when given, puts the case in the communication-step sweep
+    (``comm.py``), whose fixed-step methods run at ``comm_step`` (s), clipped to land on
+    each communication point; ``quick_comm_t_end`` is its ``--quick`` horizon.
     """
 
     key: str
@@ -47,32 +50,41 @@ class Case:
     quick_t_end: float = 1.0
     quick_steps: tuple[float, ...] = (1e-2, 5e-3)
     quick_tols: tuple[float, ...] = (1e-4, 1e-6)
+    comm_t_end: float | None = None
+    comm_step: float = 1e-3
+    quick_comm_t_end: float = 0.2
 
 
 TOLS = tuple(10.0 ** -k for k in range(2, 12))  # rtol 1e-2 .. 1e-11
+# The communication-step sweep (issue 12): a master's steps, and the rtol of adaptive
+# methods there: the default and a tight one (atol by the solver's own rule).
+COMM_STEPS = (1e-4, 1e-3, 1e-2, 1e-1)
+COMM_TOLS = (1e-6, 1e-10)
 
 CASES: dict[str, Case] = {c.key: c for c in (
     Case("P1", "pendulum", "P1 pendulum, t = 10 s", 10.0,
          (1e-1, 5e-2, 2e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4), TOLS,
-         "exact: elliptic solution (bob position, m)"),
+         "exact: elliptic solution (bob position, m)", comm_t_end=2.0),
     Case("P2N2", "n_four_bar_2", "P2 N-four-bar, N = 2, t = 10 s", 10.0,
          (1e-1, 5e-2, 2e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4), TOLS,
-         "exact: one-DOF reduction at 1e-13 (B0 position, m)"),
+         "exact: one-DOF reduction at 1e-13 (B0 position, m)", comm_t_end=2.0),
     Case("P2N40", "n_four_bar_40", "P2 N-four-bar, N = 40, t = 2.5 s (two singular passes)", 2.5,
          (5e-2, 2e-2, 1e-2, 5e-3), (1e-3, 1e-4, 1e-6, 1e-8),
          "exact: one-DOF reduction at 1e-13 (B0 position, m)", n_out=10,
-         quick_t_end=0.2, quick_steps=(2e-2,), quick_tols=(1e-4,)),
+         quick_t_end=0.2, quick_steps=(2e-2,), quick_tols=(1e-4,), comm_t_end=2.5,
+         comm_step=5e-3),
     Case("P3", "andrews", "P3 Andrews' mechanism, t = 0.03 s", 0.03,
          (5e-4, 2e-4, 1e-4, 5e-5, 2e-5, 1e-5, 5e-6, 2e-6), TOLS,
          "converged run (body angles, rad)", n_out=30, quick_t_end=0.003,
-         quick_steps=(1e-4, 5e-5)),
+         quick_steps=(1e-4, 5e-5), comm_t_end=0.03, comm_step=1e-5, quick_comm_t_end=0.003),
     Case("P4", "slider_crank", "slider-crank (P4), t = 0.04 s (two turns)", 0.04,
          (5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4, 5e-5, 2e-5), TOLS,
          "exact: P4 closed form (slider and rod centre, m)", quick_t_end=0.004,
          quick_steps=(1e-3, 5e-4)),
     Case("P6", "light_cart_pole", "P6 light cart-pole, t = 2 s (two spikes)", 2.0,
          (1e-2, 1e-3, 1e-4), (1e-2, 1e-4, 1e-6, 1e-8, 1e-10),
-         "exact invariants: momentum (cart x / l) and energy (theta'^2 / its peak)"),
+         "exact invariants: momentum (cart x / l) and energy (theta'^2 / its peak)",
+         comm_t_end=2.0, comm_step=1e-4),
     Case("P8", "gear_pair", "P8 gear pair (coupler), t = 1 s", 1.0,
          (1e-1, 5e-2, 2e-2, 1e-2, 5e-3), TOLS[::3],
          "exact: constant acceleration (both angles, rad)", n_out=10),

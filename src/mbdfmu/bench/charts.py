@@ -4,8 +4,11 @@
   are left out of the line and counted in the legend);
 - ``stability_map``: method by setting (step size for fixed-step methods, rtol for
   adaptive ones), each cell stable / drifting / unstable / failed (reasons in the CSV);
+- ``comm_map``: the communication-step sweep (rows with a ``comm_step``), method and
+  setting by communication step, each cell its error or, for a failed run, a short reason;
 - ``write_summary``: per scene, the CPU time each method needs to reach each error level
-  of ``cases.LEVELS``, interpolated on its work-precision line (``time_to_reach``).
+  of ``cases.LEVELS``, interpolated on its work-precision line (``time_to_reach``); the
+  communication-step sweep's errors; the silently wrong runs of both sweeps.
 """
 
 from __future__ import annotations
@@ -23,10 +26,17 @@ DPI = 110
 SILENT_FACTOR = 100.0
 
 
-def _by_scene(rows):
+def is_comm(row) -> bool:
+    """A row of the communication-step sweep (CSVs from before it have no such column)."""
+    return math.isfinite(_float(row.get("comm_step", "")))
+
+
+def _by_scene(rows, comm=False):
+    """{scene: rows} of the settings sweep, or of the communication-step sweep."""
     scenes: dict[str, list[dict]] = {}
     for r in rows:
-        scenes.setdefault(r["scene"], []).append(r)
+        if is_comm(r) == comm:
+            scenes.setdefault(r["scene"], []).append(r)
     return scenes
 
 
@@ -137,12 +147,101 @@ def stability_map(rows, key, path):
     return path
 
 
+# Failure reasons, shortened for the communication-step maps: (words in the reason, label).
+SHORT_REASONS = (("CPU budget", "budget"), ("energy balance", "energy"),
+                 ("step size fell", "h -> 0"), ("Newton", "Newton"), ("projection", "project"),
+                 ("diverged", "diverged"), ("stated accuracy", "accuracy"),
+                 ("unexpected", "bug"))
+
+
+def short_reason(reason: str) -> str:
+    return next((label for words, label in SHORT_REASONS if words in reason), "failed")
+
+
+def _comm_grid(rows):
+    """(labels, steps, cells) of one scene's communication-step rows: a line per method and
+    setting, a column per communication step (smallest first)."""
+    labels = []
+    for r in rows:
+        label = _comm_label(r)
+        if label not in labels:
+            labels.append(label)
+    steps = sorted({_float(r["comm_step"]) for r in rows})
+    cells = [[None] * len(steps) for _ in labels]
+    for r in rows:
+        cells[labels.index(_comm_label(r))][steps.index(_float(r["comm_step"]))] = r
+    return labels, steps, cells
+
+
+def _comm_label(r) -> str:
+    return f"{r['method']} {'h' if r['kind'] == 'step' else 'rtol'} {_float(r['setting']):g}"
+
+
+def _comm_cell(r) -> str:
+    if r["status"] != "ok":
+        return f"{short_reason(r['reason'])}\nt={_float(r['t_reached']):.3g}"
+    return f"{_float(r['error']):.0e}"
+
+
+def comm_map(rows, key, path):
+    """The communication-step sweep of one scene: a cell per method, setting and step,
+    coloured by stability class, with its error or why it stopped (and when, s)."""
+    from matplotlib.colors import ListedColormap
+    from matplotlib.patches import Rectangle
+
+    labels, steps, cells = _comm_grid(rows)
+    fig = figure(figsize=(3.0 + 1.0 * len(steps), 1.2 + 0.32 * len(labels)))
+    ax = fig.subplots()
+    codes = [[STABILITY_CLASSES.index(c["stability"]) if c else math.nan for c in line]
+             for line in cells]
+    ax.imshow(codes, cmap=ListedColormap(STABILITY_COLORS), vmin=-0.5, vmax=3.5, aspect="auto")
+    for i, line in enumerate(cells):
+        for j, c in enumerate(line):
+            if c is not None:
+                ax.text(j, i, _comm_cell(c), ha="center", va="center", fontsize=6.5)
+    ax.set_xticks(range(len(steps)), [f"{h:g}" for h in steps], fontsize=8)
+    ax.set_yticks(range(len(labels)), labels, fontsize=7.5)
+    ax.set_xlabel("communication step (s): one Simulation.advance call each", fontsize=8)
+    case = CASES.get(key)
+    t_end = _float(max(r["t_reached"] for r in rows if r["status"] == "ok")) \
+        if any(r["status"] == "ok" for r in rows) else math.nan
+    handles = [Rectangle((0, 0), 1, 1, color=c) for c in STABILITY_COLORS]
+    fig.legend(handles, STABILITY_CLASSES, loc="upper right", ncol=4, fontsize=7)
+    fig.suptitle(f"Communication steps: {case.title.split(', t =')[0] if case else key}, "
+                 f"t = {t_end:g} s", fontsize=10, x=0.02, ha="left")
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
+    fig.savefig(path, dpi=DPI)
+    return path
+
+
+def comm_summary(rows) -> list[str]:
+    """summary.md's lines on the communication-step sweep: per scene, a table of errors
+    (or the short reason and the time a run stopped)."""
+    lines = []
+    for key, srows in _by_scene(rows, comm=True).items():
+        labels, steps, cells = _comm_grid(srows)
+        case = CASES.get(key)
+        lines += [f"## Communication steps: {case.title.split(', t =')[0] if case else key}", "",
+                  "Error at the recorded communication points, or why and when (s) the run "
+                  "stopped; CPU time in brackets.", "",
+                  "| method, setting | " + " | ".join(f"h = {h:g} s" for h in steps) + " |",
+                  "|---|" + "---|" * len(steps)]
+        for label, line in zip(labels, cells):
+            lines.append(f"| {label} | " + " | ".join(
+                "" if c is None else _comm_cell(c).replace("\n", " ") +
+                f" ({_float(c['cpu_s']):.2g} s)" for c in line) + " |")
+        lines += ["", f"![communication steps](comm_steps_{key}.png)", ""]
+    return lines
+
+
 def draw_all(rows, out: Path) -> list[Path]:
     out = Path(out)
     paths = []
     for key, srows in _by_scene(rows).items():
         paths.append(work_precision(srows, key, out / f"work_precision_{key}.png"))
         paths.append(stability_map(srows, key, out / f"stability_{key}.png"))
+    for key, srows in _by_scene(rows, comm=True).items():
+        paths.append(comm_map(srows, key, out / f"comm_steps_{key}.png"))
     return paths
 
 
@@ -168,9 +267,10 @@ def _fmt(cpu, how):
 
 
 def silently_wrong(rows) -> list:
-    """Runs of an adaptive method (kind "rtol", the setting its rtol) that claim success
-    with an error above SILENT_FACTOR times that rtol (errors in the scenes' units, m or rad
-    of metre-sized mechanisms): issue 12's count, whose target is none."""
+    """Runs of an adaptive method or ``auto`` (kind "rtol", the setting its rtol), in either
+    sweep, that claim success with an error above SILENT_FACTOR times that rtol (errors in
+    the scenes' units, m or rad of metre-sized mechanisms): issue 12's count, whose target
+    is none."""
     return [r for r in rows if r["kind"] == "rtol" and r["status"] == "ok"
             and math.isfinite(_float(r["error"]))
             and _float(r["error"]) > SILENT_FACTOR * _float(r["setting"])]
@@ -191,10 +291,11 @@ def write_summary(rows, path: Path, notes: dict | None = None, footer: str = "")
              "scene's reference, interpolated (log-log) on its work-precision line; "
              "\"<=\" when its coarsest setting is already below the level; \"cannot\" when "
              "no setting of the sweep reaches it.", "",
-             f"Silently wrong runs (an adaptive method claiming success with an error above "
-             f"{SILENT_FACTOR:g} x rtol): {len(silent)}."]
-    lines += [f"- {r['scene']} {r['method']} rtol {_float(r['setting']):g}: error "
-              f"{_float(r['error']):.2g}" for r in silent]
+             f"Silently wrong runs (an adaptive method or auto claiming success with an error "
+             f"above {SILENT_FACTOR:g} x rtol, both sweeps): {len(silent)}."]
+    lines += [f"- {r['scene']} {r['method']} rtol {_float(r['setting']):g}" +
+              (f" at communication step {_float(r['comm_step']):g} s" if is_comm(r) else "") +
+              f": error {_float(r['error']):.2g}" for r in silent]
     lines.append("")
     for key, srows in _by_scene(rows).items():
         case = CASES.get(key)
@@ -224,6 +325,7 @@ def write_summary(rows, path: Path, notes: dict | None = None, footer: str = "")
                     seen.add(m)
         lines += ["", f"![work-precision](work_precision_{key}.png) "
                       f"![stability](stability_{key}.png)", ""]
+    lines += comm_summary(rows)
     if footer:
         lines += [footer, ""]
     Path(path).write_text("\n".join(lines), encoding="utf-8")

@@ -34,13 +34,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SolverError
-from ..integrators import METHODS
-from ..model.scene import PointForce, Torque
-from ..simulation import Simulation
-from . import closed_forms
-from .cases import (ATOL_FACTOR, CASES, DEFAULT_SCENES, ERRORS, EXACT_P2, BenchError, Case,
-                    angles, case_of, case_scene, error_converged, get, horizon, length_scale)
+from ..integrators import METHOD_NAMES, METHODS
+from . import closed_forms, comm
+from .cases import (CASES, COMM_STEPS, DEFAULT_SCENES, ERRORS, EXACT_P2, BenchError, Case, angles, case_of,
+                    case_scene, error_converged, horizon)
+from .runs import CSV_FIELDS, classify, num, result_row, simulate_outputs
 
 # The method and tolerance of converged references (scenes without an exact one).
 REFERENCE_METHOD = "dop853p"
@@ -49,73 +47,12 @@ CHECK_RTOL = 1e-11             # a second converged run: its difference bounds t
 # A run is stopped, and recorded as failed, once it has used this much CPU time.
 CPU_BUDGET_S = 60.0
 QUICK_CPU_BUDGET_S = 10.0
-# Stability classes (per run): thresholds on the drifts and on the error.
-STABLE_CONSTRAINT_DRIFT = 1e-6  # times the scene's length scale
-STABLE_ENERGY_DRIFT = 1e-3      # relative to the largest kinetic energy
-UNSTABLE_CONSTRAINT_DRIFT = 1e-1
-UNSTABLE_ERROR = 1e-1           # in the scene's error units (m or rad on metre-sized scenes)
 # Dask: a local cluster of this many single-threaded worker processes: one per core.
 LOCAL_WORKERS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
                     else os.cpu_count() or 1)
 WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
-CSV_FIELDS = ["scene", "method", "kind", "setting", "status", "stability", "error",
-              "energy_drift", "constraint_drift", "velocity_drift", "cpu_s", "t_reached",
-              "nsteps", "nrejected", "naccel", "nprojections", "nnewton", "njev", "nlu",
-              "reason"]
-
-
 # ---------------------------------------------------------------------------- one run
-
-def _energy(scene, out) -> np.ndarray | None:
-    """Kinetic + potential energy minus the work of constant torques; None if driven."""
-    if scene.drivers or any(isinstance(f, PointForce) and (f.input or any(f.value))
-                            for f in scene.forces):
-        return None
-    energy = get(out, "energy.kinetic") + get(out, "energy.potential")
-    for f in scene.forces:
-        if isinstance(f, Torque):
-            if f.input:
-                return None
-            phi = get(out, f"{f.body}.phi")
-            energy = energy - f.value * (phi - phi[0])
-    return energy
-
-
-def simulate_outputs(scene, t_out, method, kind, setting, budget):
-    """Run ``scene`` through the output times; returns (outputs dict, stats, t reached, reason).
-
-    The loop of ``simulate()``, plus a CPU budget checked at each output time.
-    """
-    start = time.process_time()
-    step, rtol, atol = None, None, None
-    if kind == "step":
-        step = setting
-    else:
-        rtol = setting
-        atol = setting * ATOL_FACTOR * length_scale(scene)
-    sim = None
-    rows = []
-    reason = ""
-    try:
-        sim = Simulation(scene, method=method, step=step, rtol=rtol, atol=atol)
-        for t in t_out:
-            sim.advance(float(t))
-            rows.append(sim.output_vector())
-            used = time.process_time() - start
-            if used > budget and len(rows) < len(t_out):
-                raise SolverError(f"bench: CPU budget of {budget:g} s per run used up", sim.t)
-    except SolverError as exc:
-        reason = str(exc)
-    except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:  # a bug, not a failure mode
-        reason = f"unexpected {type(exc).__name__}: {exc}"
-    names = sim.output_names if sim is not None else []
-    values = np.array(rows) if rows else np.zeros((0, len(names)))
-    out = {n: values[:, k] for k, n in enumerate(names)}
-    stats = vars(sim.integrator.stats).copy() if sim is not None else {}
-    t_reached = float(t_out[len(rows) - 1]) if rows else 0.0
-    return out, stats, t_reached, reason
-
 
 _warmed_up: set = set()
 
@@ -130,76 +67,42 @@ def _warm_up(case, scene, task, t_out) -> None:
 
 
 def run_task(task: dict) -> dict:
-    """One run of the sweep: a pure function of ``task`` (scene key, method, kind, setting,
-    quick, reference). Returns one CSV row (a dict over CSV_FIELDS)."""
+    """One run of the bench: a pure function of ``task`` (scene key, method, kind, setting,
+    quick, reference; ``comm_step`` in the communication-step sweep). Returns one CSV row
+    (a dict over CSV_FIELDS)."""
     case = case_of(task["scene"])
     scene = case_scene(case)
     t_end, t_out = horizon(case, task["quick"])
     budget = QUICK_CPU_BUDGET_S if task["quick"] else CPU_BUDGET_S
     _warm_up(case, scene, task, t_out)
+    if "comm_step" in task:
+        return comm.run_comm_task(task, budget)
     start = time.process_time()
-    out, stats, t_reached, reason = simulate_outputs(scene, t_out, task["method"], task["kind"],
-                                                     task["setting"], budget)
-    cpu = time.process_time() - start
-    row = {f: "" for f in CSV_FIELDS}
-    row.update(scene=case.key, method=task["method"], kind=task["kind"], setting=task["setting"],
-               cpu_s=cpu, t_reached=t_reached, reason=reason)
-    row.update({k: v for k, v in stats.items() if k in CSV_FIELDS})
-    if reason:
-        row["status"] = "failed"
-    else:
-        row["status"] = "ok"
-        row["error"] = ERRORS[case.key](case, scene, t_out, out, task["reference"])
-        row["constraint_drift"] = float(np.max(out["constraint.position_error"]))
-        row["velocity_drift"] = float(np.max(out["constraint.velocity_error"]))
-        energy = _energy(scene, out)
-        if energy is not None:
-            scale = max(float(np.max(out["energy.kinetic"])), 1e-300)
-            row["energy_drift"] = float(np.max(np.abs(energy - energy[0]))) / scale
-    row["stability"] = classify(row, length_scale(scene))
-    return row
-
-
-def classify(row: dict, length_scale: float = 1.0) -> str:
-    """stable / drifting / unstable / failed, from a row's status, error and drifts."""
-    if row["status"] != "ok":
-        return "failed"
-    err = _num(row["error"])
-    drift = _num(row["constraint_drift"])
-    energy = _num(row["energy_drift"])
-    if not (math.isfinite(err) and err < UNSTABLE_ERROR) or \
-            not drift < UNSTABLE_CONSTRAINT_DRIFT * length_scale:
-        return "unstable"
-    if drift > STABLE_CONSTRAINT_DRIFT * length_scale or \
-            (math.isfinite(energy) and energy > STABLE_ENERGY_DRIFT):
-        return "drifting"
-    return "stable"
-
-
-def _num(value) -> float:
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        return math.nan
+    run = simulate_outputs(scene, t_out, task["method"], task["kind"], task["setting"], budget)
+    return result_row(case, scene, task, run, time.process_time() - start, t_out)
 
 
 # ---------------------------------------------------------------------------- references
 
-def reference_for(case: Case, quick: bool, cache_dir: Path | None) -> tuple[dict, str]:
-    """The data a case's error needs, and a line saying what it is and how good it is.
+def reference_for(case: Case, quick: bool, cache_dir: Path | None, t_out=None,
+                  tag: str = "") -> tuple[dict, str]:
+    """The data a case's error needs at ``t_out`` (default: the sweep's output times), and a
+    line saying what it is and how good it is.
 
     Exact cases need nothing but their closed form (P2's reduction is evaluated here, once).
     Otherwise a converged run of REFERENCE_METHOD at REFERENCE_RTOL, cached as .npz in
-    ``cache_dir``; a second run at CHECK_RTOL bounds its error.
+    ``cache_dir`` (``tag`` tells other output times apart); a second run at CHECK_RTOL
+    bounds its error.
     """
-    t_end, t_out = horizon(case, quick)
+    if t_out is None:
+        t_out = horizon(case, quick)[1]
     if case.key in EXACT_P2:
         return closed_forms.n_four_bar_B0(t_out, EXACT_P2[case.key]), case.reference
     if ERRORS[case.key] is not error_converged:
         return {}, case.reference
     method = REFERENCE_METHOD if REFERENCE_METHOD in METHODS else \
         next(n for n, c in METHODS.items() if c.adaptive)
-    tag = f"{case.key}_{'quick' if quick else 'full'}_{method}_{REFERENCE_RTOL:g}"
+    tag = f"{case.key}_{'quick' if quick else 'full'}{tag}_{method}_{REFERENCE_RTOL:g}"
     path = cache_dir / f"reference_{tag}.npz" if cache_dir is not None else None
     if path is not None and path.exists():
         data = np.load(path)
@@ -231,7 +134,7 @@ def make_tasks(scenes, methods, quick: bool, refs: dict) -> list[dict]:
     for key in scenes:
         case = case_of(key)
         for name in methods:
-            adaptive = METHODS[name].adaptive
+            adaptive = comm.is_adaptive(name)
             kind = "rtol" if adaptive else "step"
             if quick:
                 settings = case.quick_tols if adaptive else case.quick_steps
@@ -245,6 +148,8 @@ def make_tasks(scenes, methods, quick: bool, refs: dict) -> list[dict]:
 
 def _expected_cost(task) -> float:
     """Rough relative cost, to start the long runs first (better load balance)."""
+    if "comm_step" in task:
+        return comm.expected_cost(task)
     case = CASES[task["scene"]]
     t_end = case.quick_t_end if task["quick"] else case.t_end
     n = t_end / task["setting"] if task["kind"] == "step" else -math.log10(task["setting"]) * 50
@@ -292,7 +197,8 @@ def run_tasks(tasks: list[dict], scheduler: str | None = None, progress: bool = 
             futures = {}
             for i in order:
                 t = tasks[i]
-                key = f"bench-{t['scene']}-{t['method']}-{t['kind']}-{t['setting']!r}-{i}"
+                key = f"bench-{t['scene']}-{t['method']}-{t['kind']}-{t['setting']!r}-" \
+                    f"{t.get('comm_step', '')!r}-{i}"
                 futures[client.submit(run_task, t, key=key, pure=False)] = i
             for fut in as_completed(futures):
                 rows[futures[fut]] = fut.result()
@@ -315,17 +221,19 @@ def write_csv(rows: list[dict], path: Path) -> Path:
 
 def read_rows(path: Path) -> list[dict]:
     """Rows of a results.csv, numbers as floats (blank: nan)."""
-    numeric = {"setting", "error", "energy_drift", "constraint_drift", "velocity_drift", "cpu_s",
+    numeric = {"setting", "comm_step", "error", "energy_drift", "constraint_drift", "velocity_drift", "cpu_s",
                "t_reached", "nsteps", "nrejected", "naccel", "nprojections", "nnewton", "njev",
                "nlu"}
     with open(path, newline="", encoding="utf-8") as fh:
-        return [{k: (_num(v) if k in numeric else v) for k, v in r.items()}
+        return [{k: (num(v) if k in numeric else v) for k, v in r.items()}
                 for r in csv.DictReader(fh)]
 
 
 def run_bench(scenes=None, methods=None, scheduler=None, output=None, quick=False,
-              progress=True) -> dict:
-    """The whole benchmark: references, the sweep, results.csv, the charts and summary.md.
+              progress=True, comm_steps=COMM_STEPS, settings_sweep=True) -> dict:
+    """The whole benchmark: references, the settings sweep (unless not ``settings_sweep``),
+    the communication-step sweep at ``comm_steps`` (s; empty: none), results.csv, the charts
+    and summary.md.
 
     Returns ``{"rows": [...], "csv": path, "summary": path, "charts": [paths]}``.
     """
@@ -334,17 +242,31 @@ def run_bench(scenes=None, methods=None, scheduler=None, output=None, quick=Fals
     scenes = list(scenes or DEFAULT_SCENES)
     for key in scenes:
         case_of(key)
-    methods = list(methods or METHODS)
-    unknown = [m for m in methods if m not in METHODS]
+    methods = list(methods or METHOD_NAMES)
+    unknown = [m for m in methods if m not in METHOD_NAMES]
     if unknown:
         raise BenchError(f'unknown method {", ".join(unknown)}; expected one of '
-                         f'{", ".join(METHODS)}')
+                         f'{", ".join(METHOD_NAMES)}')
+    comm_steps = tuple(float(h) for h in comm_steps)
+    if not settings_sweep and not (comm_steps and comm.comm_cases(scenes)):
+        raise BenchError("nothing to run: no settings sweep, and no communication steps or no "
+                         f"scene of the communication-step sweep "
+                         f"({', '.join(comm.comm_cases(DEFAULT_SCENES))}) chosen")
     out = Path(output or "bench")
     out.mkdir(parents=True, exist_ok=True)
-    refs, notes = {}, {}
-    for key in scenes:
-        refs[key], notes[key] = reference_for(CASES[key], quick, out / "reference_cache")
-    tasks = make_tasks(scenes, methods, quick, refs)
+    cache = out / "reference_cache"
+    refs, notes, tasks = {}, {}, []
+    if settings_sweep:
+        for key in scenes:
+            refs[key], notes[key] = reference_for(CASES[key], quick, cache)
+        tasks = make_tasks(scenes, methods, quick, refs)
+    if comm_steps:
+        for key in comm.comm_cases(scenes):
+            for h in comm_steps:
+                t_rec = comm.comm_samples(CASES[key], h, quick)[2]
+                refs[(key, h)], notes[key] = reference_for(CASES[key], quick, cache, t_rec,
+                                                           f"_comm{h:g}")
+        tasks += comm.make_comm_tasks(scenes, methods, comm_steps, quick, refs)
     wall = time.perf_counter()
     rows = run_tasks(tasks, scheduler, progress)
     wall = time.perf_counter() - wall
@@ -361,17 +283,26 @@ def _run_note(scheduler, quick, wall, n):
              "synchronous": "the synchronous scheduler"}.get(scheduler, f"the scheduler {scheduler}")
     return (f"{n} runs ({'quick' if quick else 'full'} sweep) on {where} in {wall:.0f} s wall "
             f"time; CPU budget per run {QUICK_CPU_BUDGET_S if quick else CPU_BUDGET_S:g} s; "
-            f"mbdfmu methods: {', '.join(METHODS)}.")
+            f"mbdfmu methods: {', '.join(METHOD_NAMES)}.")
 
 
-def redraw(csv_path, output=None) -> dict:
-    """Charts and summary again from an existing results.csv (no runs)."""
+def redraw(csv_paths, output=None) -> dict:
+    """Charts and summary again from existing results.csv files (no runs). Several CSVs
+    (e.g. the two sweeps run apart) are merged into ``output``/results.csv first."""
     from . import charts
 
-    csv_path = Path(csv_path)
-    out = Path(output) if output else csv_path.parent
+    paths = [Path(p) for p in ([csv_paths] if isinstance(csv_paths, (str, Path)) else csv_paths)]
+    out = Path(output) if output else paths[0].parent
     out.mkdir(parents=True, exist_ok=True)
-    rows = read_rows(csv_path)
+    rows = []
+    for p in paths:
+        if not p.is_file():
+            raise BenchError(f"--from-csv: {p}: no such file")
+        rows += read_rows(p)
+    csv_path = paths[0]
+    if len(paths) > 1:
+        csv_path = write_csv(rows, out / "results.csv")
+        rows = read_rows(csv_path)
     notes = {k: c.reference for k, c in CASES.items()}
     drawn = charts.draw_all(rows, out)
     summary = charts.write_summary(rows, out / "summary.md", notes=notes)
