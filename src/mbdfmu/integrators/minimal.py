@@ -23,7 +23,7 @@ import scipy.linalg
 
 from ..errors import SolverError
 from ..equations.projection import PROJECTION_MAX_ITER
-from . import c_steps
+from . import c_steps, dense_output
 from .projected_rk import ENERGY_MIN_GAIN, MAX_FACTOR, MIN_FACTOR, SAFETY, DOP853P
 
 # Weight of the angle columns of Psi_q in the pivoting: angles stay independent when the
@@ -79,11 +79,17 @@ class MinimalCoordinates(DOP853P):
     summary = ("minimal coordinates: coordinate partitioning (re-chosen when its block loses "
                "rank), Dormand-Prince 8(5,3) on the independent ones, dependent ones by Newton")
     state_fields = DOP853P.state_fields + ("independent", "chosen_conditioning")
-    # Its own step (below) keeps what it had before the projected pairs gained dense
-    # output, rtol / 100 per step and singular-zone plans: rtol per step, landing on output
-    # times, the controller's step.
-    dense_output = False
+    # Its own step (below) keeps rtol per step and the controller's step (no singular-zone
+    # plans); outputs come from DOP853's dense output of its stages (full coordinates, the
+    # dependent ones solved at each stage), so output times do not cut its steps: landing
+    # next to a singular configuration put it on the other branch.
     local_tolerance = 1.0
+
+    @property
+    def dense_output(self) -> bool:
+        """With independent coordinates only: without them (drivers prescribe the motion)
+        nothing controls the step, and outputs come from landing on them."""
+        return bool(self.independent.any())
 
     def _plan_step(self, h, landing, proposal):
         return h
@@ -105,10 +111,17 @@ class MinimalCoordinates(DOP853P):
             self._choose()
 
     def _step_impl(self, h):
-        stepped = None
+        t0, y0 = self.t, np.concatenate((self.q, self.qd))
+        stepped, self.stages = None, None
         if self.equations.ckernel is not None:
             stepped = c_steps.mc_step(self, h, SAFETY, MIN_FACTOR, MAX_FACTOR, ENERGY_MIN_GAIN)
+            k = self.equations.ckernel.buf.K
+            self.stages = k[:(self.n_stages + 1) * y0.size].reshape(-1, y0.size).copy()
         accepted, h_next = stepped if stepped is not None else self._python_step(h)
+        if accepted:       # the stages' last row: y' at the accepted end
+            self.stages[-1] = self.f
+            y1 = np.concatenate((self.q, self.qd))
+            self.dense = dense_output.DenseStep(t0, h, y0, y1, self.stages)
         failed = self.trial_status == c_steps.ckernel.PROJECTION      # a Newton solve
         if failed or (accepted and self.equations.m <= CHECK_ROWS):
             self._check_partition()
@@ -159,5 +172,6 @@ class MinimalCoordinates(DOP853P):
         err = self._error_norm(K[:, kept], h, self._scale(y, ys)[kept]) if kept.any() else 0.0
         if status == c_steps.ckernel.OK and not err < 1.0:
             status = c_steps.ckernel.ERROR_NORM
+        self.stages = K
         return c_steps.decide(self, h, status, err, ys, K[-1].copy(), SAFETY, MIN_FACTOR,
                               MAX_FACTOR, ENERGY_MIN_GAIN, end_evaluated=True)
