@@ -3,56 +3,30 @@ checked on the slider-crank against the same motion given analytically (issue 12
 
 from __future__ import annotations
 
-import math
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-import mbdfmu
 from mbdfmu.signals import SampledDriver
-from mbdfmu.simulation import input_warnings
 
-SCENE = Path(__file__).resolve().parents[1] / "scenes" / "slider_crank.toml"
-LINEAR_MOTOR = 'motion = { type = "linear", start = 0.0, rate = 314.1592653589793 }'
-A, F = 1.0, 1.0   # phi = A sin(2 pi F t): 20 samples a period at the coarsest step
-W = 2 * math.pi * F
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+# the loop of benchmarks/position_inputs.py (docs/fmu.md's table): the slider-crank from
+# rest driven by phi = sin(2 pi t) rad, 20 samples a period at the coarsest step
+from position_inputs import efforts  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def scenes(tmp_path_factory):
-    """The slider-crank from rest, its motor an input or the motion given analytically."""
-    folder = tmp_path_factory.mktemp("position_inputs")
-    text = (SCENE.read_text()
-            .replace("angular_velocity = 314.1592653589793", "angular_velocity = 0.0")
-            .replace("velocity = [0.0, 15.707963267948966]", "velocity = [0.0, 0.0]"))
-    out = {}
-    for key, motion in [("input", '{ type = "input" }'),
-                        ("exact", f'{{ type = "harmonic", offset = 0.0, amplitude = {A}, '
-                                  f'frequency = {F} }}')]:
-        path = folder / f"{key}.toml"
-        path.write_text(text.replace(LINEAR_MOTOR, f"motion = {motion}"))
-        out[key] = mbdfmu.load_scene(path)
-    return out
+    """The folder of the scenes the benchmark writes (motor an input, and analytic)."""
+    return tmp_path_factory.mktemp("position_inputs")
 
 
-def _efforts(scenes, h, full=False, t_end=1.0):
+def _efforts(folder, h, full=False):
     """Effort at each communication point with the motor's position set before every step
     (as the FMU sets it), and the exact effort; the first three steps (history) left out."""
-    sim, ref = mbdfmu.Simulation(scenes["input"]), mbdfmu.Simulation(scenes["exact"])
-    got, exact, warnings = [], [], []
-    for k in range(round(t_end / h)):
-        t = k * h
-        sim.set_input("motor.position", A * math.sin(W * t))
-        if full:
-            sim.set_input("motor.velocity", A * W * math.cos(W * t))
-            sim.set_input("motor.acceleration", -A * W * W * math.sin(W * t))
-        sim.advance((k + 1) * h)
-        ref.advance((k + 1) * h)
-        warnings += input_warnings(sim)
-        got.append(sim.outputs()["motor.effort"])
-        exact.append(ref.outputs()["motor.effort"])
-    return np.array(got[3:]), np.array(exact[3:]), warnings
+    return efforts(h, full, folder)
 
 
 @pytest.fixture(scope="module")
