@@ -8,7 +8,8 @@
   setting by communication step, each cell its error or, for a failed run, a short reason;
 - ``write_summary``: per scene, the CPU time each method needs to reach each error level
   of ``cases.LEVELS``, interpolated on its work-precision line (``time_to_reach``); the
-  communication-step sweep's errors; the silently wrong runs of both sweeps.
+  communication-step sweep's errors; the silently wrong runs of both sweeps (adaptive and
+  fixed-step methods counted apart).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from ..integrators.settings import FIXED_STEP_RTOL
 from ..plotting import figure
 from .cases import CASES, LEVELS
 
@@ -266,14 +268,34 @@ def _fmt(cpu, how):
     return f"<= {cpu:.3g} s" if how == "at most" else f"{cpu:.3g} s"
 
 
-def silently_wrong(rows) -> list:
+def silently_wrong(rows, fixed_step: bool = False) -> list:
     """Runs of an adaptive method or ``auto`` (kind "rtol", the setting its rtol), in either
     sweep, that claim success with an error above SILENT_FACTOR times that rtol (errors in
     the scenes' units, m or rad of metre-sized mechanisms): issue 12's count, whose target
-    is none."""
-    return [r for r in rows if r["kind"] == "rtol" and r["status"] == "ok"
+    is none. ``fixed_step``: the same for fixed-step methods (kind "step"), against the
+    rtol they state when given none, FIXED_STEP_RTOL (the bench gives none)."""
+    kind = "step" if fixed_step else "rtol"
+    return [r for r in rows if r["kind"] == kind and r["status"] == "ok"
             and math.isfinite(_float(r["error"]))
-            and _float(r["error"]) > SILENT_FACTOR * _float(r["setting"])]
+            and _float(r["error"]) > SILENT_FACTOR * (FIXED_STEP_RTOL if fixed_step
+                                                      else _float(r["setting"]))]
+
+
+def _silent_lines(rows) -> list[str]:
+    """summary.md's count and list of silently wrong runs: adaptive ones, then fixed-step."""
+    lines = []
+    for fixed, what in ((False, "an adaptive method or auto claiming success with an error "
+                                f"above {SILENT_FACTOR:g} x rtol"),
+                        (True, "a fixed-step method claiming success with an error above "
+                               f"{SILENT_FACTOR:g} x its stated rtol {FIXED_STEP_RTOL:g}")):
+        silent = silently_wrong(rows, fixed_step=fixed)
+        lines.append(f"Silently wrong {'fixed-step ' if fixed else ''}runs ({what}, both "
+                     f"sweeps): {len(silent)}.")
+        lines += [f"- {r['scene']} {r['method']} {'h' if fixed else 'rtol'} "
+                  f"{_float(r['setting']):g}" +
+                  (f" at communication step {_float(r['comm_step']):g} s" if is_comm(r) else "")
+                  + f": error {_float(r['error']):.2g}" for r in silent]
+    return lines
 
 
 def _float(value) -> float:
@@ -285,17 +307,11 @@ def _float(value) -> float:
 
 def write_summary(rows, path: Path, notes: dict | None = None, footer: str = "") -> Path:
     notes = notes or {}
-    silent = silently_wrong(rows)
     lines = ["# mbdfmu bench summary", "",
              "CPU time each method needs to reach an error of 1e-4, 1e-6 and 1e-8 against the "
              "scene's reference, interpolated (log-log) on its work-precision line; "
              "\"<=\" when its coarsest setting is already below the level; \"cannot\" when "
-             "no setting of the sweep reaches it.", "",
-             f"Silently wrong runs (an adaptive method or auto claiming success with an error "
-             f"above {SILENT_FACTOR:g} x rtol, both sweeps): {len(silent)}."]
-    lines += [f"- {r['scene']} {r['method']} rtol {_float(r['setting']):g}" +
-              (f" at communication step {_float(r['comm_step']):g} s" if is_comm(r) else "") +
-              f": error {_float(r['error']):.2g}" for r in silent]
+             "no setting of the sweep reaches it.", ""] + _silent_lines(rows)
     lines.append("")
     for key, srows in _by_scene(rows).items():
         case = CASES.get(key)

@@ -26,8 +26,8 @@ UNSTABLE_CONSTRAINT_DRIFT = 1e-1
 UNSTABLE_ERROR = 1e-1           # in the scene's error units (m or rad on metre-sized scenes)
 
 CSV_FIELDS = ["scene", "method", "kind", "setting", "comm_step", "status", "stability", "error",
-              "energy_drift", "constraint_drift", "velocity_drift", "cpu_s", "t_reached",
-              "nsteps", "nrejected", "naccel", "nprojections", "nnewton", "njev", "nlu",
+              "energy_drift", "constraint_drift", "velocity_drift", "error_estimate", "cpu_s",
+              "t_reached", "nsteps", "nrejected", "naccel", "nprojections", "nnewton", "njev", "nlu",
               "reason"]
 
 

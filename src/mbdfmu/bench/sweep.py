@@ -221,7 +221,8 @@ def write_csv(rows: list[dict], path: Path) -> Path:
 
 def read_rows(path: Path) -> list[dict]:
     """Rows of a results.csv, numbers as floats (blank: nan)."""
-    numeric = {"setting", "comm_step", "error", "energy_drift", "constraint_drift", "velocity_drift", "cpu_s",
+    numeric = {"setting", "comm_step", "error", "energy_drift", "constraint_drift", "velocity_drift",
+               "error_estimate", "cpu_s",
                "t_reached", "nsteps", "nrejected", "naccel", "nprojections", "nnewton", "njev",
                "nlu"}
     with open(path, newline="", encoding="utf-8") as fh:

@@ -85,6 +85,9 @@ class Integrator:
     adaptive = False
     dense_output = False     # gives states inside its last step (``_output_at``)
     default_step: float = 1e-3
+    # Orders p of the local errors C h^(p+1) of q and q' (the step-doubling estimate of
+    # stated_accuracy.py); 1 unless a method states more (the largest Richardson factor).
+    orders: tuple[int, int] = (1, 1)
     options: tuple[Option, ...] = ()
     option_names: tuple[str, ...] = ()
     state_fields: tuple[str, ...] = ()
@@ -270,7 +273,7 @@ class Integrator:
                 self.accuracy.spot_check(self, h)
             run = min(n - k, max(1, SPOT_CHECK_EVERY - self.accuracy.unchecked))
             k = self._fixed_run(t0, h, k, k + run, n, t_target)
-            self.accuracy.charge(self)
+            self.accuracy.charge(self, h)
 
     def _fixed_run(self, t0: float, h: float, k: int, stop: int, n: int,
                    t_target: float) -> int:

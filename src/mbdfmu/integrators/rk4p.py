@@ -48,6 +48,7 @@ class RK4P(ProjectedRK):
     adaptive = False
     dense_output = False
     default_step = 1e-3
+    orders = (4, 4)
 
     def _step_impl(self, h):
         t, t_new = self.t, self.t + h

@@ -11,10 +11,15 @@ by three checks that together leave no silently wrong run:
   bound of their error, within ENERGY_TOL_FACTOR (atol + rtol L) (``Integrator.check_drift``);
 * a step-doubling estimate (Richardson; Hairer, Norsett and Wanner, Solving ODEs I, sec.
   II.4): every SPOT_CHECK_EVERY steps, one step of the run's size and two half steps from
-  the same state (then restored); their difference estimates the local error of a step,
-  and every step until the next check is charged with it. The sum, an estimate of the
-  global error of a stable run (``Counters.error_estimate``), must stay within
-  ENERGY_TOL_FACTOR (atol + rtol L).
+  the same state (then restored); their differences, times Richardson's factor for the
+  method's orders (``Integrator.orders``), estimate the local errors dq and dq' of a step,
+  and every step until the next check is charged with them. The global
+  position error at t is estimated as the sum of each step's dq plus its dq' carried to t,
+  ``sum_i dq_i + dq'_i (t - t_i)`` (the error propagation of q'' = 0). The position error
+  alone misses what a velocity error does later: taylor's q' is only first order (local
+  error O(h^2) against q's O(h^3)), and summed dq stayed far below the error of runs that
+  were wrong by order one (docs/accuracy.md); counting dq' bounds such runs. The estimate
+  (``Counters.error_estimate``) must stay within ENERGY_TOL_FACTOR (atol + rtol L).
 """
 
 from __future__ import annotations
@@ -27,6 +32,12 @@ from .energy_audit import ENERGY_TOL_FACTOR
 
 # Steps between two step-doubling checks of a fixed-step run.
 SPOT_CHECK_EVERY = 50
+
+
+def richardson_factor(order: int) -> float:
+    """A step h and two of h/2 differ by C h^(p+1) (1 - 2^-p) for a local error C h^(p+1)
+    (order p): the step's own error is 2^p / (2^p - 1) times that difference."""
+    return 2.0 ** order / (2.0 ** order - 1.0)
 # Counters of evaluations, which a check adds to (its steps are not the run's steps).
 WORK_FIELDS = ("naccel", "nprojections", "nnewton", "njev", "nlu")
 
@@ -38,14 +49,16 @@ def allowed_error(integrator) -> float:
 
 
 class ErrorEstimate(Plain):
-    """The running step-doubling estimate of a fixed-step run: the last local error, the
-    steps charged with errors so far and the steps since the last check."""
+    """The running step-doubling estimate of a fixed-step run: the last local errors of q
+    (m or rad) and q' (m/s or rad/s), the sums charged so far (dq, dq' and dq' t_i), the
+    steps charged and the steps since the last check."""
 
-    plain_fields = ("local", "charged", "unchecked")
+    plain_fields = ("local", "local_v", "sum_q", "sum_v", "sum_vt", "charged", "unchecked")
     flat_fields = True
 
     def __init__(self):
-        self.local, self.charged, self.unchecked = 0.0, 0, SPOT_CHECK_EVERY
+        self.local, self.local_v, self.charged, self.unchecked = 0.0, 0.0, 0, SPOT_CHECK_EVERY
+        self.sum_q = self.sum_v = self.sum_vt = 0.0
 
     def due(self) -> bool:
         return self.unchecked >= SPOT_CHECK_EVERY
@@ -56,12 +69,16 @@ class ErrorEstimate(Plain):
         del saved["accuracy"]             # this object: it goes on counting
         try:
             integrator._step_impl(h)
-            one = integrator.q.copy()
+            one, one_v = integrator.q.copy(), integrator.qd.copy()
             integrator.set_state(saved)
             integrator._step_impl(0.5 * h)
             integrator.t += 0.5 * h
             integrator._step_impl(0.5 * h)
-            self.local = float(np.max(np.abs(one - integrator.q), initial=0.0))
+            p_q, p_v = integrator.orders
+            self.local = richardson_factor(p_q) * float(np.max(np.abs(one - integrator.q),
+                                                               initial=0.0))
+            self.local_v = richardson_factor(p_v) * float(np.max(np.abs(one_v - integrator.qd),
+                                                                 initial=0.0))
         except SolverError:
             pass                          # the run itself will say why
         finally:
@@ -71,18 +88,22 @@ class ErrorEstimate(Plain):
                 setattr(integrator.stats, name, getattr(work, name))
         self.unchecked = 0
 
-    def charge(self, integrator) -> None:
-        """Charge the steps taken since the last call with the last local error; stop when
-        the sum exceeds what the stated accuracy allows."""
-        stats = integrator.stats
+    def charge(self, integrator, h: float) -> None:
+        """Charge the steps of size h taken since the last call with the last local errors;
+        stop when the estimated global error exceeds what the stated accuracy allows."""
+        stats, t = integrator.stats, integrator.t
         done = stats.nsteps - self.charged
         self.charged = stats.nsteps
         self.unchecked += done
-        stats.error_estimate += self.local * done
+        self.sum_q += self.local * done
+        self.sum_v += self.local_v * done
+        self.sum_vt += self.local_v * done * (t - 0.5 * done * h)   # at the steps' middle
+        stats.error_estimate = self.sum_q + max(0.0, t * self.sum_v - self.sum_vt)
         allowed = allowed_error(integrator)
         if stats.error_estimate > allowed:
             raise SolverError(
                 f"{integrator.name}: estimated error {stats.error_estimate:.3g} (step doubling: "
-                f"{self.local:.2g} per step of {integrator.h:g} s) exceeds {allowed:.3g}, what "
-                f"the stated accuracy rtol = {integrator.rtol:g}, atol = {integrator.atol:g} "
-                "allows; use a smaller step", integrator.t)
+                f"{self.local:.2g} in q and {self.local_v:.2g} in q' per step of {h:g} s, "
+                f"carried to t) exceeds {allowed:.3g}, what the stated accuracy rtol = "
+                f"{integrator.rtol:g}, atol = {integrator.atol:g} allows; use a smaller step",
+                integrator.t)
