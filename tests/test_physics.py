@@ -76,9 +76,9 @@ def test_p1_pivot_reaction_is_rod_tension_in_bob_frame():
 
 def test_p1_projected_method_holds_constraints_and_taylor_drifts():
     exact = run("pendulum", 10.0, output_interval=0.1, **TIGHT)
-    # a loose stated accuracy (rtol 0.1): at the default one it stops at t = 2.7 s, when
-    # the drift exceeds what rtol 1e-3 allows
-    taylor = run("pendulum", 10.0, method="taylor", step=1e-3, rtol=0.1, output_interval=0.1)
+    # a loose stated accuracy (rtol 0.5): at the default one it stops at t = 0.85 s, when
+    # its error estimate exceeds what rtol 1e-3 allows
+    taylor = run("pendulum", 10.0, method="taylor", step=1e-3, rtol=0.5, output_interval=0.1)
     assert np.max(exact["constraint.position_error"]) < 1e-10
     assert np.max(exact["constraint.velocity_error"]) < 1e-9
     drift = taylor["constraint.position_error"]

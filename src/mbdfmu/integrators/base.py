@@ -38,7 +38,7 @@ from ..errors import SettingError, SolverError
 from ..model.variables import InputValues
 from ..plain import Plain, decode, encode
 from .energy_audit import ENERGY_TOL_FACTOR, EnergyAudit
-from .stated_accuracy import SPOT_CHECK_EVERY, ErrorEstimate, allowed_error
+from .stated_accuracy import ErrorEstimate, allowed_error
 from .work import Counters, WorkLimit  # noqa: F401  (WorkLimit: the public place is here)
 
 # A constraint violation beyond this fraction of the mechanism's size means divergence.
@@ -86,8 +86,13 @@ class Integrator:
     dense_output = False     # gives states inside its last step (``_output_at``)
     default_step: float = 1e-3
     # Orders p of the local errors C h^(p+1) of q and q' (the step-doubling estimate of
-    # stated_accuracy.py); 1 unless a method states more (the largest Richardson factor).
-    orders: tuple[int, int] = (1, 1)
+    # stated_accuracy.py): second order (genalpha, ali3p) unless a method states others.
+    orders: tuple[int, int] = (2, 2)
+    # Whether the estimate carries a step's velocity error into the later positions: the
+    # explicit methods keep every velocity error they make; the index-3 ones (genalpha,
+    # ali3p) damp what their step does not resolve (a stiff spring's), so only their
+    # position errors are summed.
+    carry_velocity_error = False
     options: tuple[Option, ...] = ()
     option_names: tuple[str, ...] = ()
     state_fields: tuple[str, ...] = ()
@@ -136,6 +141,12 @@ class Integrator:
 
     def _step_impl(self, h: float) -> tuple[bool, float]:
         raise NotImplementedError
+
+    def check_step(self, h: float) -> None:
+        """A step of h from self.t for the step-doubling check of the stated accuracy
+        (``stated_accuracy.py``; the state is restored after it): ``_step_impl``, or the
+        same step on a faster path."""
+        self._step_impl(h)
 
     def restart(self) -> None:
         """Forget anything derived from the current (q, q') (called after outside changes)."""
@@ -271,7 +282,7 @@ class Integrator:
         while k < n:
             if self.accuracy.due():
                 self.accuracy.spot_check(self, h)
-            run = min(n - k, max(1, SPOT_CHECK_EVERY - self.accuracy.unchecked))
+            run = min(n - k, max(1, self.accuracy.every - self.accuracy.unchecked))
             k = self._fixed_run(t0, h, k, k + run, n, t_target)
             self.accuracy.charge(self, h)
 

@@ -40,6 +40,7 @@ class Baumgarte(Integrator):
     summary = "index-1 with Baumgarte stabilisation (alpha, beta), classic RK4, fixed step"
     default_step = 1e-3
     orders = (4, 4)       # classic RK4 on (q, q')
+    carry_velocity_error = True
     options = (Option("alpha", "a number >= 0 (1/s)", number_in(0.0, float("inf"))),
                Option("beta", "a number >= 0 (1/s)", number_in(0.0, float("inf"))))
     state_fields = ("f",)

@@ -90,6 +90,13 @@ def rk4p_run(rk, t0: float, h: float, k: int, stop: int, n: int, t_target: float
     return stop
 
 
+def rk4p_check_step(rk, h: float) -> bool:
+    """One rk4p step of h from (rk.t, q, q') in C for the step-doubling check
+    (``stated_accuracy.py``); False (nothing changed) when the Python step must take it."""
+    done, status = _rk4p_run(rk, rk.t, h, 0, 1)
+    return done == 1 and status in (ckernel.OK, ckernel.ENERGY)
+
+
 def _rk4p_run(rk, t0: float, h: float, k: int, count: int) -> tuple[int, int]:
     """Steps k .. k + count - 1 of the grid t0 + j h in one C call: (steps done, status)."""
     eq = rk.equations

@@ -49,6 +49,7 @@ class RK4P(ProjectedRK):
     dense_output = False
     default_step = 1e-3
     orders = (4, 4)
+    carry_velocity_error = True
 
     def _step_impl(self, h):
         t, t_new = self.t, self.t + h
@@ -63,6 +64,20 @@ class RK4P(ProjectedRK):
         self.check_finite(t_new, f)
         self.q, self.qd, self.f = q, qd, f
         return True, h
+
+    def check_step(self, h):
+        """A step of the step-doubling check, compiled when the run's steps are (a Python
+        step costs about twenty of them); on the Python path when the compiled one hands it
+        back."""
+        if self.equations.ckernel is not None and self.equations.m > 0:
+            if c_steps.rk4p_check_step(self, h):
+                return
+        elif self.compiled_steps:
+            from .rk4p_compiled import StepStatus
+            done, status = self._compiled_steps(self.t, h, 0, 1)
+            if done == 1 and status in (StepStatus.DONE, StepStatus.ENERGY):
+                return
+        self._step_impl(h)
 
     @property
     def compiled_steps(self) -> bool:

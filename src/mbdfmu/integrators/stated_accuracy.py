@@ -15,7 +15,8 @@ by three checks that together leave no silently wrong run:
   method's orders (``Integrator.orders``), estimate the local errors dq and dq' of a step,
   and every step until the next check is charged with them. The global
   position error at t is estimated as the sum of each step's dq plus its dq' carried to t,
-  ``sum_i dq_i + dq'_i (t - t_i)`` (the error propagation of q'' = 0). The position error
+  ``sum_i dq_i + dq'_i (t - t_i)`` (the error propagation of q'' = 0; for the methods
+  that carry velocity errors, ``Integrator.carry_velocity_error``). The position error
   alone misses what a velocity error does later: taylor's q' is only first order (local
   error O(h^2) against q's O(h^3)), and summed dq stayed far below the error of runs that
   were wrong by order one (docs/accuracy.md); counting dq' bounds such runs. The estimate
@@ -30,8 +31,14 @@ from ..errors import SolverError
 from ..plain import Plain
 from .energy_audit import ENERGY_TOL_FACTOR
 
-# Steps between two step-doubling checks of a fixed-step run.
+# Steps between two step-doubling checks of a fixed-step run: at least SPOT_CHECK_EVERY,
+# growing to the steps taken so far over SPOT_CHECK_SHARE, at most SPOT_CHECK_MAX. A check
+# costs three steps and a save and two restores of the state, which in Python weigh as much
+# as a few hundred compiled rk4p steps: short runs are sampled densely, long ones are not
+# slowed by more than a few percent (benchmarks/fixed_step_estimate.py).
 SPOT_CHECK_EVERY = 50
+SPOT_CHECK_SHARE = 4
+SPOT_CHECK_MAX = 200
 
 
 def richardson_factor(order: int) -> float:
@@ -53,40 +60,45 @@ class ErrorEstimate(Plain):
     (m or rad) and q' (m/s or rad/s), the sums charged so far (dq, dq' and dq' t_i), the
     steps charged and the steps since the last check."""
 
-    plain_fields = ("local", "local_v", "sum_q", "sum_v", "sum_vt", "charged", "unchecked")
+    plain_fields = ("local", "local_v", "sum_q", "sum_v", "sum_vt", "charged", "unchecked",
+                    "every")
     flat_fields = True
 
     def __init__(self):
         self.local, self.local_v, self.charged, self.unchecked = 0.0, 0.0, 0, SPOT_CHECK_EVERY
         self.sum_q = self.sum_v = self.sum_vt = 0.0
+        self.every = SPOT_CHECK_EVERY     # steps from one check to the next
 
     def due(self) -> bool:
-        return self.unchecked >= SPOT_CHECK_EVERY
+        return self.unchecked >= self.every
 
     def spot_check(self, integrator, h: float) -> None:
         """The local error of a step of size h from the current state (which is kept)."""
-        saved = integrator.get_state()
+        saved = integrator.rollback_point()
         del saved["accuracy"]             # this object: it goes on counting
         try:
-            integrator._step_impl(h)
+            integrator.check_step(h)
             one, one_v = integrator.q.copy(), integrator.qd.copy()
-            integrator.set_state(saved)
-            integrator._step_impl(0.5 * h)
+            _restore(integrator, saved)
+            integrator.check_step(0.5 * h)
             integrator.t += 0.5 * h
-            integrator._step_impl(0.5 * h)
+            integrator.check_step(0.5 * h)
             p_q, p_v = integrator.orders
             self.local = richardson_factor(p_q) * float(np.max(np.abs(one - integrator.q),
                                                                initial=0.0))
             self.local_v = richardson_factor(p_v) * float(np.max(np.abs(one_v - integrator.qd),
-                                                                 initial=0.0))
+                                                                 initial=0.0)) \
+                if integrator.carry_velocity_error else 0.0
         except SolverError:
             pass                          # the run itself will say why
         finally:
             work = integrator.stats
-            integrator.set_state(saved)
+            _restore(integrator, saved)
             for name in WORK_FIELDS:      # the check's evaluations are work done
                 setattr(integrator.stats, name, getattr(work, name))
         self.unchecked = 0
+        self.every = min(SPOT_CHECK_MAX, max(SPOT_CHECK_EVERY,
+                                             integrator.stats.nsteps // SPOT_CHECK_SHARE))
 
     def charge(self, integrator, h: float) -> None:
         """Charge the steps of size h taken since the last call with the last local errors;
@@ -107,3 +119,15 @@ class ErrorEstimate(Plain):
                 f"carried to t) exceeds {allowed:.3g}, what the stated accuracy rtol = "
                 f"{integrator.rtol:g}, atol = {integrator.atol:g} allows; use a smaller step",
                 integrator.t)
+
+
+def _restore(integrator, point: dict) -> None:
+    """``set_state`` from a rollback point that stays usable: its flat objects copied
+    again (set_state takes them as they are, and the steps change them)."""
+    fresh = {}
+    for name, value in point.items():
+        if isinstance(value, Plain):
+            value = object.__new__(type(value))
+            value.__dict__.update(point[name].__dict__)
+        fresh[name] = value
+    integrator.set_state(fresh)

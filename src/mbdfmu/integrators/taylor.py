@@ -17,6 +17,7 @@ class Taylor(Integrator):
     summary = "explicit 2nd-order Taylor step (formulation eq. 21), fixed step, no stabilisation"
     default_step = 1e-4
     orders = (2, 1)       # q gains h^2/2 q'', q' only h q'': local errors O(h^3), O(h^2)
+    carry_velocity_error = True
 
     def _step_impl(self, h):
         qdd, _ = self.accelerations(self.t, self.q, self.qd)
