@@ -85,14 +85,6 @@ class Integrator:
     adaptive = False
     dense_output = False     # gives states inside its last step (``_output_at``)
     default_step: float = 1e-3
-    # Orders p of the local errors C h^(p+1) of q and q' (the step-doubling estimate of
-    # stated_accuracy.py): second order (genalpha, ali3p) unless a method states others.
-    orders: tuple[int, int] = (2, 2)
-    # Whether the estimate carries a step's velocity error into the later positions: the
-    # explicit methods keep every velocity error they make; the index-3 ones (genalpha,
-    # ali3p) damp what their step does not resolve (a stiff spring's), so only their
-    # position errors are summed.
-    carry_velocity_error = False
     options: tuple[Option, ...] = ()
     option_names: tuple[str, ...] = ()
     state_fields: tuple[str, ...] = ()
@@ -141,12 +133,6 @@ class Integrator:
 
     def _step_impl(self, h: float) -> tuple[bool, float]:
         raise NotImplementedError
-
-    def check_step(self, h: float) -> None:
-        """A step of h from self.t for the step-doubling check of the stated accuracy
-        (``stated_accuracy.py``; the state is restored after it): ``_step_impl``, or the
-        same step on a faster path."""
-        self._step_impl(h)
 
     def restart(self) -> None:
         """Forget anything derived from the current (q, q') (called after outside changes)."""

@@ -79,11 +79,13 @@ class MinimalCoordinates(DOP853P):
     summary = ("minimal coordinates: coordinate partitioning (re-chosen when its block loses "
                "rank), Dormand-Prince 8(5,3) on the independent ones, dependent ones by Newton")
     state_fields = DOP853P.state_fields + ("independent", "chosen_conditioning")
-    # Its own step (below) keeps rtol per step and the controller's step (no singular-zone
-    # plans); outputs come from DOP853's dense output of its stages (full coordinates, the
-    # dependent ones solved at each stage), so output times do not cut its steps: landing
-    # next to a singular configuration put it on the other branch.
-    local_tolerance = 1.0
+    # Its own step (below) keeps the controller's step (no singular-zone plans); outputs
+    # come from DOP853's dense output of its stages (full coordinates, the dependent ones
+    # solved at each stage), so output times do not cut its steps: landing next to a
+    # singular configuration put it on the other branch. Like the projected pairs it aims
+    # at rtol / 100 per step: at rtol per step its errors on P2 added up over the steps
+    # to 100 to 180 times rtol (docs/accuracy.md).
+    local_tolerance = DOP853P.local_tolerance
 
     @property
     def dense_output(self) -> bool:
