@@ -1,0 +1,219 @@
+"""genalpha's and ali3p's steps in the C kernel (``equations/ckernel/implicit.h``).
+
+The C code is the Python step line for line (predictor, ``newton.newton_iterate`` with its
+convergence test, the step's end), with the iteration matrix [[K, Psi_q^T], [Psi_q, -E]]
+solved through its banded Schur complement Psi_q K^-1 Psi_q^T + E instead of a dense LU:
+so K must be diagonal. Covered (``kernel_newton``): a mechanism with constraints and no
+line rows (translational and slot joints: their geometric stiffness couples coordinates)
+whose applied forces do not depend on the state (genalpha with ``jacobian = "mass"``: any
+forces). Anything else, and an attempt the kernel hands back (K or the Schur complement
+near singular, a spring of zero length), runs the Python step (a dense LU), which then
+does what it always does. The kernel is the equations' C kernel (kernel "c", what FMUs
+run), or one built for this method under the numba kernel when it can be compiled.
+
+What stays in Python: the decisions (halving a failed step, the step control's
+acceptance and step factor, the energy audit's verdict, work limits). A fixed-step run
+takes RUN_LENGTH steps per C call with the energy check of constant forces inside; a step
+whose Newton iteration fails there is halved by ``newton.advance_with_halving`` as always.
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+
+import numpy as np
+
+from ..equations import ckernel
+from . import newton
+from .c_steps import NO_AUDIT, _audit_back, _audit_state, stage_inputs
+from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
+from .newton import IterationMatrix, NewtonFailure
+
+# Off: every step on the Python path (the tests compare the two).
+ENABLED = True
+# Fixed steps per C call: the work limits are checked between calls (ckernel.MAX_ROWS
+# rows of inputs).
+RUN_LENGTH = 64
+_OWN_KERNELS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+class KernelMatrix(IterationMatrix):
+    """An ``IterationMatrix`` that may hold the C kernel's kept matrix (``kept``, valid
+    when kept[0] != 0) instead of LAPACK factors: ``lu`` is then a marker and ``solve``
+    uses the kernel. Setting ``lu`` (the Python path) drops the C matrix."""
+
+    plain_fields = ("_lu", "h", "fresh", "indicator", "reach", "kept")
+
+    def __init__(self, kept: np.ndarray, kernel):
+        self.kept, self.kernel = kept, kernel
+        super().__init__()
+
+    @property
+    def lu(self):
+        if self._lu is not None:
+            return self._lu
+        return True if self.kept[0] != 0.0 else None
+
+    @lu.setter
+    def lu(self, value):
+        self._lu = value
+        self.kept[0] = 0.0
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        if self._lu is not None:
+            return super().solve(b)
+        return self.kernel.implicit_solve(self.kept, b)
+
+
+class KernelNewton:
+    """A method's kernel and its ``ckernel.implicit.Implicit`` settings."""
+
+    def __init__(self, method, kernel):
+        eq = method.equations
+        self.kernel, self.genalpha = kernel, method.name == "genalpha"
+        am, af, beta, gamma = method.coefficients if self.genalpha else (0.0,) * 4
+        self.settings = kernel.implicit_settings(
+            method.name, method.periodic, jacobian_full=int(getattr(method, "jacobian", "") == "full"),
+            count_multipliers=int(self.genalpha), max_iter=newton.NEWTON_MAX_ITER, am=am, af=af,
+            beta=beta, gamma=gamma, length_scale=eq.length_scale, roundoff=newton.ROUNDOFF,
+            atol_max=newton.NEWTON_ATOL_MAX, tol_floor=newton.NEWTON_TOL_FLOOR, t_ref=newton.T_REF,
+            noise_max=newton.NOISE_MAX, near_indicator=newton.NEAR_SINGULAR_INDICATOR,
+            t_near=newton.T_NEAR, slow_rate=newton.NEWTON_SLOW_RATE,
+            diverging_rate=newton.NEWTON_DIVERGING_RATE, singular_pivot=newton.SINGULAR_PIVOT)
+
+    def prepare(self, method):
+        """The settings with the run's current values, counters cleared."""
+        p = self.settings
+        p.penalty_base = getattr(method, "penalty_base", 1.0)
+        p.alpha = getattr(method, "alpha_option", None) or 0.0
+        p.atol = method.atol
+        p.nnewton = p.njev = p.nlu = p.nprojections = p.reason = 0
+        return p
+
+    def count(self, stats) -> None:
+        p = self.settings
+        stats.nnewton += p.nnewton
+        stats.njev += p.njev
+        stats.nlu += p.nlu
+        stats.nprojections += p.nprojections
+
+    def failure(self) -> str:
+        p = self.settings
+        if p.reason in ckernel.implicit.NEWTON_REASONS:
+            return ckernel.implicit.NEWTON_REASONS[p.reason]
+        return (f"Newton did not converge in {p.max_iter} iterations (last increment "
+                f"{p.last_size:.3g}, constraint residual {p.last_residual:.3g}, tolerance "
+                f"{p.last_tol:.3g})")
+
+
+def _kernel(eq):
+    if eq.ckernel is not None:
+        return eq.ckernel
+    if eq.kernel != "numba" or not ckernel.available():
+        return None
+    if eq not in _OWN_KERNELS:
+        _OWN_KERNELS[eq] = ckernel.Kernel(eq)
+    return _OWN_KERNELS[eq]
+
+
+def kernel_newton(method) -> KernelNewton | None:
+    """The C path of ``method`` (genalpha or ali3p), or None where it runs in Python (see
+    the module docstring)."""
+    eq = method.equations
+    if not ENABLED or eq.m == 0 or eq.constraint_set.line.n:
+        return None
+    if eq.forces_depend_on_state() and getattr(method, "jacobian", None) != "mass":
+        return None
+    kernel = _kernel(eq)
+    return None if kernel is None else KernelNewton(method, kernel)
+
+
+def _state(method) -> tuple:
+    a = method.a if method.name == "genalpha" else method.qdd
+    return method.qw, method.turns, method.qd, method.qdd, a, method.lam
+
+
+def attempt(method, t: float, h: float) -> dict | None:
+    """``_attempt(t, h)`` of genalpha or ali3p in C: the step not yet taken (their ``x``),
+    NewtonFailure, or None: the Python path does this attempt."""
+    kn = method.c_newton
+    if kn is None:
+        return None
+    t1 = t + h
+    u = method.inputs(t1)
+    p = kn.prepare(method)
+    method.matrix._lu = None        # a Python path's factors: the kernel keeps its own
+    status, (dq, qd, qdd, a, lam) = kn.kernel.implicit_attempt(
+        p, method.matrix.kept, _state(method), h, method.equations.motion_values(t1, u),
+        u.forces)
+    kn.count(method.stats)
+    if status == ckernel.OK:
+        return {"dq": dq, "qd": qd, "qdd": qdd, "lam": lam, "a": a, "t1": t1}
+    if status == ckernel.NEWTON:
+        raise NewtonFailure(kn.failure())
+    method.matrix.lu = None
+    return None
+
+
+class CompiledNewton:
+    """Mixin of genalpha and ali3p (first in their bases): the C path when ``kernel_newton``
+    gives one (``c_newton``), fixed-step runs in C, a failed step of a run halved in
+    Python."""
+
+    def restart(self):
+        super().restart()
+        self.c_newton = kernel_newton(self)
+        self._failed = None
+        if self.c_newton is not None:
+            self.matrix = KernelMatrix(self.c_newton.kernel.kept_matrix(), self.c_newton.kernel)
+
+    def set_state(self, state):
+        super().set_state(state)
+        if isinstance(self.matrix, KernelMatrix) and self.c_newton is not None:
+            self.matrix.kernel = self.c_newton.kernel
+
+    def _try_step(self, t, h):
+        if self._failed is not None:      # the C run's failure at this step: halve it
+            reason, self._failed = self._failed, None
+            raise NewtonFailure(reason)
+        super()._try_step(t, h)
+
+    def _fixed_run(self, t0, h, k, stop, n, t_target):
+        kn, eq = self.c_newton, self.equations
+        if kn is None or self.watch is not None or \
+                (self.audit is not None and not eq.applied.is_constant):
+            return super()._fixed_run(t0, h, k, stop, n, t_target)
+        while k < stop:
+            count = min(RUN_LENGTH, stop - k)
+            stage_inputs(self, (t0 + h * np.arange(k, k + count)) + h, kn.kernel)
+            status, done, state = kn.kernel.implicit_steps(
+                kn.prepare(self), self.matrix.kept, _state(self), h, count,
+                NO_AUDIT if self.audit is None else _audit_state(self.audit),
+                ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF)
+            self._take(state, done, status, kn)
+            k += done
+            self.t = t0 + k * h if k < n else t_target
+            self.stats.nsteps += done
+            if status == ckernel.ENERGY:
+                self._after_step()                      # says why
+            elif status != ckernel.OK:                  # this step in Python
+                self._failed = kn.failure() if status == ckernel.NEWTON else None
+                k = super()._fixed_run(t0, h, k, k + 1, n, t_target)
+            if self.limit is not None:
+                self.limit.check(self.stats, self.t, t_target)
+        return stop
+
+    def _take(self, state, done: int, status: int, kn: KernelNewton) -> None:
+        """The state and counters after a C run of ``done`` steps."""
+        kn.count(self.stats)
+        if self.audit is not None:
+            _audit_back(self.audit, kn.kernel.buf.audit)
+            if status == ckernel.ENERGY:      # _after_step checks this state again
+                self.audit.checks -= 1
+        if done == 0:
+            return
+        self.qw, self.turns, self.qd, self.qdd, a, self.lam = state
+        if self.name == "genalpha":
+            self.a = a
+        self.q = self.qw + 2.0 * math.pi * self.turns
