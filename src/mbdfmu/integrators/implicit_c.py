@@ -3,10 +3,12 @@
 The C code is the Python step line for line (predictor, ``newton.newton_iterate`` with its
 convergence test, the step's end), with the iteration matrix [[K, Psi_q^T], [Psi_q, -E]]
 solved through its banded Schur complement Psi_q K^-1 Psi_q^T + E instead of a dense LU:
-so K must be diagonal. Covered (``kernel_newton``): a mechanism with constraints and no
+so K must be diagonal or block-diagonal. Covered (``kernel_newton``): a mechanism without
 line rows (translational and slot joints: their geometric stiffness couples coordinates)
-whose applied forces do not depend on the state (genalpha with ``jacobian = "mass"``: any
-forces). Anything else, and an attempt the kernel hands back (K or the Schur complement
+whose applied forces that depend on the state each act on one moving body (springs and
+dampers to the ground, forces off a centre of mass: K has 3 x 3 blocks, their force
+Jacobians by forward differences as forces.py does them; genalpha with ``jacobian =
+"mass"``: any forces). Anything else, and an attempt the kernel hands back (K or the Schur complement
 near singular, a spring of zero length), runs the Python step (a dense LU), which then
 does what it always does. The kernel is the equations' C kernel (kernel "c", what FMUs
 run), or one built for this method under the numba kernel when it can be compiled.
@@ -25,6 +27,8 @@ import weakref
 import numpy as np
 
 from ..equations import ckernel
+from ..equations.forces import FD_STEP
+from ..model.scene import RotationalSpringDamper, SpringDamper
 from . import newton
 from .c_steps import NO_AUDIT, _audit_back, _audit_state, stage_inputs
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
@@ -45,8 +49,8 @@ class KernelMatrix(IterationMatrix):
 
     plain_fields = ("_lu", "h", "fresh", "indicator", "reach", "kept")
 
-    def __init__(self, kept: np.ndarray, kernel):
-        self.kept, self.kernel = kept, kernel
+    def __init__(self, kept: np.ndarray, newton):
+        self.kept, self.newton = kept, newton
         super().__init__()
 
     @property
@@ -63,18 +67,19 @@ class KernelMatrix(IterationMatrix):
     def solve(self, b: np.ndarray) -> np.ndarray:
         if self._lu is not None:
             return super().solve(b)
-        return self.kernel.implicit_solve(self.kept, b)
+        return self.newton.kernel.implicit_solve(self.newton.settings, self.kept, b)
 
 
 class KernelNewton:
     """A method's kernel and its ``ckernel.implicit.Implicit`` settings."""
 
-    def __init__(self, method, kernel):
+    def __init__(self, method, kernel, blocks: bool):
         eq = method.equations
         self.kernel, self.genalpha = kernel, method.name == "genalpha"
         am, af, beta, gamma = method.coefficients if self.genalpha else (0.0,) * 4
         self.settings = kernel.implicit_settings(
-            method.name, method.periodic, jacobian_full=int(getattr(method, "jacobian", "") == "full"),
+            method.name, method.periodic, eq.pattern if blocks else None, fd_step=FD_STEP,
+            jacobian_full=int(getattr(method, "jacobian", "") == "full"),
             count_multipliers=int(self.genalpha), max_iter=newton.NEWTON_MAX_ITER, am=am, af=af,
             beta=beta, gamma=gamma, length_scale=eq.length_scale, roundoff=newton.ROUNDOFF,
             atol_max=newton.NEWTON_ATOL_MAX, tol_floor=newton.NEWTON_TOL_FLOOR, t_ref=newton.T_REF,
@@ -121,12 +126,25 @@ def kernel_newton(method) -> KernelNewton | None:
     """The C path of ``method`` (genalpha or ali3p), or None where it runs in Python (see
     the module docstring)."""
     eq = method.equations
-    if not ENABLED or eq.m == 0 or eq.constraint_set.line.n:
+    if not ENABLED or eq.constraint_set.line.n:
         return None
-    if eq.forces_depend_on_state() and getattr(method, "jacobian", None) != "mass":
+    blocks = eq.forces_depend_on_state() and getattr(method, "jacobian", None) != "mass"
+    if blocks and not all(_on_one_body(eq, f) for f in eq.applied.state_forces):
         return None
     kernel = _kernel(eq)
-    return None if kernel is None else KernelNewton(method, kernel)
+    return None if kernel is None else KernelNewton(method, kernel, blocks)
+
+
+def _on_one_body(eq, force) -> bool:
+    """The force acts on one moving body (the other end, if any, on the ground): its
+    Jacobian is a 3 x 3 block of K."""
+    if isinstance(force, RotationalSpringDamper):
+        joint = eq.scene.joint(force.joint)
+        ends = (joint.body_i, joint.body_j)
+    else:
+        ends = (force.body_i, force.body_j) if isinstance(force, SpringDamper) else (force.body,)
+    index = eq.applied.index
+    return sum(index.get(name, eq.nb) < eq.nb for name in ends) <= 1
 
 
 def _state(method) -> tuple:
@@ -166,12 +184,12 @@ class CompiledNewton:
         self.c_newton = kernel_newton(self)
         self._failed = None
         if self.c_newton is not None:
-            self.matrix = KernelMatrix(self.c_newton.kernel.kept_matrix(), self.c_newton.kernel)
+            self.matrix = KernelMatrix(self.c_newton.kernel.kept_matrix(), self.c_newton)
 
     def set_state(self, state):
         super().set_state(state)
         if isinstance(self.matrix, KernelMatrix) and self.c_newton is not None:
-            self.matrix.kernel = self.c_newton.kernel
+            self.matrix.newton = self.c_newton
 
     def _try_step(self, t, h):
         if self._failed is not None:      # the C run's failure at this step: halve it

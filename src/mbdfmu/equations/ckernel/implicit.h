@@ -34,12 +34,19 @@ typedef struct {
     double roundoff, atol_max, tol_floor, t_ref, noise_max, near_indicator, t_near;
     double slow_rate, diverging_rate, singular_pivot;
     const double *periodic;            /* 1.0 on the wrapped angles (n) */
+    /* blocks: K has 3 x 3 blocks per body (forces of the state, each on one moving body),
+     * by forward differences of fd_step as forces.py; Psi_q K^-1 Psi_q^T assembled from
+     * the pairs of Psi_q's entries in one body's columns (bp_a, bp_b; bp_band: the band
+     * position of their rows; bp_w: 9 b + 3 c_a + c_b) with K^-1's symmetric part */
+    I blocks, nbp;
+    double fd_step;
+    const I *bp_a, *bp_b, *bp_band, *bp_w;
     I nnewton, njev, nlu, nprojections, reason;   /* counters and the last failure's reason */
     double last_size, last_residual, last_tol;   /* for the failure's message */
 } Implicit;
 
 I mbd_implicit_kept_size(const Model *M) {
-    return KEPT_HEAD + M->n + M->nkeep + (M->kd + 1) * M->m;
+    return KEPT_HEAD + 3 * M->n + M->nkeep + (M->kd + 1) * M->m;
 }
 
 /* ---- the convergence test (newton.py: newton_tolerances, _converged, _increment_converged,
@@ -101,37 +108,105 @@ static double check_rate(const Implicit *p, const Tolerances *t, double *kept, d
 
 /* ---- the iteration matrix ----------------------------------------------------------------- */
 
+/* K's 3 x 3 blocks (forces of the state on one moving body each): diag(M) + c_h H -
+ * cq dF/dq - cv dF/dq', dF by forward differences (forces.py AppliedForces.jacobians, one
+ * evaluation per coordinate of a body for all bodies at once), inverted into W; its
+ * symmetric part where the Schur complement needs it (m > 0). F0: F at (q, qd). */
+static int block_inverses(const Model *M, const Implicit *p, const double *q, const double *qd,
+                          const double *uf, const double *F0, const double *hdiag, double cq,
+                          double cv, double *W, double *w) {
+    I n = M->n, nb = M->nb;
+    double *xp = w, *Fp = w + n, *jac = w + 2 * n;       /* jac: dF/dq then dF/dq' (9 nb each) */
+    for (int which = 0; which < 2; which++) {
+        const double *x = which ? qd : q;
+        for (int c = 0; c < 3; c++) {
+            memcpy(xp, x, (size_t)n * sizeof(double));
+            for (I b = 0; b < nb; b++) xp[3 * b + c] += p->fd_step * fmax(1.0, fabs(x[3 * b + c]));
+            int st = which ? forces(M, q, xp, uf, Fp) : forces(M, xp, qd, uf, Fp);
+            if (st != ST_OK) return st;
+            for (I b = 0; b < nb; b++) {
+                double delta = p->fd_step * fmax(1.0, fabs(x[3 * b + c]));
+                for (int r = 0; r < 3; r++)
+                    jac[which * 9 * nb + 9 * b + 3 * r + c] = (Fp[3 * b + r] - F0[3 * b + r]) / delta;
+            }
+        }
+    }
+    for (I b = 0; b < nb; b++) {
+        double K[9], *Wb = W + 9 * b;
+        for (int k = 0; k < 9; k++) K[k] = -cq * jac[9 * b + k] - cv * jac[9 * nb + 9 * b + k];
+        for (int r = 0; r < 3; r++) K[4 * r] += M->mass[3 * b + r] + hdiag[3 * b + r];
+        double c0 = K[4] * K[8] - K[5] * K[7], c1 = K[5] * K[6] - K[3] * K[8],
+               c2 = K[3] * K[7] - K[4] * K[6], det = K[0] * c0 + K[1] * c1 + K[2] * c2;
+        if (!isfinite(det)) return ST_NOT_FINITE;
+        if (det == 0.0) return ST_SINGULAR;
+        Wb[0] = c0 / det; Wb[1] = (K[2] * K[7] - K[1] * K[8]) / det; Wb[2] = (K[1] * K[5] - K[2] * K[4]) / det;
+        Wb[3] = c1 / det; Wb[4] = (K[0] * K[8] - K[2] * K[6]) / det; Wb[5] = (K[2] * K[3] - K[0] * K[5]) / det;
+        Wb[6] = c2 / det; Wb[7] = (K[1] * K[6] - K[0] * K[7]) / det; Wb[8] = (K[0] * K[4] - K[1] * K[3]) / det;
+        if (M->m) {
+            for (int r = 0; r < 3; r++)
+                for (int c = r + 1; c < 3; c++) Wb[3 * r + c] = Wb[3 * c + r] = 0.5 * (Wb[3 * r + c] + Wb[3 * c + r]);
+        }
+    }
+    return ST_OK;
+}
+
+/* out = K^-1 a (diagonal, or W's blocks). */
+static void k_inverse(const Model *M, const Implicit *p, const double *kinv, const double *a,
+                      double *out) {
+    if (!p->blocks) {
+        for (I k = 0; k < M->n; k++) out[k] = kinv[k] * a[k];
+        return;
+    }
+    for (I b = 0; b < M->nb; b++) {
+        const double *Wb = kinv + 9 * b, *ab = a + 3 * b;
+        for (int r = 0; r < 3; r++) out[3 * b + r] = Wb[3 * r] * ab[0] + Wb[3 * r + 1] * ab[1] + Wb[3 * r + 2] * ab[2];
+    }
+}
+
 /* Factorise at the current iterate: K = M + c_h H(lam) (its diagonal: coincidence rows'
- * d2/dphi2; c_h = D for genalpha "full", h^2/4 for ali3p, 0 for "mass"), S = J K^-1 J^T + E
- * in band storage. values: Psi_q's at the iterate; lam the iterate's multipliers. */
+ * d2/dphi2; c_h = D for genalpha "full", h^2/4 for ali3p, 0 for "mass"), with blocks minus
+ * cq dF/dq + cv dF/dq'; S = J K^-1 J^T + E in band storage. values: Psi_q's at the iterate
+ * (q, qd), lam the iterate's multipliers, F0 the forces there; w: 2 n + 6 n scratch. */
 static int factor_matrix(const Model *M, const Implicit *p, Scratch *s, double *kept,
-                         const double *values, const double *lam, double c_h, double e, double h) {
+                         const double *values, const double *lam, double c_h, double cq,
+                         double cv, double e, double h, const double *q, const double *qd,
+                         const double *uf, const double *F0, double *w) {
     I n = M->n, m = M->m, nb = M->nb;
-    double *kinv = kept + KEPT_HEAD, *v = kinv + n, *L = v + M->nkeep, dmin, dmax;
-    for (I k = 0; k < n; k++) kinv[k] = M->mass[k];
+    double *kinv = kept + KEPT_HEAD, *v = kinv + 3 * n, *L = v + M->nkeep, dmin, dmax;
+    double *hdiag = p->blocks ? w : kinv;
+    for (I k = 0; k < n; k++) hdiag[k] = p->blocks ? 0.0 : M->mass[k];
     if (c_h != 0.0) {
         for (I k = 0; k < M->kc; k++) {
             I i = M->c_bi[k], j = M->c_bj[k], r0 = M->c_rows[2 * k], r1 = M->c_rows[2 * k + 1];
             double aix, aiy, ajx, ajy;
             rotated(s->cs, s->cs + nb + 1, i, M->c_si[2 * k], M->c_si[2 * k + 1], &aix, &aiy);
             rotated(s->cs, s->cs + nb + 1, j, M->c_sj[2 * k], M->c_sj[2 * k + 1], &ajx, &ajy);
-            if (i < nb) kinv[3 * i + 2] -= c_h * (aix * lam[r0] + aiy * lam[r1]);
-            if (j < nb) kinv[3 * j + 2] += c_h * (ajx * lam[r0] + ajy * lam[r1]);
+            if (i < nb) hdiag[3 * i + 2] -= c_h * (aix * lam[r0] + aiy * lam[r1]);
+            if (j < nb) hdiag[3 * j + 2] += c_h * (ajx * lam[r0] + ajy * lam[r1]);
         }
     }
-    for (I k = 0; k < n; k++) {
-        if (!isfinite(kinv[k])) return ST_NOT_FINITE;
-        if (!(kinv[k] > 0.0)) return ST_SINGULAR;
-        kinv[k] = 1.0 / kinv[k];
+    if (p->blocks) {
+        int st = block_inverses(M, p, q, qd, uf, F0, hdiag, cq, cv, kinv, w + n);
+        if (st != ST_OK) return st;
+    } else {
+        for (I k = 0; k < n; k++) {
+            if (!isfinite(kinv[k])) return ST_NOT_FINITE;
+            if (!(kinv[k] > 0.0)) return ST_SINGULAR;
+            kinv[k] = 1.0 / kinv[k];
+        }
     }
     memcpy(v, values, (size_t)M->nkeep * sizeof(double));
     I size = (M->kd + 1) * m;
     memset(L, 0, (size_t)size * sizeof(double));
-    for (I q = 0; q < M->npairs; q++)
-        L[M->band_index[q]] += v[M->pair_a[q]] * v[M->pair_b[q]] * kinv[M->cols[M->pair_a[q]]];
+    if (p->blocks)
+        for (I k = 0; k < p->nbp; k++)
+            L[p->bp_band[k]] += v[p->bp_a[k]] * v[p->bp_b[k]] * kinv[p->bp_w[k]];
+    else
+        for (I k = 0; k < M->npairs; k++)
+            L[M->band_index[k]] += v[M->pair_a[k]] * v[M->pair_b[k]] * kinv[M->cols[M->pair_a[k]]];
     for (I j = 0; j < m; j++) L[j] += e;
     if (!all_finite_values(L, size)) return ST_NOT_FINITE;
-    if (!band_cholesky(L, m, M->kd, &dmin, &dmax) || !(dmin * dmin > p->singular_pivot * dmax * dmax))
+    if (m && (!band_cholesky(L, m, M->kd, &dmin, &dmax) || !(dmin * dmin > p->singular_pivot * dmax * dmax)))
         return ST_SINGULAR;
     kept[KEPT_VALID] = 1.0;
     kept[KEPT_H] = h;
@@ -143,25 +218,27 @@ static int factor_matrix(const Model *M, const Implicit *p, Scratch *s, double *
 
 /* [[K, J^T], [J, -E]] (x; y) = (a; b) with the kept factors: x (n), y (m); tm (m) and
  * tn (n) scratch. */
-static void kept_solve(const Model *M, const double *kept, const double *a, const double *b,
-                       double *x, double *y, double *tm, double *tn) {
+static void kept_solve(const Model *M, const Implicit *p, const double *kept, const double *a,
+                       const double *b, double *x, double *y, double *tm, double *tn) {
     I n = M->n, m = M->m;
-    const double *kinv = kept + KEPT_HEAD, *v = kinv + n, *L = v + M->nkeep;
-    for (I k = 0; k < n; k++) x[k] = kinv[k] * a[k];
+    const double *kinv = kept + KEPT_HEAD, *v = kinv + 3 * n, *L = v + M->nkeep;
+    k_inverse(M, p, kinv, a, x);
     if (m == 0) return;
     jac_mul(M, v, x, y);                     /* (J K^-1 J^T + E) y = J K^-1 a - b */
     for (I i = 0; i < m; i++) tm[i] = y[M->perm[i]] - b[M->perm[i]];
     band_substitute(L, m, M->kd, tm);
     for (I i = 0; i < m; i++) y[M->perm[i]] = tm[i];
     jac_t_mul(M, v, y, tn);                  /* x = K^-1 (a - J^T y) */
-    for (I k = 0; k < n; k++) x[k] = kinv[k] * (a[k] - tn[k]);
+    for (I k = 0; k < n; k++) tn[k] = a[k] - tn[k];
+    k_inverse(M, p, kinv, tn, x);
 }
 
 /* The kept matrix's solve for the step control's error filter: out (n + m) = S^-1 rhs. */
-int mbd_implicit_solve(const Model *M, const double *kept, const double *rhs, double *out) {
+int mbd_implicit_solve(const Model *M, const Implicit *p, const double *kept,
+                       const double *rhs, double *out) {
     Scratch s = scratch(M, M->work);
     if (kept[KEPT_VALID] == 0.0) return ST_SINGULAR;
-    kept_solve(M, kept, rhs, rhs + M->n, out, out + M->n, s.qv, s.qv + M->m);
+    kept_solve(M, p, kept, rhs, rhs + M->n, out, out + M->n, s.qv, s.qv + M->m);
     return ST_OK;
 }
 
@@ -210,7 +287,7 @@ static int ali3p_projections(const Model *M, Scratch *s, const double *q, double
 
 /* One step from y over h (genalpha.py / ali3p.py _attempt, newton.py newton_iterate), not
  * taken: x filled. ST_OK; ST_NEWTON (p->reason: the caller halves the step); ST_SINGULAR
- * or ST_SPRING: the numpy path redoes the attempt. w: scratch of 5 n + 3 m. */
+ * or ST_SPRING: the numpy path redoes the attempt. w: scratch of 13 n + 3 m. */
 static int attempt(const Model *M, Implicit *p, Scratch *s, double *kept, const double *y,
                    double h, const double *motion, const double *uf, double *x, double *w) {
     I n = M->n, m = M->m;
@@ -222,12 +299,14 @@ static int attempt(const Model *M, Implicit *p, Scratch *s, double *kept, const 
     double *dl = tn2 + n, *bm = dl + m, *tm = bm + m;
     int ga = p->method == IMP_GENALPHA;
     double am = p->am, af = p->af, beta = p->beta, gamma = p->gamma, D, G = 0.0, c_h, e = 0.0;
+    double cq = 0.0, cv = 0.0;     /* K's force terms: - cq dF/dq - cv dF/dq' */
     Tolerances t;
     memcpy(lam, lamn, (size_t)m * sizeof(double));
     if (ga) {
         D = h * h * beta * (1.0 - af) / (1.0 - am);
         G = h * gamma * (1.0 - af) / (1.0 - am);
         c_h = p->jacobian_full ? D : 0.0;
+        if (p->jacobian_full) { cq = D; cv = G; }
         for (I k = 0; k < n; k++) {        /* predictor: Newmark with q''_{n+1} = q''_n */
             double a = (af * qddn[k] - am * an[k] + (1.0 - af) * qddn[k]) / (1.0 - am);
             dq[k] = h * vn[k] + h * h * ((0.5 - beta) * an[k] + beta * a);
@@ -237,7 +316,8 @@ static int attempt(const Model *M, Implicit *p, Scratch *s, double *kept, const 
         t = newton_tolerances(p, h, qn, D, qddn, n);
     } else {
         double alpha = p->alpha > 0.0 ? p->alpha : 4.0 * p->penalty_base / (h * h);
-        D = c_h = 0.25 * h * h;
+        D = c_h = cq = 0.25 * h * h;
+        cv = 0.5 * h;
         e = 1.0 / (0.25 * h * h * alpha);
         for (I k = 0; k < n; k++) dq[k] = h * vn[k] + 0.5 * h * h * an[k];
         t = newton_tolerances(p, h, qn, D, an, n);
@@ -265,17 +345,18 @@ static int attempt(const Model *M, Implicit *p, Scratch *s, double *kept, const 
         if (kept[KEPT_VALID] == 0.0) {
             p->njev++;
             p->nlu++;
-            st = factor_matrix(M, p, s, kept, s->values, lam, c_h, e, h);
+            st = factor_matrix(M, p, s, kept, s->values, lam, c_h, cq, cv, e, h, qc, qd, uf,
+                               s->F, tm + m);
             if (st == ST_NOT_FINITE) { p->reason = NF_MATRIX; return ST_NEWTON; }
             if (st != ST_OK) return st;
         }
         for (I k = 0; k < n; k++) tn[k] = -dyn[k];
         for (I r = 0; r < m; r++) bm[r] = -s->psi[r];
-        kept_solve(M, kept, tn, bm, dx, dl, tm, tn2);
+        kept_solve(M, p, kept, tn, bm, dx, dl, tm, tn2);
         size = 0.0;
         for (I k = 0; k < n; k++) size = fmax(size, fabs(dx[k]));
         if (p->count_multipliers && m) {     /* IterationMatrix.increment_size */
-            jac_t_mul(M, kept + KEPT_HEAD + n, dl, tn2);
+            jac_t_mul(M, kept + KEPT_HEAD + 3 * n, dl, tn2);
             for (I k = 0; k < n; k++) size = fmax(size, fabs(tn2[k] / M->mass[k]));
         }
         if (!isfinite(size)) { p->reason = NF_INCREMENT; return ST_NEWTON; }
@@ -363,7 +444,7 @@ int mbd_implicit_steps(const Model *M, Implicit *p, double *kept, double *y, dou
                        I *done) {
     Scratch s = scratch(M, M->work);
     I n = M->n, m = M->m;
-    double *w = attempt_work(M, &s), *q = w + 5 * n + 3 * m;
+    double *w = attempt_work(M, &s), *q = w + 14 * n + 3 * m;
     *done = 0;
     for (I k = 0; k < nsteps; k++) {
         const double *motion = motions + 3 * m * k, *uf = ufs + uf_stride * k;

@@ -28,7 +28,8 @@ class Implicit(ctypes.Structure):
                                  "length_scale", "roundoff", "atol_max", "tol_floor", "t_ref",
                                  "noise_max", "near_indicator", "t_near", "slow_rate",
                                  "diverging_rate", "singular_pivot")] + \
-        [("periodic", _P)] + \
+        [("periodic", _P), ("blocks", _I), ("nbp", _I), ("fd_step", _D), ("bp_a", _P),
+         ("bp_b", _P), ("bp_band", _P), ("bp_w", _P)] + \
         [(name, _I) for name in ("nnewton", "njev", "nlu", "nprojections", "reason")] + \
         [(name, _D) for name in ("last_size", "last_residual", "last_tol")]
 
@@ -38,7 +39,7 @@ class ImplicitCalls:
 
     def _bind_implicit(self, lib) -> None:
         signatures = {"mbd_implicit_kept_size": ([_P], _I),
-                      "mbd_implicit_solve": ([_P] * 4, ctypes.c_int),
+                      "mbd_implicit_solve": ([_P] * 5, ctypes.c_int),
                       "mbd_implicit_attempt": ([_P, _P, _P, _P, _D, _P, _P, _P], ctypes.c_int),
                       "mbd_implicit_steps": ([_P, _P, _P, _P, _D, _I, _P, _P, _I, _P, _D, _D,
                                               _P, _P], ctypes.c_int)}
@@ -51,14 +52,20 @@ class ImplicitCalls:
         self.imp_x = np.zeros(4 * n + max(m, 1))
         self.imp_rhs, self.imp_out = np.zeros(n + max(m, 1)), np.zeros(n + max(m, 1))
 
-    def implicit_settings(self, method: str, periodic, **values) -> Implicit:
-        """An ``Implicit`` for ``method`` (a key of METHODS) with ``values`` by field name."""
+    def implicit_settings(self, method: str, periodic, pattern=None, **values) -> Implicit:
+        """An ``Implicit`` for ``method`` (a key of METHODS) with ``values`` by field name;
+        with Psi_q's ``pattern`` (sparsity.JacobianPattern) K in 3 x 3 blocks per body."""
         p = Implicit()
         mask = np.ascontiguousarray(periodic, dtype=float)
         self._arrays.append(mask)
         p.method, p.periodic = METHODS[method], mask.ctypes.data
         for name, value in values.items():
             setattr(p, name, value)
+        if pattern is not None:
+            arrays = [np.ascontiguousarray(a, dtype=np.int64) for a in body_pairs(pattern)]
+            self._arrays += arrays
+            p.blocks, p.nbp = 1, arrays[0].size
+            p.bp_a, p.bp_b, p.bp_band, p.bp_w = (a.ctypes.data for a in arrays)
         return p
 
     def kept_matrix(self) -> np.ndarray:
@@ -103,11 +110,33 @@ class ImplicitCalls:
                  y[5 * n:5 * n + self.m])
         return status, int(b.done[0]), state
 
-    def implicit_solve(self, kept, rhs) -> np.ndarray | None:
+    def implicit_solve(self, p: Implicit, kept, rhs) -> np.ndarray | None:
         """S^-1 rhs (n + m) with the kept iteration matrix; None when it is not valid."""
         size = self.n + self.m
         self.imp_rhs[:size] = rhs
-        if self._imp.mbd_implicit_solve(self.address, kept.ctypes.data, self.imp_rhs.ctypes.data,
-                                        self.imp_out.ctypes.data) != 0:
+        if self._imp.mbd_implicit_solve(self.address, ctypes.byref(p), kept.ctypes.data,
+                                        self.imp_rhs.ctypes.data, self.imp_out.ctypes.data) != 0:
             return None
         return self.imp_out[:size].copy()
+
+
+def body_pairs(pattern) -> tuple:
+    """Every pair (a, b) of Psi_q's kept entries in one body's columns whose rows fall in
+    the lower band (position of a's row >= b's, rows in the band's order): (a, b, band
+    index, index of K^-1's entry 9 body + 3 c_a + c_b). Rows that share a body share its
+    angle column, so the band of J M^-1 J^T holds them."""
+    rows, cols, m = np.asarray(pattern.rows), np.asarray(pattern.cols), pattern.m
+    position = np.empty(m, dtype=np.int64)
+    position[np.asarray(pattern.perm)] = np.arange(m)
+    out = ([], [], [], [])
+    for body in np.unique(cols // 3):
+        entries = np.flatnonzero(cols // 3 == body)
+        a, b = (x.ravel() for x in np.meshgrid(entries, entries, indexing="ij"))
+        i, j = position[rows[a]], position[rows[b]]
+        lower = i >= j
+        a, b, i, j = a[lower], b[lower], i[lower], j[lower]
+        if np.any(i - j > pattern.kd):
+            raise ValueError("rows sharing a body outside the band")
+        for k, values in enumerate((a, b, (i - j) * m + j, 9 * body + 3 * (cols[a] % 3) + cols[b] % 3)):
+            out[k].append(values)
+    return tuple(np.concatenate(x) if x else np.zeros(0, np.int64) for x in out)

@@ -267,7 +267,7 @@ static Scratch scratch(const Model *M, double *w) {
 I mbd_work_size(const Model *M, I stages) {
     I n = M->n, m = M->m;
     return 2 * (n + 3) + 9 * m + M->nraw + M->size + 1 + M->nkeep + solve_size(M) + 4 * n
-           + 2 * (M->nb + 1) + 16 + (stages + 4) * 2 * n + 6 * n + 3 * m;
+           + 2 * (M->nb + 1) + 16 + (stages + 4) * 2 * n + 14 * n + 3 * m;
 }
 
 static void extend(const Model *M, const double *q, double *qe) {
