@@ -14,6 +14,7 @@ import mbdfmu
 from mbdfmu.bench import closed_forms
 from mbdfmu.equations import ckernel
 from mbdfmu.integrators import implicit_c
+from mbdfmu.model.reader import scene_from_dict
 
 pytestmark = pytest.mark.skipif(not ckernel.available(), reason="no C compiler for the kernel")
 
@@ -80,15 +81,69 @@ def test_step_control_agrees_with_the_python_step(monkeypatch):
 
 
 def test_what_the_c_step_does_not_cover_runs_in_python():
-    """Translational joints (line rows) and springs (forces that depend on the state) run
-    the Python step; genalpha's jacobian = "mass" takes any forces."""
-    for scene, method, options, covered in (
-            ("slider_crank", "genalpha", {}, False),
-            ("rod_pendulum", "ali3p", {}, True),
-            ("four_bar", "ali3p", {}, True)):
-        sim = mbdfmu.Simulation(mbdfmu.load_scene(scene), method=method, kernel="c",
-                                method_options=options)
-        assert (sim.integrator.c_newton is not None) == covered, scene
+    """Translational joints (line rows) and forces of the state between two moving bodies
+    run the Python step; a spring to the ground gives K 3 x 3 blocks."""
+    for scene, method, covered, blocks in (
+            (mbdfmu.load_scene("slider_crank"), "genalpha", False, None),
+            (mbdfmu.load_scene("rod_pendulum"), "ali3p", True, 0),
+            (mbdfmu.load_scene("andrews"), "genalpha", True, 1),
+            (spring_pendulum(1e8), "genalpha", True, 1),
+            (spring_pendulum(1e8, between_bodies=True), "ali3p", False, None)):
+        sim = mbdfmu.Simulation(scene, method=method, kernel="c")
+        newton = sim.integrator.c_newton
+        assert (newton is not None) == covered, scene.name
+        if covered:
+            assert newton.settings.blocks == blocks
+
+
+def spring_pendulum(k: float, between_bodies: bool = False):
+    """P1's link replaced by a spring of stiffness k (N/m) (benchmarks/stiff.py); with
+    ``between_bodies`` hung from a second, pinned body instead of the ground."""
+    data = {"name": "spring", "gravity": [0.0, -9.81],
+            "body": [{"name": "bob", "mass": 1.0, "inertia": 1e-6, "position": [1.0, 0.0]}],
+            "force": [{"name": "rod", "type": "spring_damper", "body_i": "ground",
+                       "point_i": [0.0, 0.0], "body_j": "bob", "point_j": [0.0, 0.0],
+                       "stiffness": k, "damping": 0.0, "rest_length": 1.0}]}
+    if between_bodies:
+        data["body"].append({"name": "hook", "mass": 1.0, "inertia": 1.0, "position": [0.0, 0.0]})
+        data["joint"] = [{"name": "pin", "type": "revolute", "body_i": "ground",
+                          "point_i": [0.0, 0.0], "body_j": "hook", "point_j": [0.0, 0.0]}]
+        data["force"][0]["body_i"] = "hook"
+    return scene_from_dict(data)
+
+
+@pytest.mark.parametrize("method", ["genalpha", "ali3p"])
+def test_blocks_with_constraints_agree_on_andrews(method, monkeypatch):
+    """Andrews' squeezer (a spring to the ground, seven bodies): the C step with K's
+    blocks and the Python step agree far inside the method's error (its change from h to
+    h / 2)."""
+    runs = {}
+    for h, compiled in ((2e-5, True), (2e-5, False), (1e-5, True)):
+        monkeypatch.setattr(implicit_c, "ENABLED", compiled)
+        res = mbdfmu.simulate("andrews", 0.003, method=method, step=h, kernel="c",
+                              output_interval=5e-4)
+        runs[h, compiled] = np.stack([res[n] for n in res.names if n.endswith(".phi")])
+    error = float(np.max(np.abs(runs[2e-5, True] - runs[1e-5, True])))
+    difference = float(np.max(np.abs(runs[2e-5, True] - runs[2e-5, False])))
+    assert difference <= 1e-6 * error, (difference, error)    # measured 1e-15 against 1e-6
+
+
+def test_a_stiff_spring_under_auto_meets_its_tolerance_in_c(monkeypatch):
+    """auto sends a 1e10 N/m spring to genalpha with step control (integrators/choose.py):
+    its attempts in C with K's block, against the rigid pendulum's closed form, which the
+    spring follows to about 3 m g / k."""
+    results = {}
+    for compiled in (True, False):
+        monkeypatch.setattr(implicit_c, "ENABLED", compiled)
+        results[compiled] = mbdfmu.simulate(spring_pendulum(1e10), 0.2, method="auto",
+                                            output_interval=0.01)
+    res = results[True]
+    assert res.method == "auto->genalpha"
+    exact = closed_forms.pendulum(res.time, J=1e-6)
+    error = float(np.max(np.hypot(res["bob.x"] - exact["x"], res["bob.y"] - exact["y"])))
+    assert error < 1e-6, error          # measured 4.3e-7 (the default tolerance: 1e-6 m)
+    assert res.stats["nsteps"] == results[False].stats["nsteps"]
+    assert float(np.max(np.abs(res["bob.x"] - results[False]["bob.x"]))) <= 1e-3 * error
 
 
 def test_a_saved_state_continues_bit_for_bit():
