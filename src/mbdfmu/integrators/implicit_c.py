@@ -188,8 +188,11 @@ class CompiledNewton:
 
     def set_state(self, state):
         super().set_state(state)
-        if isinstance(self.matrix, KernelMatrix) and self.c_newton is not None:
-            self.matrix.newton = self.c_newton
+        if isinstance(self.matrix, KernelMatrix):
+            if self.c_newton is None:         # a state saved where the kernel ran
+                self.matrix = IterationMatrix()
+            else:
+                self.matrix.newton = self.c_newton
 
     def _try_step(self, t, h):
         if self._failed is not None:      # the C run's failure at this step: halve it

@@ -51,6 +51,8 @@ class ImplicitCalls:
         self.imp_y = np.zeros(5 * n + max(m, 1))
         self.imp_x = np.zeros(4 * n + max(m, 1))
         self.imp_rhs, self.imp_out = np.zeros(n + max(m, 1)), np.zeros(n + max(m, 1))
+        self._imp_p = tuple(a.ctypes.data for a in (self.imp_y, self.imp_x, self.imp_rhs,
+                                                    self.imp_out))
 
     def implicit_settings(self, method: str, periodic, pattern=None, **values) -> Implicit:
         """An ``Implicit`` for ``method`` (a key of METHODS) with ``values`` by field name;
@@ -85,9 +87,9 @@ class ImplicitCalls:
         b.motion[:m], b.motion[m:2 * m], b.motion[2 * m:] = motion
         if uf is not None and self.nf:
             b.uf[:self.nf] = uf
+        py, px = self._imp_p[:2]
         status = self._imp.mbd_implicit_attempt(self.address, ctypes.byref(p), kept.ctypes.data,
-                                                self.imp_y.ctypes.data, h, b.p_motion, b.p_uf,
-                                                self.imp_x.ctypes.data)
+                                                py, h, b.p_motion, b.p_uf, px)
         return status, self._split(self.imp_x.copy())
 
     def _split(self, x):
@@ -115,7 +117,7 @@ class ImplicitCalls:
         size = self.n + self.m
         self.imp_rhs[:size] = rhs
         if self._imp.mbd_implicit_solve(self.address, ctypes.byref(p), kept.ctypes.data,
-                                        self.imp_rhs.ctypes.data, self.imp_out.ctypes.data) != 0:
+                                        *self._imp_p[2:]) != 0:
             return None
         return self.imp_out[:size].copy()
 
