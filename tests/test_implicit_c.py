@@ -62,22 +62,22 @@ def test_c_and_python_steps_agree_and_converge_at_order_two(scene, method, monke
 
 def test_step_control_agrees_with_the_python_step(monkeypatch):
     """genalpha with step control on P1: the C attempts and the error filter through the
-    kept matrix (implicit_control.py) take the same steps as the Python ones."""
+    kept matrix (implicit_control.py) take about the same steps as the Python ones."""
     results = {}
     for compiled in (True, False):
         monkeypatch.setattr(implicit_c, "ENABLED", compiled)
-        results[compiled] = mbdfmu.simulate("pendulum", 1.0, method="genalpha", kernel="c",
+        results[compiled] = mbdfmu.simulate("pendulum", 0.3, method="genalpha", kernel="c",
                                             rtol=1e-6, output_interval=0.05,
                                             method_options={"step_control": "adaptive"})
     a, b = results[True], results[False]
     # the controller's thresholds turn rounding differences into other step sequences
-    # (measured 6285 and 6342 steps), each within the tolerance
+    # (measured 703 and 701 steps), each within the tolerance
     assert abs(a.stats["nsteps"] - b.stats["nsteps"]) <= 0.03 * b.stats["nsteps"]
     for res in (a, b):
         got, exact = tip(res, "pendulum")
         error = float(np.max(np.hypot(*(got - exact))))
-        assert error < 1e-5      # measured 4.0e-6 (tolerance rtol 1e-6 of 1 m over 1 s)
-    assert float(np.max(np.abs(a["bob.x"] - b["bob.x"]))) <= 0.05 * error   # measured 1 %
+        assert error < 5e-6      # measured 1.7e-6 (rtol 1e-6 of 1 m per second)
+    assert float(np.max(np.abs(a["bob.x"] - b["bob.x"]))) <= 0.05 * error   # measured 0.5 %
 
 
 def test_what_the_c_step_does_not_cover_runs_in_python():

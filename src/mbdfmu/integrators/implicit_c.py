@@ -176,8 +176,8 @@ def attempt(method, t: float, h: float) -> dict | None:
 
 class CompiledNewton:
     """Mixin of genalpha and ali3p (first in their bases): the C path when ``kernel_newton``
-    gives one (``c_newton``), fixed-step runs in C, a failed step of a run halved in
-    Python."""
+    gives one (``c_newton``), fixed steps and runs of them in C, a step failed in C halved
+    in Python."""
 
     def restart(self):
         super().restart()
@@ -200,41 +200,55 @@ class CompiledNewton:
             raise NewtonFailure(reason)
         super()._try_step(t, h)
 
+    def _step_impl(self, h):
+        """A fixed step in C (the stated accuracy's spot checks, steps one at a time);
+        in Python (halved if it failed in C) where the kernel hands it back."""
+        if self.c_newton is None or self.adaptive or self._failed is not None:
+            return super()._step_impl(h)
+        status, _ = self._c_run((self.t + h,), h, audited=False)
+        if status == ckernel.OK:
+            return True, h
+        self._failed = self.c_newton.failure() if status == ckernel.NEWTON else None
+        return super()._step_impl(h)
+
     def _fixed_run(self, t0, h, k, stop, n, t_target):
-        kn, eq = self.c_newton, self.equations
-        if kn is None or self.watch is not None or \
+        eq = self.equations
+        if self.c_newton is None or self.watch is not None or \
                 (self.audit is not None and not eq.applied.is_constant):
             return super()._fixed_run(t0, h, k, stop, n, t_target)
         while k < stop:
             count = min(RUN_LENGTH, stop - k)
-            stage_inputs(self, (t0 + h * np.arange(k, k + count)) + h, kn.kernel)
-            status, done, state = kn.kernel.implicit_steps(
-                kn.prepare(self), self.matrix.kept, _state(self), h, count,
-                NO_AUDIT if self.audit is None else _audit_state(self.audit),
-                ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF)
-            self._take(state, done, status, kn)
+            status, done = self._c_run((t0 + h * np.arange(k, k + count)) + h, h,
+                                       audited=self.audit is not None)
             k += done
             self.t = t0 + k * h if k < n else t_target
             self.stats.nsteps += done
             if status == ckernel.ENERGY:
                 self._after_step()                      # says why
             elif status != ckernel.OK:                  # this step in Python
-                self._failed = kn.failure() if status == ckernel.NEWTON else None
+                self._failed = self.c_newton.failure() if status == ckernel.NEWTON else None
                 k = super()._fixed_run(t0, h, k, k + 1, n, t_target)
             if self.limit is not None:
                 self.limit.check(self.stats, self.t, t_target)
         return stop
 
-    def _take(self, state, done: int, status: int, kn: KernelNewton) -> None:
-        """The state and counters after a C run of ``done`` steps."""
+    def _c_run(self, ends, h: float, audited: bool) -> tuple[int, int]:
+        """Fixed steps of h ending at ``ends`` in one C call, the energy check of constant
+        forces inside when ``audited``: (status, steps done), the state taken."""
+        kn = self.c_newton
+        stage_inputs(self, ends, kn.kernel)
+        status, done, state = kn.kernel.implicit_steps(
+            kn.prepare(self), self.matrix.kept, _state(self), h, len(ends),
+            _audit_state(self.audit) if audited else NO_AUDIT,
+            ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF)
         kn.count(self.stats)
-        if self.audit is not None:
+        if audited:
             _audit_back(self.audit, kn.kernel.buf.audit)
             if status == ckernel.ENERGY:      # _after_step checks this state again
                 self.audit.checks -= 1
-        if done == 0:
-            return
-        self.qw, self.turns, self.qd, self.qdd, a, self.lam = state
-        if self.name == "genalpha":
-            self.a = a
-        self.q = self.qw + 2.0 * math.pi * self.turns
+        if done:
+            self.qw, self.turns, self.qd, self.qdd, a, self.lam = state
+            if self.name == "genalpha":
+                self.a = a
+            self.q = self.qw + 2.0 * math.pi * self.turns
+        return status, done
