@@ -57,9 +57,8 @@ typedef struct { double tol, residual, stagnation, near_singular, size; } Tolera
 static Tolerances newton_tolerances(const Implicit *p, double h, const double *q, double D,
                                     const double *acc, I n) {
     Tolerances t;
-    double atol = fmin(p->atol, p->atol_max), qmax = 0.0, amax = 0.0;
+    double atol = fmin(p->atol, p->atol_max), qmax = 0.0, amax = 1.0;   /* numpy's initial= */
     for (I k = 0; k < n; k++) { qmax = fmax(qmax, fabs(q[k])); amax = fmax(amax, fabs(acc[k])); }
-    if (n == 0) amax = 1.0;
     t.size = fmax(p->length_scale, qmax);
     t.stagnation = fmax(0.5 * h * atol, p->tol_floor * p->length_scale);
     t.tol = fmin(0.5 * atol * (h / p->t_ref) * (h / p->t_ref), 0.01 * p->roundoff * t.size);
