@@ -132,7 +132,12 @@ def kernel_newton(method) -> KernelNewton | None:
     if blocks and not all(_on_one_body(eq, f) for f in eq.applied.state_forces):
         return None
     kernel = _kernel(eq)
-    return None if kernel is None else KernelNewton(method, kernel, blocks)
+    if kernel is None:
+        return None
+    try:
+        return KernelNewton(method, kernel, blocks)
+    except ValueError:      # K's blocks couple rows outside the band (ckernel.body_pairs)
+        return None
 
 
 def _on_one_body(eq, force) -> bool:
