@@ -223,17 +223,24 @@ class Model(Slave):
         self.values.update(zip(self.published, np.concatenate(
             (outputs, states.ravel(), sim.accelerations()[0])).tolist()))
         kernel = sim.dense_reads_ahead()
-        if kernel is None:
-            self.disarm_fast_steps()
-        else:       # the coming steps inside the last one: by the wrapper, without Python
+        fixed = None if kernel is not None else sim.fixed_steps_ahead(
+            self.limit[1] if self.limit else None, TIME_TOLERANCE)
+        if kernel is not None:   # the coming steps inside the last one: by the wrapper
             self.arm_fast_steps(*kernel.arm_dense_steps(sim.t, TIME_TOLERANCE,
                                                         *self.published_from))
+        elif fixed is not None:  # rk4p's coming steps, drivers' motions in C: the wrapper's
+            self.arm_fast_steps(*fixed[0].arm_fixed_steps(*fixed[1], *self.published_from))
+        else:
+            self.disarm_fast_steps()
 
     def catch_up(self):
         kernel = self.sim.equations.ckernel if self.sim is not None else None
-        if kernel is None or not kernel.dense.t_now > self.sim.t:
+        if kernel is None:
             return None
-        self.sim.advance(kernel.dense.t_now)      # the same arithmetic as the wrapper's
+        if not self.sim.adopt_fixed_steps():         # the state rk4p's steps in C reached
+            if not kernel.dense.t_now > self.sim.t:
+                return None
+            self.sim.advance(kernel.dense.t_now)      # the same arithmetic as the wrapper's
         self.publish()
         return self.sim.t
 

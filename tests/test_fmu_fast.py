@@ -109,3 +109,41 @@ def test_steps_inside_the_solvers_step_are_the_wrappers_and_pythons_values(scene
     assert taken(fast) > 300
     # and the state it caught up with is the one it served
     assert fast.real(*names) == got[-1]
+
+
+def taken_by_wrapper(h) -> int:
+    """Communication steps the wrapper took without Python, as the slave logs them."""
+    return sum(int(m.split(": ")[1].split()[0]) for _, _, m in h.messages
+               if "taken by the wrapper" in m)
+
+
+def test_rk4p_steps_with_a_driver_are_the_wrappers_and_pythons_values(scene_fmu, scene_host):
+    """The slider-crank (auto->rk4p; the motor's linear motion evaluated in C, ckernel/
+    fixed.h): the wrapper takes its 1 ms doSteps by itself, all but those where rk4p's
+    step-doubling check is due (one in SPOT_CHECK_EVERY), and every value it serves is bit
+    for bit the one Python computes when each step goes through it; a state taken after
+    fast steps restores to the same values, and the run's counters are Python's."""
+    from mbdfmu.integrators.stated_accuracy import SPOT_CHECK_EVERY
+    path = scene_fmu("slider_crank")
+    fast, slow = scene_host(path, "fast").init(), scene_host(path, "slow").init()
+    names = fast.outputs + ["crank.x", "rod.alpha"]
+    got, expected = [], []
+    steps = 3 * SPOT_CHECK_EVERY + 7
+    for _ in range(steps):
+        assert fast.step(H) == OK and slow.step(H) == OK, (fast.messages[-3:], slow.messages[-3:])
+        got.append(fast.real(*names))
+        expected.append(slow.real(*names))
+        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK   # the next in Python
+    np.testing.assert_array_equal(np.array(got), np.array(expected))
+    # the closed form of the drive: the crank's angle is the motor's rate times t
+    np.testing.assert_allclose(fast.real("crank.phi")[0], 314.1592653589793 * steps * H,
+                               rtol=1e-9)
+    state, t = get_state(fast), fast.t             # the slave catches up first
+    assert taken_by_wrapper(slow) == 0
+    assert steps - 4 <= taken_by_wrapper(fast) < steps
+    assert fast.real(*names) == got[-1]
+    more = run(fast, names, 5)
+    assert fast.status("fmi2SetFMUstate", state) == OK
+    fast.t = t
+    assert fast.real(*names) == got[-1]
+    np.testing.assert_array_equal(run(fast, names, 5), more)

@@ -103,5 +103,5 @@ class FastStepProtocol:
         if t is not None:
             self._fmi_at(t)
             self.log(f"t = {t!r} s: {taken} communication steps taken by the wrapper without "
-                     "Python (inside the solver's last step)")
+                     "Python (the C kernel's dense output or fixed steps)")
         return status.OK, None

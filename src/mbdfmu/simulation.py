@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .equations import Equations
+from .equations.ckernel.fixed import motion_table as ckernel_motion_table
 from .equations.projection import (ASSEMBLY_TOL, PROJECTION_MAX_ITER, assemble,
                                    assembly_changes, initial_estimates, project_positions,
                                    project_velocities)
@@ -21,6 +22,7 @@ from .errors import SettingError, SolverError
 from .integrators import make_integrator
 from .integrators.auto_watch import method_chain, switches_of
 from .integrators.base import WorkLimit
+from .integrators.c_steps import adopt_fast_run, fast_run
 from .integrators.events import EventRunner, check_method, event_kernel
 from .integrators.settings import SolverSettings, settings_from_scene
 from .model.reader import load_scene
@@ -169,6 +171,39 @@ class Simulation(SimulationInputs):
                 not getattr(integrator, "load_dense_output", lambda t: False)(self.t):
             return None
         return kernel
+
+    def fixed_steps_ahead(self, limit, time_tol: float):
+        """(kernel, arguments of its ``arm_fixed_steps`` but the published values) when the
+        coming communication steps are rk4p's that the C kernel can take alone
+        (``ckernel/fixed.h``): no events, no input changed, every force input held, no
+        driver taking its motion from the inputs, each driver's motion of a kind the kernel
+        evaluates, auto switching nothing (``c_steps.fast_run`` says the rest); else None."""
+        kernel, integrator = self.equations.ckernel, self.integrator
+        watcher = getattr(integrator, "watcher", None)
+        if kernel is None or self.events is not None or self._inputs_changed or \
+                self._drivers or any(type(f) is not Held for f in self._forces.values()) or \
+                (watcher is not None and watcher.pending is not None):
+            return None
+        table = ckernel_motion_table(self.equations.constraint_set)
+        run = None if table is None else fast_run(integrator, limit, time_tol)
+        if run is None:
+            return None
+        return kernel, (run, table, self.equations.constraint_set.offsets,
+                        self.inputs_at(self.t).forces)
+
+    def adopt_fixed_steps(self) -> bool:
+        """After communication steps the FMU's wrapper took with ``fixed_steps_ahead``'s
+        arguments: the state and counters they reached (the same arithmetic: the values
+        are those it served); False when it took none."""
+        kernel = self.equations.ckernel
+        taken = None if kernel is None else kernel.fixed_taken()
+        if kernel is not None:
+            kernel.disarm_fixed()
+        if taken is None:
+            return False
+        adopt_fast_run(self.integrator, *taken)
+        self._cache = None
+        return True
 
     def accelerations(self) -> tuple[np.ndarray, np.ndarray]:
         """q'' and lam at the current state and inputs (cached until either changes).

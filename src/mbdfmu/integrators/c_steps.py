@@ -17,9 +17,10 @@ import numpy as np
 from ..equations import ckernel
 from ..equations.projection import PROJECTION_MAX_ITER
 from . import singular_zone
-from .base import Integrator
+from .base import STEP_COUNT_SLACK, Integrator
 from .dense_output import DenseStep
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
+from .stated_accuracy import SPOT_CHECK_EVERY, allowed_error
 
 # The energy check's running state as kernel.c reads it (rk4p_compiled.AuditField's order).
 AUDIT_FIELDS = ("active", "e0", "v0", "kinetic_max", "potential_swing", "magnitude", "checks",
@@ -210,3 +211,44 @@ def mc_step(rk, h: float, safety: float, min_factor: float, max_factor: float,
         return None
     return decide(rk, h, status, err, y_new, f_new, safety, min_factor, max_factor,
                   energy_min_gain, end_evaluated=True)
+
+
+# A CPU limit per communication step below this (s) keeps rk4p's steps in Python, where it
+# is checked: the wrapper's own steps (at most SPOT_CHECK_EVERY of them) are not timed.
+MIN_CPU_LIMIT = 0.01
+
+
+def fast_run(rk, limit, time_tol: float) -> dict | None:
+    """What ``ckernel/fixed.h`` needs to take rk4p's coming communication steps as
+    ``_advance_fixed`` would (its grid, its step-doubling checks left to Python, its work
+    limit), or None when they must go through Python: another method, an energy audit
+    (checked in Python after each step), no constraints, a short CPU limit."""
+    eq = rk.equations
+    if rk.name != "rk4p" or rk.audit is not None or eq.m == 0 or eq.ckernel is None or \
+            rk.out is not None:
+        return None
+    max_steps = 2 ** 62
+    if limit is not None:
+        if limit.max_cpu is not None and limit.max_cpu < MIN_CPU_LIMIT:
+            return None
+        max_steps = limit.max_steps or max_steps
+    accuracy = rk.accuracy
+    return dict(t_now=rk.t, time_tol=time_tol, h_max=rk.h, slack=STEP_COUNT_SLACK,
+                max_steps=max_steps, unchecked=accuracy.unchecked, check_every=SPOT_CHECK_EVERY,
+                tol=rk._projection_tol(), max_iter=PROJECTION_MAX_ITER, local=accuracy.local,
+                estimate=rk.stats.error_estimate, allowed=allowed_error(rk),
+                y=np.concatenate((rk.q, rk.qd)), f=rk.f)
+
+
+def adopt_fast_run(rk, steps: int, t: float, y, f, estimate: float) -> None:
+    """The state and counters after ``steps`` rk4p steps the FMU's wrapper took in C
+    (``fast_run``), as ``_advance_fixed`` with ``rk4p_run`` leaves them."""
+    n = rk.q.size
+    rk.q, rk.qd, rk.f, rk.t = y[:n].copy(), y[n:].copy(), f, t
+    stats = rk.stats
+    stats.nsteps += steps
+    stats.naccel += 4 * steps
+    stats.nprojections += steps
+    stats.error_estimate = estimate
+    rk.accuracy.charged = stats.nsteps
+    rk.accuracy.unchecked += steps

@@ -20,6 +20,7 @@ import numpy as np
 
 from ...model.scene import PointForce, RotationalSpringDamper, SpringDamper, Torque
 from .dense import DENSE_KINDS, DenseRead, DenseReads  # noqa: F401 (DENSE_KINDS: public here)
+from .fixed import FixedSteps
 
 # Return codes of kernel.c (ST_*).
 OK, SINGULAR, PROJECTION, NOT_FINITE, SPRING, ENERGY, ERROR_NORM = range(7)
@@ -169,7 +170,7 @@ class Buffers:
         self.p_done = self.done.ctypes.data
 
 
-class Kernel(DenseReads):
+class Kernel(DenseReads, FixedSteps):
     """The C kernel bound to one scene's ``Equations``; every method returns None where
     kernel.c hands the case back to the numpy path (a singular Schur complement, a spring
     of zero length), which then says or does what it always does."""

@@ -17,6 +17,7 @@
  *   mbd_singularity_indicator  singular.py singularity_indicator
  *   mbd_dense_state  ProjectedRK._output_at: the projected dense output inside a step
  *   mbd_dense_step   an FMU's communication step that only reads it (dense.h)
+ *   mbd_fixed_step   an FMU's communication step of rk4p with the drivers' motions (fixed.h)
  *
  * Where the numpy path has a minimum-norm fallback (a singular Schur complement) this
  * kernel returns ST_SINGULAR and the caller redoes the work on the numpy path; a spring of
@@ -477,3 +478,4 @@ int mbd_singularity_indicator(const Model *M, const double *q, const double *cva
 #include "stepping.h"
 #include "outputs.h"
 #include "dense.h"
+#include "fixed.h"
