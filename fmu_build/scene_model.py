@@ -154,6 +154,11 @@ class Model(Slave):
         # in every fresh extraction of the FMU), see docs/performance.md
         sim = core.Simulation(scene, kernel=self.kernel, settings=settings, t0=build["t0"])
         self.slots = np.array([sim.output_names.index(n) for n in OUTPUTS], dtype=np.intp)
+        # the force inputs fmi2SetReal may set in the wrapper: value references, places in u
+        vr = {v.name: v.value_reference for v in self.variables.by_type["Real"].values()}
+        forces = [(vr[n], i) for n, (kind, i) in self.input_slot.items() if kind == "force"]
+        self.fast_inputs = (np.array([f[0] for f in forces], dtype=np.int64),
+                            np.array([f[1] for f in forces], dtype=np.int64))
         self.published_from = published_sources(self, sim)
         return sim
 
@@ -223,26 +228,41 @@ class Model(Slave):
         self.values.update(zip(self.published, np.concatenate(
             (outputs, states.ravel(), sim.accelerations()[0])).tolist()))
         kernel = sim.dense_reads_ahead()
-        fixed = None if kernel is not None else sim.fixed_steps_ahead(
+        fast = None if kernel is not None else sim.fast_steps_ahead(
             self.limit[1] if self.limit else None, TIME_TOLERANCE)
         if kernel is not None:   # the coming steps inside the last one: by the wrapper
             self.arm_fast_steps(*kernel.arm_dense_steps(sim.t, TIME_TOLERANCE,
                                                         *self.published_from))
-        elif fixed is not None:  # rk4p's coming steps, drivers' motions in C: the wrapper's
-            self.arm_fast_steps(*fixed[0].arm_fixed_steps(*fixed[1], *self.published_from))
+        elif fast is not None and fast[0] == "fixed":    # rk4p, the drivers' motions in C
+            self.arm_fast_steps(*fast[1].arm_fixed_steps(*fast[2], *self.published_from))
+        elif fast is not None:   # an embedded pair landing, inputs set in the wrapper too
+            self.arm_fast_steps(*fast[1].arm_prk_steps(*fast[2], self.fast_inputs,
+                                                       *self.published_from))
         else:
             self.disarm_fast_steps()
 
     def catch_up(self):
-        kernel = self.sim.equations.ckernel if self.sim is not None else None
+        sim = self.sim
+        kernel = sim.equations.ckernel if sim is not None else None
         if kernel is None:
             return None
-        if not self.sim.adopt_fixed_steps():         # the state rk4p's steps in C reached
-            if not kernel.dense.t_now > self.sim.t:
-                return None
-            self.sim.advance(kernel.dense.t_now)      # the same arithmetic as the wrapper's
-        self.publish()
-        return self.sim.t
+        adopted, pending = sim.adopt_fast_steps()   # the state the wrapper's steps reached
+        if not adopted and kernel.dense.t_now > sim.t:
+            sim.advance(kernel.dense.t_now)           # the same arithmetic as the wrapper's
+            adopted = True
+        if adopted:
+            self.publish()
+            reals = self.variables.by_type["Real"]
+            self.values.update((reals[vr].name, float(sim.inputs_at(sim.t).forces[slot]))
+                               for vr, slot in zip(*self.fast_inputs))
+        if pending:              # set in the wrapper after its last step: as fmi2SetReal sets
+            names = self.variables.by_type["Real"]
+            for vr, value in pending:
+                self.values[names[vr].name] = self.set_since_step[names[vr].name] = value
+            self._fmi_stale = self._fmi_calculates
+            self.disarm_fast_steps()                  # the next step is Python's
+            self._fmi_reals.invalidate()
+        return sim.t if adopted or pending else None
 
     STEP_CALCULATES = True          # publish() after every step sets the accelerations
 

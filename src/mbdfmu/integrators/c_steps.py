@@ -252,3 +252,43 @@ def adopt_fast_run(rk, steps: int, t: float, y, f, estimate: float) -> None:
     stats.error_estimate = estimate
     rk.accuracy.charged = stats.nsteps
     rk.accuracy.unchecked += steps
+
+
+def fast_prk_run(rk, limit, time_tol: float) -> dict | None:
+    """What ``ckernel/adaptive.h`` needs to take an embedded pair's coming communication
+    steps as ``_advance_adaptive`` lands on them (ckernel.PrkRun's fields), or None when
+    they must go through Python: another method, auto's watch after each step, an energy
+    audit (or a scene whose restart would start one), a state inside the last step, a
+    short CPU limit."""
+    from .projected_rk import MAX_FACTOR, MIN_FACTOR, SAFETY    # (it imports this module)
+    eq = rk.equations
+    if rk.name not in ("rk45p", "dop853p") or rk.watch is not None or rk.audit is not None or \
+            eq.nonconservative_reason() is None or eq.m == 0 or eq.ckernel is None or \
+            rk.out is not None or rk.energy_rejected is not None:
+        return None
+    max_work = 2 ** 62
+    if limit is not None:
+        if limit.max_cpu is not None and limit.max_cpu < MIN_CPU_LIMIT:
+            return None
+        max_work = limit.max_steps or max_work
+    return dict(t_now=rk.t, time_tol=time_tol, h=rk.h, max_step=rk.max_step,
+                exponent=-1.0 / (rk.order + 1), safety=SAFETY, min_factor=MIN_FACTOR,
+                max_factor=MAX_FACTOR, rtol=rk.local_tolerance * rk.rtol,
+                atol=rk.local_tolerance * rk.atol, tol=rk._projection_tol(),
+                max_iter=PROJECTION_MAX_ITER, indicator=rk.zone.indicator,
+                landing=int(rk.zone.landing), max_work=max_work,
+                y=np.concatenate((rk.q, rk.qd)), f=rk.f)
+
+
+def adopt_prk_run(rk, state: dict) -> None:
+    """The state and counters after communication steps the FMU's wrapper took
+    (``fast_prk_run``), as ``_advance_adaptive`` leaves them; the last step's dense output
+    is not kept (a step that lands on the communication point is never read inside)."""
+    n = rk.q.size
+    y = state["y"]
+    rk.q, rk.qd, rk.f, rk.t, rk.h = y[:n].copy(), y[n:].copy(), state["f"], state["t"], state["h"]
+    rk.out = rk.dense = rk.energy_rejected = None
+    rk.zone.indicator, rk.zone.crossing, rk.zone.landing = state["indicator"], False, \
+        state["landing"]
+    for name, count in state["counters"].items():
+        setattr(rk.stats, name, getattr(rk.stats, name) + count)

@@ -18,6 +18,8 @@
  *   mbd_dense_state  ProjectedRK._output_at: the projected dense output inside a step
  *   mbd_dense_step   an FMU's communication step that only reads it (dense.h)
  *   mbd_fixed_step   an FMU's communication step of rk4p with the drivers' motions (fixed.h)
+ *   mbd_prk_fast_step  an FMU's communication step of an embedded pair after inputs were
+ *                    set (mbd_prk_set), landing on the communication point (adaptive.h)
  *
  * Where the numpy path has a minimum-norm fallback (a singular Schur complement) this
  * kernel returns ST_SINGULAR and the caller redoes the work on the numpy path; a spring of
@@ -479,3 +481,4 @@ int mbd_singularity_indicator(const Model *M, const double *q, const double *cva
 #include "outputs.h"
 #include "dense.h"
 #include "fixed.h"
+#include "adaptive.h"
