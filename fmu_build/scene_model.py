@@ -154,11 +154,7 @@ class Model(Slave):
         # in every fresh extraction of the FMU), see docs/performance.md
         sim = core.Simulation(scene, kernel=self.kernel, settings=settings, t0=build["t0"])
         self.slots = np.array([sim.output_names.index(n) for n in OUTPUTS], dtype=np.intp)
-        # the force inputs fmi2SetReal may set in the wrapper: value references, places in u
-        vr = {v.name: v.value_reference for v in self.variables.by_type["Real"].values()}
-        forces = [(vr[n], i) for n, (kind, i) in self.input_slot.items() if kind == "force"]
-        self.fast_inputs = (np.array([f[0] for f in forces], dtype=np.int64),
-                            np.array([f[1] for f in forces], dtype=np.int64))
+        self.fast_inputs = self.core.fast_steps.settable_inputs(sim, self.variables)
         self.published_from = published_sources(self, sim)
         return sim
 
@@ -227,42 +223,18 @@ class Model(Slave):
         states = np.hstack((sim.q.reshape(-1, 3), sim.qd.reshape(-1, 3)))   # STATES' order
         self.values.update(zip(self.published, np.concatenate(
             (outputs, states.ravel(), sim.accelerations()[0])).tolist()))
-        kernel = sim.dense_reads_ahead()
-        fast = None if kernel is not None else sim.fast_steps_ahead(
-            self.limit[1] if self.limit else None, TIME_TOLERANCE)
-        if kernel is not None:   # the coming steps inside the last one: by the wrapper
-            self.arm_fast_steps(*kernel.arm_dense_steps(sim.t, TIME_TOLERANCE,
-                                                        *self.published_from))
-        elif fast is not None and fast[0] == "fixed":    # rk4p, the drivers' motions in C
-            self.arm_fast_steps(*fast[1].arm_fixed_steps(*fast[2], *self.published_from))
-        elif fast is not None:   # an embedded pair landing, inputs set in the wrapper too
-            self.arm_fast_steps(*fast[1].arm_prk_steps(*fast[2], self.fast_inputs,
-                                                       *self.published_from))
-        else:
-            self.disarm_fast_steps()
+        armed = self.core.fast_steps.arm(sim, self.limit[1] if self.limit else None,
+                                         TIME_TOLERANCE, self.fast_inputs, self.published_from)
+        self.set_fast_steps(armed)          # the coming steps in C, or through Python
 
     def catch_up(self):
-        sim = self.sim
-        kernel = sim.equations.ckernel if sim is not None else None
-        if kernel is None:
+        if self.sim is None:
             return None
-        adopted, pending = sim.adopt_fast_steps()   # the state the wrapper's steps reached
-        if not adopted and kernel.dense.t_now > sim.t:
-            sim.advance(kernel.dense.t_now)           # the same arithmetic as the wrapper's
-            adopted = True
-        if adopted:
+        moved, held, pending = self.core.fast_steps.catch_up(self.sim, self.fast_inputs)
+        if moved:
             self.publish()
-            reals = self.variables.by_type["Real"]
-            self.values.update((reals[vr].name, float(sim.inputs_at(sim.t).forces[slot]))
-                               for vr, slot in zip(*self.fast_inputs))
-        if pending:              # set in the wrapper after its last step: as fmi2SetReal sets
-            names = self.variables.by_type["Real"]
-            for vr, value in pending:
-                self.values[names[vr].name] = self.set_since_step[names[vr].name] = value
-            self._fmi_stale = self._fmi_calculates
-            self.disarm_fast_steps()                  # the next step is Python's
-            self._fmi_reals.invalidate()
-        return sim.t if adopted or pending else None
+        self.set_in_wrapper(held, pending)
+        return self.sim.t if moved or pending else None
 
     STEP_CALCULATES = True          # publish() after every step sets the accelerations
 

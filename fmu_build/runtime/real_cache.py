@@ -88,6 +88,13 @@ class FastStepProtocol:
         ``setter``, fmi2SetReal too (``FastSteps``)."""
         self._fmi_fast_steps.arm(function, model, context, setter)
 
+    def set_fast_steps(self, armed: tuple | None) -> None:
+        """``arm_fast_steps(*armed)``, or disarm them when ``armed`` is None."""
+        if armed is None:
+            self.disarm_fast_steps()
+        else:
+            self.arm_fast_steps(*armed)
+
     def disarm_fast_steps(self) -> None:
         self._fmi_fast_steps.disarm()
 
@@ -95,6 +102,21 @@ class FastStepProtocol:
         """After steps the wrapper took by itself: the model's state at their end and
         its time, or None when there were none (models that arm ``FastSteps``)."""
         return None
+
+    def set_in_wrapper(self, held, pending) -> None:
+        """For ``catch_up``, of the Real variables the wrapper's set function takes,
+        [(value reference, value)]: ``held`` the values the model now holds, ``pending``
+        those it took after its last step, now set as fmi2SetReal sets them (the next step
+        and every get then go through Python)."""
+        reals = self.variables.by_type["Real"]
+        self.values.update((reals[vr].name, value) for vr, value in held)
+        if not pending:
+            return
+        for vr, value in pending:
+            self.values[reals[vr].name] = self.set_since_step[reals[vr].name] = value
+        self._fmi_stale = self._fmi_calculates
+        self.disarm_fast_steps()
+        self._fmi_reals.invalidate()
 
     def fmi_sync(self):
         """Called by the wrapper before any call that follows steps it took by itself."""

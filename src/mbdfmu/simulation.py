@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 
 from .equations import Equations
-from .equations.ckernel.fixed import motion_table
 from .equations.projection import (ASSEMBLY_TOL, PROJECTION_MAX_ITER, assemble,
                                    assembly_changes, initial_estimates, project_positions,
                                    project_velocities)
@@ -22,7 +21,6 @@ from .errors import SettingError, SolverError
 from .integrators import make_integrator
 from .integrators.auto_watch import method_chain, switches_of
 from .integrators.base import WorkLimit
-from .integrators.c_steps import adopt_fast_run, adopt_prk_run, fast_prk_run, fast_run, tableau
 from .integrators.events import EventRunner, check_method, event_kernel
 from .integrators.settings import SolverSettings, settings_from_scene
 from .model.reader import load_scene
@@ -171,54 +169,6 @@ class Simulation(SimulationInputs):
                 not getattr(integrator, "load_dense_output", lambda t: False)(self.t):
             return None
         return kernel
-
-    def fast_steps_ahead(self, limit, time_tol: float):
-        """How an FMU's wrapper may take the coming communication steps in the C kernel
-        alone, or None: ("fixed", kernel, the arguments of ``arm_fixed_steps`` before the
-        published values) for rk4p, the drivers' motions evaluated in C (fixed.h); ("prk",
-        kernel, those of ``arm_prk_steps`` before the inputs) for an embedded pair landing
-        on every communication point, the force inputs set there by the master
-        (adaptive.h). Both need no events, no input changed, every force input held, no
-        driver taking its motion from the inputs, auto switching nothing (``c_steps``'s
-        ``fast_run`` and ``fast_prk_run`` say the rest)."""
-        kernel, integrator, eq = self.equations.ckernel, self.integrator, self.equations
-        watcher = getattr(integrator, "watcher", None)
-        if kernel is None or self.events is not None or self._inputs_changed or \
-                self._drivers or any(type(f) is not Held for f in self._forces.values()) or \
-                (watcher is not None and watcher.pending is not None):
-            return None
-        u = self.inputs_at(self.t)
-        table = motion_table(eq.constraint_set)
-        run = None if table is None else fast_run(integrator, limit, time_tol)
-        if run is not None:
-            return "fixed", kernel, (run, table, eq.constraint_set.offsets, u.forces)
-        run = None if self.scene.drivers or self.inputs_known_ahead() else \
-            fast_prk_run(integrator, limit, time_tol)
-        if run is None:
-            return None
-        run.update(motion=np.concatenate(eq.motion_values(self.t, u)), uf=u.forces,
-                   reinit_tol=ASSEMBLY_TOL * eq.length_scale * REINITIALIZE_TOL_FACTOR)
-        return "prk", kernel, (run, tableau(integrator)[:5])
-
-    def adopt_fast_steps(self) -> tuple[bool, list]:
-        """After communication steps the FMU's wrapper took (``fast_steps_ahead``): the
-        state, counters and inputs they reached (the same arithmetic: the values are those
-        it served). Returns (whether it took any, [(value reference, value)] of inputs set
-        in the wrapper since its last step, for the FMU to treat as set)."""
-        kernel = self.equations.ckernel
-        if kernel is None:
-            return False, []
-        fixed, (_, prk, pending) = kernel.fixed_taken(), kernel.prk_taken()
-        kernel.disarm_fixed()
-        kernel.disarm_prk()
-        if fixed is not None:
-            adopt_fast_run(self.integrator, *fixed)
-        if prk is not None:
-            adopt_prk_run(self.integrator, prk)
-            for item, where in self.equations.layout.forces.items():
-                self._forces[item] = Held(prk["uf"][where].copy())
-        self._cache = self._held = None
-        return fixed is not None or prk is not None, pending
 
     def accelerations(self) -> tuple[np.ndarray, np.ndarray]:
         """q'' and lam at the current state and inputs (cached until either changes).

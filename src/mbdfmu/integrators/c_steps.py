@@ -254,13 +254,12 @@ def adopt_fast_run(rk, steps: int, t: float, y, f, estimate: float) -> None:
     rk.accuracy.unchecked += steps
 
 
-def fast_prk_run(rk, limit, time_tol: float) -> dict | None:
+def fast_prk_run(rk, limit, time_tol: float, factors: tuple) -> dict | None:
     """What ``ckernel/adaptive.h`` needs to take an embedded pair's coming communication
     steps as ``_advance_adaptive`` lands on them (ckernel.PrkRun's fields), or None when
     they must go through Python: another method, auto's watch after each step, an energy
     audit (or a scene whose restart would start one), a state inside the last step, a
-    short CPU limit."""
-    from .projected_rk import MAX_FACTOR, MIN_FACTOR, SAFETY    # (it imports this module)
+    short CPU limit. ``factors``: projected_rk.py's (safety, min, max) step factors."""
     eq = rk.equations
     if rk.name not in ("rk45p", "dop853p") or rk.watch is not None or rk.audit is not None or \
             eq.nonconservative_reason() is None or eq.m == 0 or eq.ckernel is None or \
@@ -272,8 +271,8 @@ def fast_prk_run(rk, limit, time_tol: float) -> dict | None:
             return None
         max_work = limit.max_steps or max_work
     return dict(t_now=rk.t, time_tol=time_tol, h=rk.h, max_step=rk.max_step,
-                exponent=-1.0 / (rk.order + 1), safety=SAFETY, min_factor=MIN_FACTOR,
-                max_factor=MAX_FACTOR, rtol=rk.local_tolerance * rk.rtol,
+                exponent=-1.0 / (rk.order + 1), safety=factors[0], min_factor=factors[1],
+                max_factor=factors[2], rtol=rk.local_tolerance * rk.rtol,
                 atol=rk.local_tolerance * rk.atol, tol=rk._projection_tol(),
                 max_iter=PROJECTION_MAX_ITER, indicator=rk.zone.indicator,
                 landing=int(rk.zone.landing), max_work=max_work,

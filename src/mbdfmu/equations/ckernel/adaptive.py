@@ -80,22 +80,23 @@ class PrkSteps:
         return step, self.address, ctypes.addressof(r), setter
 
     def prk_taken(self):
-        """What the wrapper did since arming: (steps it took, then the state for
-        ``c_steps.adopt_prk_run`` or None without steps, and [(value reference, value)]
-        of the inputs set since its last step)."""
+        """What the wrapper did since arming or the last call: (steps it took, then the
+        state for ``c_steps.adopt_prk_run`` or None without steps, and [(value reference,
+        value)] of the inputs set since its last step). The counts start again; the run
+        stays where the wrapper points until armed anew."""
         r = self.prk
         if r is None:
             return 0, None, []
         a, n2, nf = self._prk_arrays, 2 * self.n, max(self.nf, 1)
         pending = [(int(vr), float(a["uf"][slot])) for vr, slot, flag in
                    zip(a["vrs"], a["slots"], a["set"]) if flag]
+        a["set"][:] = 0
         if r.steps == 0:
             return 0, None, pending
         state = dict(t=float(r.t_now), h=float(r.h), indicator=float(r.indicator),
                      landing=bool(r.landing), y=a["states"][:n2].copy(),
                      f=a["states"][n2:2 * n2].copy(), uf=a["uf"][nf:nf + self.nf].copy(),
                      counters={k: int(getattr(r, k)) for k in COUNTERS})
-        return int(r.steps), state, pending
-
-    def disarm_prk(self) -> None:
-        self.prk = None
+        steps = int(r.steps)
+        r.steps = r.nsteps = r.nrejected = r.naccel = r.nprojections = 0
+        return steps, state, pending

@@ -95,12 +95,11 @@ class FixedSteps:
         return function, self.address, ctypes.addressof(r)
 
     def fixed_taken(self):
-        """(steps taken, t reached, y, f, estimate) by the wrapper since arming, or None."""
+        """(steps taken, t reached, y, f, estimate) by the wrapper since arming or the last
+        call, or None. The run stays where the wrapper points until armed anew."""
         r = self.fixed
         if r is None or r.steps == 0:
             return None
         n2, y = 2 * self.n, self._fixed_arrays[5]
-        return int(r.steps), float(r.t_now), y[:n2].copy(), y[n2:2 * n2].copy(), float(r.estimate)
-
-    def disarm_fixed(self) -> None:
-        self.fixed = None
+        steps, r.steps = int(r.steps), 0
+        return steps, float(r.t_now), y[:n2].copy(), y[n2:2 * n2].copy(), float(r.estimate)
