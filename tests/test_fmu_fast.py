@@ -194,3 +194,23 @@ def test_steps_after_an_input_set_are_the_wrappers_and_pythons_values(crane_fmu,
         run(slow, names, 5, "cylinder.actuator").tolist()
     assert fast.status("fmi2SetFMUstate", state_fast) == OK and \
         slow.status("fmi2SetFMUstate", state_slow) == OK
+
+
+def test_steps_beyond_the_work_limit_are_discarded_by_python_not_taken_by_the_wrapper(
+        scene_fmu, crane_fmu, scene_host):
+    """The wrapper's steps respect solver.max_steps_per_communication_step: a 1 ms step
+    (one rk4p step; one landing dop853p step) is its own, a 10 ms one needs more steps
+    than allowed, so Python takes it and discards it, saying why; the FMU stays where it
+    was and a shorter step goes on."""
+    for path, name, force in ((scene_fmu("slider_crank"), "slider.x", None),
+                              (crane_fmu, "boom.phi", "cylinder.actuator")):
+        h = scene_host(path)
+        assert h.set_int("solver.max_steps_per_communication_step", 1) == OK
+        before = run(h.init(), [name], 5, force)
+        if force is not None:
+            assert h.set_real([h.vr[force]], [actuator(h.t)]) == OK
+        assert h.status("fmi2DoStep", h.t, 10 * H, 1) == DISCARD
+        assert "solver.max_steps_per_communication_step" in h.messages[-1][2]
+        assert h.real(name) == [before[-1, 0]]
+        assert h.step(H) == OK
+        assert taken_by_wrapper(h) >= 3

@@ -218,6 +218,16 @@ def mc_step(rk, h: float, safety: float, min_factor: float, max_factor: float,
 MIN_CPU_LIMIT = 0.01
 
 
+def wrapper_steps(limit) -> int | None:
+    """The steps (accepted or not) one communication step in C may take under ``limit``
+    (a ``WorkLimit`` or None), or None when a short CPU limit keeps the steps in Python."""
+    if limit is None:
+        return 2 ** 62
+    if limit.max_cpu is not None and limit.max_cpu < MIN_CPU_LIMIT:
+        return None
+    return limit.max_steps or 2 ** 62
+
+
 def fast_run(rk, limit, time_tol: float) -> dict | None:
     """What ``ckernel/fixed.h`` needs to take rk4p's coming communication steps as
     ``_advance_fixed`` would (its grid, its step-doubling checks left to Python, its work
@@ -227,11 +237,9 @@ def fast_run(rk, limit, time_tol: float) -> dict | None:
     if rk.name != "rk4p" or rk.audit is not None or eq.m == 0 or eq.ckernel is None or \
             rk.out is not None:
         return None
-    max_steps = 2 ** 62
-    if limit is not None:
-        if limit.max_cpu is not None and limit.max_cpu < MIN_CPU_LIMIT:
-            return None
-        max_steps = limit.max_steps or max_steps
+    max_steps = wrapper_steps(limit)
+    if max_steps is None:
+        return None
     accuracy = rk.accuracy
     return dict(t_now=rk.t, time_tol=time_tol, h_max=rk.h, slack=STEP_COUNT_SLACK,
                 max_steps=max_steps, unchecked=accuracy.unchecked, check_every=SPOT_CHECK_EVERY,
@@ -265,11 +273,9 @@ def fast_prk_run(rk, limit, time_tol: float, factors: tuple) -> dict | None:
             eq.nonconservative_reason() is None or eq.m == 0 or eq.ckernel is None or \
             rk.out is not None or rk.energy_rejected is not None:
         return None
-    max_work = 2 ** 62
-    if limit is not None:
-        if limit.max_cpu is not None and limit.max_cpu < MIN_CPU_LIMIT:
-            return None
-        max_work = limit.max_steps or max_work
+    max_work = wrapper_steps(limit)
+    if max_work is None:
+        return None
     return dict(t_now=rk.t, time_tol=time_tol, h=rk.h, max_step=rk.max_step,
                 exponent=-1.0 / (rk.order + 1), safety=factors[0], min_factor=factors[1],
                 max_factor=factors[2], rtol=rk.local_tolerance * rk.rtol,
