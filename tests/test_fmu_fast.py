@@ -17,7 +17,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import mbdfmu  # noqa: E402
 from mbdfmu.equations import ckernel  # noqa: E402
 from mbdfmu.fmu_build.scene_fmu import KERNEL_FILE  # noqa: E402
-from fmu_models.harness import DISCARD, OK, get_state  # noqa: E402
+from fmu_models.harness import DISCARD, ERROR, OK, get_state  # noqa: E402
 from fmu_models.scenes import SCENES, scene_fmu, scene_host  # noqa: E402,F401
 
 pytestmark = pytest.mark.skipif(not ckernel.available(), reason="no C compiler for the kernel")
@@ -222,3 +222,19 @@ def test_steps_beyond_the_work_limit_are_discarded_by_python_not_taken_by_the_wr
         assert h.real(name) == [before[-1, 0]]
         assert h.step(H) == OK
         assert taken_by_wrapper(h) >= 3
+
+
+def test_a_set_the_wrapper_cannot_take_is_pythons_and_says_why(crane_fmu, scene_host):
+    """After the wrapper's steps and a force it took: a non-finite force is fmi2Discard and
+    a fixed parameter fmi2Error, said by Python as before; the valid values are applied."""
+    h = scene_host(crane_fmu).init()
+    vr = h.vr["cylinder.actuator"]
+    run(h, ["boom.phi"], 5, "cylinder.actuator")
+    assert h.set_real([vr], [9000.0]) == OK
+    assert h.set_real([vr], [float("nan")]) == DISCARD
+    assert "finite" in h.messages[-1][2]
+    assert h.real("cylinder.actuator") == [9000.0]
+    assert h.set_real([vr, h.vr["boom.mass"]], [9500.0, 1.0]) == ERROR
+    assert "boom.mass" in h.messages[-1][2]
+    assert h.real("cylinder.actuator") == [9500.0]
+    assert taken_by_wrapper(h) >= 3
