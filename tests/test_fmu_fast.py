@@ -117,6 +117,17 @@ def taken_by_wrapper(h) -> int:
                if "taken by the wrapper" in m)
 
 
+def step_both(fast, slow, step: float, names) -> list[float]:
+    """One doStep of both instances, ``slow`` sent through Python for its next call
+    (fmi2SetDebugLogging after each step): ``names``' values, the same bit for bit."""
+    assert fast.step(step) == OK and slow.step(step) == OK, (fast.messages[-3:],
+                                                             slow.messages[-3:])
+    values = fast.real(*names)
+    assert values == slow.real(*names)
+    assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+    return values
+
+
 def test_rk4p_steps_with_a_driver_are_the_wrappers_and_pythons_values(scene_fmu, scene_host):
     """The slider-crank (auto->rk4p; the motor's linear motion evaluated in C, ckernel/
     fixed.h): the wrapper takes its doSteps (1 ms, some 3 ms) by itself, all but those
@@ -127,16 +138,10 @@ def test_rk4p_steps_with_a_driver_are_the_wrappers_and_pythons_values(scene_fmu,
     path = scene_fmu("slider_crank")
     fast, slow = scene_host(path, "fast").init(), scene_host(path, "slow").init()
     names = fast.outputs + ["crank.x", "rod.alpha"]
-    got, expected = [], []
     steps = 3 * SPOT_CHECK_EVERY + 7
+    got = []
     for k in range(steps):
-        step = 3 * H if k % 10 == 9 else H       # three rk4p steps in one
-        assert fast.step(step) == OK and slow.step(step) == OK, (fast.messages[-3:],
-                                                                 slow.messages[-3:])
-        got.append(fast.real(*names))
-        expected.append(slow.real(*names))
-        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK   # the next in Python
-    np.testing.assert_array_equal(np.array(got), np.array(expected))
+        got.append(step_both(fast, slow, 3 * H if k % 10 == 9 else H, names))   # 3 rk4p steps
     # the closed form of the drive: the crank's angle is the motor's rate times t
     np.testing.assert_allclose(fast.real("crank.phi")[0], 314.1592653589793 * fast.t,
                                rtol=1e-9)
@@ -174,20 +179,14 @@ def test_steps_after_an_input_set_are_the_wrappers_and_pythons_values(crane_fmu,
     fast, slow = scene_host(crane_fmu, "fast").init(), scene_host(crane_fmu, "slow").init()
     force = [fast.vr["cylinder.actuator"]]
     names = fast.outputs + [n for n in fast.vr if n.endswith((".alpha", ".ax", ".phi"))]
-    got, expected = [], []
+    got = []
     for k in range(200):
         last = actuator(fast.t)
         for h in (fast, slow):
             assert h.set_real(force, [last]) == OK
         if k == 150:              # read between the set and the step: through Python
             assert fast.real(*names) == slow.real(*names)
-        step = 20 * H if k % 10 == 9 else H      # several controlled steps in one
-        assert fast.step(step) == OK and slow.step(step) == OK, (fast.messages[-3:],
-                                                                 slow.messages[-3:])
-        got.append(fast.real(*names))
-        expected.append(slow.real(*names))
-        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK   # the next in Python
-    np.testing.assert_array_equal(np.array(got), np.array(expected))
+        got.append(step_both(fast, slow, 20 * H if k % 10 == 9 else H, names))
     assert fast.real("cylinder.actuator") == [last]
     assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK       # catches up
     assert taken_by_wrapper(slow) == 0
