@@ -20,7 +20,7 @@ from . import singular_zone
 from .base import STEP_COUNT_SLACK, Integrator
 from .dense_output import DenseStep
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
-from .stated_accuracy import SPOT_CHECK_EVERY, allowed_error
+from .stated_accuracy import allowed_error
 
 # The energy check's running state as kernel.c reads it (rk4p_compiled.AuditField's order).
 AUDIT_FIELDS = ("active", "e0", "v0", "kinetic_max", "potential_swing", "magnitude", "checks",
@@ -222,7 +222,7 @@ def mc_step(rk, h: float, safety: float, min_factor: float, max_factor: float,
 
 
 # A CPU limit per communication step below this (s) keeps rk4p's steps in Python, where it
-# is checked: the wrapper's own steps (at most SPOT_CHECK_EVERY of them) are not timed.
+# is checked: the wrapper's own steps (at most a check interval of them) are not timed.
 MIN_CPU_LIMIT = 0.01
 
 
@@ -250,8 +250,9 @@ def fast_run(rk, limit, time_tol: float) -> dict | None:
         return None
     accuracy = rk.accuracy
     return dict(t_now=rk.t, time_tol=time_tol, h_max=rk.h, slack=STEP_COUNT_SLACK,
-                max_steps=max_steps, unchecked=accuracy.unchecked, check_every=SPOT_CHECK_EVERY,
-                tol=rk._projection_tol(), max_iter=PROJECTION_MAX_ITER, local=accuracy.local,
+                max_steps=max_steps, unchecked=accuracy.unchecked, check_every=accuracy.every,
+                tol=rk._projection_tol(), max_iter=PROJECTION_MAX_ITER,
+                local=accuracy.growth_bound(rk.h),
                 estimate=rk.stats.error_estimate, allowed=allowed_error(rk),
                 y=np.concatenate((rk.q, rk.qd)), f=rk.f)
 
@@ -260,14 +261,13 @@ def adopt_fast_run(rk, steps: int, t: float, y, f, estimate: float) -> None:
     """The state and counters after ``steps`` rk4p steps the FMU's wrapper took in C
     (``fast_run``), as ``_advance_fixed`` with ``rk4p_run`` leaves them."""
     n = rk.q.size
+    h = (t - rk.t) / steps if steps else rk.h
     rk.q, rk.qd, rk.f, rk.t = y[:n].copy(), y[n:].copy(), f, t
     stats = rk.stats
     stats.nsteps += steps
     stats.naccel += 4 * steps
     stats.nprojections += steps
-    stats.error_estimate = estimate
-    rk.accuracy.charged = stats.nsteps
-    rk.accuracy.unchecked += steps
+    rk.accuracy.charge(rk, h)     # within ``estimate``, the bound the wrapper kept
 
 
 def fast_prk_run(rk, limit, time_tol: float, factors: tuple) -> dict | None:

@@ -106,6 +106,12 @@ class ErrorEstimate(Plain):
         self.every = min(SPOT_CHECK_MAX, max(SPOT_CHECK_EVERY,
                                              integrator.stats.nsteps // SPOT_CHECK_SHARE))
 
+    def growth_bound(self, h: float) -> float:
+        """An upper bound of the estimate's growth per step of at most h until the next
+        check (the FMU wrapper's steps in C add it up): dq, plus h times the velocity
+        errors charged so far and those of the coming steps."""
+        return self.local + h * (self.sum_v + 0.5 * self.local_v * self.every)
+
     def charge(self, integrator, h: float) -> None:
         """Charge the steps of size h taken since the last call with the last local errors;
         stop when the estimated global error exceeds what the stated accuracy allows."""
