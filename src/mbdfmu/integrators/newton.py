@@ -191,24 +191,27 @@ def _converged(tols: NewtonTolerances, matrix: IterationMatrix, size: float,
     return size <= tol and matrix.fresh or _dynamics_hold(tols, residual)
 
 
-def _dynamics_hold(tols: NewtonTolerances, residual: np.ndarray) -> bool:
-    """The dynamic residual (as a displacement) within its tolerance."""
-    return float(np.max(np.abs(residual))) <= tols.residual
+def _dynamics_hold(tols: NewtonTolerances, residual: np.ndarray, noise: bool = False) -> bool:
+    """The dynamic residual (as a displacement) within its tolerance; after increments of
+    rounding noise, within what that noise allows near a singular configuration."""
+    tol = max(tols.residual, tols.near_singular) if noise else tols.residual
+    return float(np.max(np.abs(residual))) <= tol
 
 
-def _increment_converged(tols, matrix, size, previous, length_scale) -> bool:
+def _increment_converged(tols, matrix, size, previous, length_scale) -> str | None:
     """After an increment of max-norm ``size``: is the remaining error below the tolerance?
     Estimated as theta / (1 - theta) size with the contraction theta = size / previous
-    (Hairer and Wanner II, eq. IV.8.10); a first increment must be ten times below it.
-    Increments of rounding noise that stop shrinking with a fresh matrix: converged."""
+    (Hairer and Wanner II, eq. IV.8.10); a first increment must be ten times below it:
+    "estimate". Increments of the rounding noise's size that stop shrinking with a fresh
+    matrix: "noise" (converged if the dynamic residual holds, ``_dynamics_hold``)."""
     tol = tols.near_singular if matrix.near_singular() else tols.tol
     if previous is None:
-        return size <= 0.1 * tol
+        return "estimate" if size <= 0.1 * tol else None
     theta = size / previous if previous > 0 else 0.0
     if matrix.fresh and size <= matrix.noise(tols, length_scale) and \
             NEWTON_SLOW_RATE < theta <= NEWTON_DIVERGING_RATE:
-        return True
-    return theta < 1.0 and theta / (1.0 - theta) * size <= tol
+        return "noise"
+    return "estimate" if theta < 1.0 and theta / (1.0 - theta) * size <= tol else None
 
 
 def _check_rate(matrix, tols, size, previous):
@@ -250,7 +253,7 @@ def newton_iterate(evaluate, build_matrix, apply, matrix: IterationMatrix, h: fl
         if _converged(tols, matrix, size, dynamic / mass, Psi):
             return
         if unchecked:
-            if _dynamics_hold(tols, dynamic / mass):
+            if _dynamics_hold(tols, dynamic / mass, unchecked == "noise"):
                 return
             rsize = float(np.max(np.abs(dynamic / mass)))
             if last is not None and rsize > NEWTON_SLOW_RATE * last:
@@ -264,11 +267,11 @@ def newton_iterate(evaluate, build_matrix, apply, matrix: IterationMatrix, h: fl
             raise NewtonFailure("non-finite Newton increment")
         apply(dx)
         if unchecked:
-            if matrix.fresh:
+            if matrix.fresh and unchecked == "estimate":
                 return
             continue
         unchecked = _increment_converged(tols, matrix, size, previous, length_scale)
-        if unchecked and matrix.fresh:
+        if unchecked == "estimate" and matrix.fresh:
             return
         previous = _check_rate(matrix, tols, size, previous)
     residual = float(np.max(np.abs(Psi), initial=0.0))
