@@ -1,11 +1,15 @@
-"""genalpha: second-order convergence through a singular configuration, against the exact
-reduction of P2 (tests/exact_solutions.py).
+"""genalpha and ali3p: second-order convergence through a singular configuration and where
+the motion is fastest, against the exact reduction of P2 (tests/exact_solutions.py).
 
 P2's N-four-bar (N = 2) passes a singular configuration (cranks horizontal, Psi_q loses
 rank 2) at t = 1.21 s with its cranks pointing left. Started at t0 = 1.1 s from the exact
 one-degree-of-freedom reduction and run through that crossing to 1.3 s, the methods should
 show their order 2 at steps small enough that the crossing's rounding matters: the error
-must fall by about 4 at each halving of the step. genalpha does; ali3p does not yet.
+must fall by about 4 at each halving of the step.
+
+Where the crank is fastest (pointing down, t = 0.97 s), a kept iteration matrix used to
+leave the equations of motion off at every step with the same sign: the velocity error
+must fall by 4 at each halving there too (integrators/newton.py).
 """
 import math
 import tomllib
@@ -60,12 +64,14 @@ def crossing_error(method: str, h: float) -> float:
     return segment_errors(method, h, T0, T1)[0]
 
 
-def test_genalpha_order_two_through_the_singular_crossing():
-    # measured: 3.96e-8, 9.92e-9, 2.48e-9 (ratios 3.99, 4.00). Before the Newton iteration
-    # counted its multiplier increments (integrators/newton.py), the crossing left a
-    # velocity error that did not shrink with h: ratios 3.2, 1.9. (ali3p, which counts its
-    # positions only: 2.5, 1.8.)
-    errors = [crossing_error("genalpha", h) for h in (1.25e-4, 6.25e-5, 3.125e-5)]
+@pytest.mark.parametrize("method", ["genalpha", "ali3p"])
+def test_order_two_through_the_singular_crossing(method):
+    # measured: genalpha 3.96e-8, 9.92e-9, 2.48e-9 (ratios 3.99, 4.00); before the Newton
+    # iteration counted its multiplier increments (integrators/newton.py), the crossing left
+    # a velocity error that did not shrink with h: ratios 3.2, 1.9. ali3p 1.82e-8, 4.54e-9,
+    # 9.6e-10 (4.00, 4.74); before Newton checked the dynamic residual at increments of the
+    # noise's size: 2.5, 1.8.
+    errors = [crossing_error(method, h) for h in (1.25e-4, 6.25e-5, 3.125e-5)]
     ratios = [errors[0] / errors[1], errors[1] / errors[2]]
     assert all(3.3 < r < 6.5 for r in ratios), (errors, ratios)
     assert errors[-1] < 5e-9
@@ -85,3 +91,18 @@ def test_order_two_in_velocity_where_the_crank_is_fastest(method):
     ratios = [velocity[0] / velocity[1], velocity[1] / velocity[2]]
     assert all(3.5 < r < 4.6 for r in ratios), (velocity, ratios)
     assert errors[-1][0] < 1e-9 and velocity[-1] < 1e-9, errors
+
+
+@pytest.mark.parametrize("method", ["genalpha", "ali3p"])
+def test_pendulum_order_two_below_1e8(method):
+    # P1 released from the horizontal, 0.3 s against the elliptic solution; measured:
+    # genalpha 3.2e-8, 8.1e-9, 2.0e-9 (ratios 4.00, 4.00).
+    scene = mbdfmu.load_scene(ref.SCENES / "pendulum.toml")
+    errors = []
+    for h in (2e-4, 1e-4, 5e-5):
+        res = mbdfmu.simulate(scene, 0.3, method=method, step=h, output_interval=0.01)
+        ex = ref.simple_pendulum(res.time, L=1.0, m=1.0, J=scene.bodies[0].inertia)
+        errors.append(float(np.max(np.hypot(res["bob.x"] - ex["x"], res["bob.y"] - ex["y"]))))
+    ratios = [errors[0] / errors[1], errors[1] / errors[2]]
+    assert all(3.5 < r < 4.6 for r in ratios), (errors, ratios)
+    assert errors[1] < 1e-8 and errors[2] < 3e-9, errors

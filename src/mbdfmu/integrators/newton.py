@@ -36,13 +36,18 @@ h = 2 ms, then halvings and a 20 times larger error): ali3p counts its positions
 
 Small increments prove convergence only with a matrix evaluated in the step. A kept matrix
 (Psi_q and K from earlier steps) contracts the constraint error at once but the dynamic
-residual slowly, and its increments said converged while the equations of motion were off by
-1e-7 to 2e-5 m/s^2; with the same sign step after step this lost energy where the motion is
-fastest (P2 N = 2 near t = 0.97 s: an error of 1.5e-8 that did not shrink with h). So with a
-kept matrix, once the increments have converged, the residual is evaluated and the iteration
-goes on until the dynamic residual (as a displacement) is within ``tolerances.residual``;
-a kept matrix that does not reduce it by NEWTON_SLOW_RATE per iteration is re-evaluated,
-and an increment with a fresh matrix ends the iteration (``_dynamics_hold``).
+residual slowly, and its increments said converged while the equations of motion were
+still off, with the same sign step after step: energy was lost where the motion is fastest,
+an error that did not shrink with h (docs/accuracy.md). So with a kept matrix, once the
+increments have converged, the residual is evaluated and the iteration goes on until the
+dynamic residual (as a displacement) is within ``tolerances.residual``; a kept matrix that
+does not reduce it by NEWTON_SLOW_RATE per iteration is re-evaluated, and an increment with
+a fresh matrix ends the iteration. Increments that stop shrinking at the noise level with a
+fresh matrix end it only if the residual is within the near-singular tolerance too: ali3p's
+penalty iteration contracts slowly along the direction where Psi_q loses rank, and at a
+crossing its increments kept the same size while the equations of motion were far off
+(``_dynamics_hold``). The residual test measures ali3p's multipliers by what they do,
+Psi_q^T lam at the current iterate, which its increments (positions only) do not.
 """
 
 from __future__ import annotations
