@@ -13,6 +13,9 @@ before, its stable step shrinks as 1 / sqrt(k)). CPU time (process), best of ``-
 in alternating order; error: the largest distance of the bob from the closed form over
 the run's outputs, against the tolerance rtol x 1 m + atol of the default settings.
 Target: k = 1e10 under auto in under 0.2 s of CPU time with the error within tolerance.
+A method named with the suffix ``-python`` (``auto-python``) runs with genalpha's and
+ali3p's steps in Python instead of the C kernel (``integrators/implicit_c.py``), for a
+before/after in one run.
 
     python benchmarks/stiff.py [--t-end 0.02] [--interval 0.001] [--repeat 5]
                                [--methods auto,dop853p] [--name stiff] [-o DIR]
@@ -39,6 +42,7 @@ import numpy as np  # noqa: E402
 
 import mbdfmu  # noqa: E402
 from mbdfmu.bench.closed_forms import pendulum  # noqa: E402
+from mbdfmu.integrators import implicit_c  # noqa: E402
 from mbdfmu.integrators.settings import DEFAULT_ATOL, DEFAULT_RTOL  # noqa: E402
 from mbdfmu.model.reader import scene_from_dict  # noqa: E402
 
@@ -46,6 +50,7 @@ ROOT = Path(__file__).resolve().parents[1]
 STIFFNESSES = (1e8, 1e9, 1e10, 1e11, 1e12)
 METHODS = ("auto", "dop853p")
 TARGET_K, TARGET_CPU = 1e10, 0.2
+PYTHON_SUFFIX = "-python"
 
 
 def spring_pendulum(k: float):
@@ -59,12 +64,19 @@ def spring_pendulum(k: float):
 
 def run(k: float, method: str, t_end: float, interval: float):
     scene = spring_pendulum(k)
-    start = time.process_time()
-    res = mbdfmu.simulate(scene, t_end=t_end, method=method, output_interval=interval)
-    cpu = time.process_time() - start
+    python = method.endswith(PYTHON_SUFFIX)
+    implicit_c.ENABLED = not python
+    try:
+        start = time.process_time()
+        res = mbdfmu.simulate(scene, t_end=t_end, method=method.removesuffix(PYTHON_SUFFIX),
+                              output_interval=interval)
+        cpu = time.process_time() - start
+    finally:
+        implicit_c.ENABLED = True
     ex = pendulum(res.time, L=1.0, m=1.0, J=1e-6)
     err = float(np.max(np.hypot(res["bob.x"] - ex["x"], res["bob.y"] - ex["y"])))
-    return cpu, err, res.method, res.stats.get("nsteps", 0)
+    name = res.method + (" (Python steps)" if python else "")
+    return cpu, err, name, res.stats.get("nsteps", 0)
 
 
 def main(argv=None) -> int:

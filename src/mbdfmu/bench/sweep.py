@@ -139,7 +139,7 @@ def make_tasks(scenes, methods, quick: bool, refs: dict) -> list[dict]:
             if quick:
                 settings = case.quick_tols if adaptive else case.quick_steps
             else:
-                settings = case.tols if adaptive else case.steps
+                settings = case.tols if adaptive else case.steps_for(name)
             for s in settings:
                 tasks.append({"scene": key, "method": name, "kind": kind, "setting": float(s),
                               "quick": quick, "reference": refs[key]})

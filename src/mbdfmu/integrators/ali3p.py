@@ -49,6 +49,7 @@ import numpy as np
 
 from ..equations.sparsity import spd_solver
 from .base import Option, number_in
+from .implicit_c import CompiledNewton, attempt
 from .implicit_control import STEP_CONTROL, StepControl
 from .newton import ImplicitMethod, IterationMatrix, newton_iterate, newton_tolerances
 
@@ -70,7 +71,7 @@ def mass_projector(equations, J: np.ndarray):
     return lambda x, rhs: x - JMi.T @ solve(J @ x - rhs)
 
 
-class ALI3P(StepControl, ImplicitMethod):
+class ALI3P(CompiledNewton, StepControl, ImplicitMethod):
     """Augmented Lagrangian index-3 with projections (trapezoidal rule, fixed step or step
     control, ``implicit_control.py``)."""
 
@@ -118,6 +119,9 @@ class ALI3P(StepControl, ImplicitMethod):
 
     def _attempt(self, t, h) -> dict:
         """One step to t + h, not yet taken (``_commit`` takes it); raises NewtonFailure."""
+        x = attempt(self, t, h)         # in the C kernel where it covers the case
+        if x is not None:
+            return x
         eq, n = self.equations, self.equations.n
         t1 = t + h
         P = 0.25 * h * h * self.alpha(h)

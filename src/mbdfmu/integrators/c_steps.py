@@ -29,11 +29,12 @@ RUN_LENGTH = 64
 _TABLEAUS: dict[type, tuple] = {}
 
 
-def stage_inputs(integrator, times) -> None:
+def stage_inputs(integrator, times, kernel=None) -> None:
     """(c, c', c'') of every row and the force inputs at each of ``times``, from the
-    integrator's input signals, into the kernel's ``buf.motions`` and ``buf.ufs``."""
+    integrator's input signals, into the kernel's (default: the equations') ``buf.motions``
+    and ``buf.ufs``."""
     eq = integrator.equations
-    kernel, k = eq.ckernel, len(times)
+    kernel, k = kernel or eq.ckernel, len(times)
     motions, forces = kernel.buf.motions, kernel.buf.ufs
     if not eq.scene.drivers:
         if kernel.static_rows < k:      # offsets only: the same at every time, written once

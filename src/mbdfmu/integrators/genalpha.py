@@ -46,6 +46,7 @@ import numpy as np
 
 from ..equations.projection import project_velocities
 from .base import Option, number_in
+from .implicit_c import CompiledNewton, attempt
 from .implicit_control import STEP_CONTROL, StepControl
 from .newton import ImplicitMethod, IterationMatrix, newton_iterate, newton_tolerances
 
@@ -65,7 +66,7 @@ def genalpha_coefficients(rho_inf: float) -> tuple[float, float, float, float]:
     return am, af, 0.25 * (gamma + 0.5) ** 2, gamma
 
 
-class GeneralizedAlpha(StepControl, ImplicitMethod):
+class GeneralizedAlpha(CompiledNewton, StepControl, ImplicitMethod):
     """Implicit index-3 generalized-alpha, fixed step or step control
     (``implicit_control.py``), Newton with a scaled iteration matrix."""
 
@@ -104,6 +105,9 @@ class GeneralizedAlpha(StepControl, ImplicitMethod):
         """One step from (t, self.q, ...) to t + h, not yet taken (``_commit`` takes it);
         raises NewtonFailure. Newton's unknown is the position increment dq of the step
         (module ``newton``)."""
+        x = attempt(self, t, h)         # in the C kernel where it covers the case
+        if x is not None:
+            return x
         eq, n = self.equations, self.equations.n
         am, af, beta, gamma = self.coefficients
         t1 = t + h

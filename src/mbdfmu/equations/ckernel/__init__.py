@@ -4,7 +4,7 @@ layer, function by function: see its header) and called through ctypes.
 
 ``Kernel(equations)`` lays a scene's index arrays, forces and output plan out once, in a
 C struct of pointers into arrays it keeps, with persistent buffers for arguments and
-results, so a call copies a few small vectors and crosses into C once. The library comes
+results, so a call copies a few small vectors and crosses into C once. Steps of genalpha and ali3p: ``implicit.py``. The library comes
 from ``use_library(path)`` (an FMU's shipped copy), else ``$MBDFMU_C_KERNEL``, else
 ``build.compile_kernel()`` (the per-user cache; compiled on first use). The tests hold it
 to the numpy kernel (tests/test_ckernel.py).
@@ -20,9 +20,10 @@ import numpy as np
 
 from ...model.scene import PointForce, RotationalSpringDamper, SpringDamper, Torque
 from .dense import DENSE_KINDS, DenseRead, DenseReads  # noqa: F401 (DENSE_KINDS: public here)
+from .implicit import ImplicitCalls
 
 # Return codes of kernel.c (ST_*).
-OK, SINGULAR, PROJECTION, NOT_FINITE, SPRING, ENERGY, ERROR_NORM = range(7)
+OK, SINGULAR, PROJECTION, NOT_FINITE, SPRING, ENERGY, ERROR_NORM, NEWTON = range(8)
 FORCE_CODES = {PointForce: 0, Torque: 1, SpringDamper: 2, RotationalSpringDamper: 3}
 # Stages of the largest tableau a trial step may have (DOP853's 12, plus its last row).
 MAX_STAGES = 13
@@ -169,7 +170,7 @@ class Buffers:
         self.p_done = self.done.ctypes.data
 
 
-class Kernel(DenseReads):
+class Kernel(DenseReads, ImplicitCalls):
     """The C kernel bound to one scene's ``Equations``; every method returns None where
     kernel.c hands the case back to the numpy path (a singular Schur complement, a spring
     of zero length), which then says or does what it always does."""
@@ -208,6 +209,7 @@ class Kernel(DenseReads):
         self.dense.V = self._dense_scratch.ctypes.data
         self.library = lib
         self._bind(lib)
+        self._bind_implicit(lib)
 
     def _bind(self, lib) -> None:
         d = ctypes.c_double

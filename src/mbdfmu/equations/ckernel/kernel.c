@@ -17,6 +17,8 @@
  *   mbd_singularity_indicator  singular.py singularity_indicator
  *   mbd_dense_state  ProjectedRK._output_at: the projected dense output inside a step
  *   mbd_dense_step   an FMU's communication step that only reads it (dense.h)
+ *   mbd_implicit_*   genalpha.py / ali3p.py steps with newton.py's iteration on the
+ *                    banded Schur complement (implicit.h)
  *
  * Where the numpy path has a minimum-norm fallback (a singular Schur complement) this
  * kernel returns ST_SINGULAR and the caller redoes the work on the numpy path; a spring of
@@ -265,7 +267,7 @@ static Scratch scratch(const Model *M, double *w) {
 I mbd_work_size(const Model *M, I stages) {
     I n = M->n, m = M->m;
     return 2 * (n + 3) + 9 * m + M->nraw + M->size + 1 + M->nkeep + solve_size(M) + 4 * n
-           + 2 * (M->nb + 1) + 16 + (stages + 4) * 2 * n;
+           + 2 * (M->nb + 1) + 16 + (stages + 4) * 2 * n + 14 * n + 3 * m;
 }
 
 static void extend(const Model *M, const double *q, double *qe) {
@@ -437,43 +439,48 @@ int mbd_project_velocities(const Model *M, const double *q, double *qd, const do
  * factor of Psi_q D Psi_q^T, D scaling Psi_q's columns to unit norm; in band storage in
  * the band's order when M->banded, else dense in the rows' order (as numpy factorises
  * each); 0 where the factorisation fails. */
-int mbd_singularity_indicator(const Model *M, const double *q, const double *cval,
-                              double *out) {
-    Scratch s = scratch(M, M->work);
+static double indicator_of(const Model *M, Scratch *s, const double *values) {
     I n = M->n, m = M->m, kd = M->kd;
-    if (m == 0) { *out = INFINITY; return ST_OK; }
-    extend(M, q, s.qe);
-    terms(M, s.qe, NULL, cval, s.psi, s.raw, NULL, s.cs);
-    merged(M, s.raw, s.data, s.values);
-    double *scale = s.nv, dmin = INFINITY, dmax = 0.0;
+    double *scale = s->nv, dmin = INFINITY, dmax = 0.0;
     for (I k = 0; k < n; k++) scale[k] = 0.0;
-    for (I k = 0; k < M->nkeep; k++) scale[M->cols[k]] += s.values[k] * s.values[k];
+    for (I k = 0; k < M->nkeep; k++) scale[M->cols[k]] += values[k] * values[k];
     for (I k = 0; k < n; k++) scale[k] = 1.0 / (scale[k] > 0.0 ? scale[k] : 1.0);
     int ok = 1;
     if (M->banded) {
         I size = (kd + 1) * m;
-        double *L = s.band;
+        double *L = s->band;
         memset(L, 0, (size_t)size * sizeof(double));
         for (I p = 0; p < M->npairs; p++)
-            L[M->band_index[p]] += s.values[M->pair_a[p]] * s.values[M->pair_b[p]]
+            L[M->band_index[p]] += values[M->pair_a[p]] * values[M->pair_b[p]]
                                    * scale[M->cols[M->pair_a[p]]];
         ok = band_cholesky(L, m, kd, &dmin, &dmax);
     } else {
-        double *U = s.band;
+        double *U = s->band;
         memset(U, 0, (size_t)(m * m) * sizeof(double));
         for (I p = 0; p < M->npairs; p++) {
             I ra = M->rows[M->pair_a[p]], rb = M->rows[M->pair_b[p]];
-            double w = s.values[M->pair_a[p]] * s.values[M->pair_b[p]]
+            double w = values[M->pair_a[p]] * values[M->pair_b[p]]
                        * scale[M->cols[M->pair_a[p]]];
             U[ra * m + rb] += w;
             if (ra != rb) U[rb * m + ra] += w;
         }
         ok = dense_cholesky(U, m, &dmin, &dmax);
     }
-    *out = ok && isfinite(dmin) && isfinite(dmax) && dmax > 0.0 ? dmin / dmax : 0.0;
+    return ok && isfinite(dmin) && isfinite(dmax) && dmax > 0.0 ? dmin / dmax : 0.0;
+}
+
+int mbd_singularity_indicator(const Model *M, const double *q, const double *cval,
+                              double *out) {
+    Scratch s = scratch(M, M->work);
+    if (M->m == 0) { *out = INFINITY; return ST_OK; }
+    extend(M, q, s.qe);
+    terms(M, s.qe, NULL, cval, s.psi, s.raw, NULL, s.cs);
+    merged(M, s.raw, s.data, s.values);
+    *out = indicator_of(M, &s, s.values);
     return ST_OK;
 }
 
 #include "stepping.h"
 #include "outputs.h"
 #include "dense.h"
+#include "implicit.h"

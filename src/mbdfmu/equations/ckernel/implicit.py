@@ -1,0 +1,144 @@
+"""Steps of the implicit index-3 methods in the C kernel (implicit.h): genalpha's and
+ali3p's attempts with newton.py's iteration on the banded Schur complement, whole runs of
+their fixed steps, and the kept iteration matrix's solve.
+
+``ImplicitCalls`` is a mixin of ``Kernel``: it uses the kernel's ``n``, ``m``, ``nf``,
+``buf``, ``address``, ``library`` and ``_arrays``.
+"""
+
+from __future__ import annotations
+
+import ctypes
+
+import numpy as np
+
+_P, _I, _D = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
+METHODS = {"genalpha": 0, "ali3p": 1}
+# implicit.h's NF_* reasons of a failed Newton iteration
+NEWTON_REASONS = {1: "non-finite residual", 2: "non-finite iteration matrix",
+                  3: "non-finite Newton increment", 4: "Newton diverges"}
+
+
+class Implicit(ctypes.Structure):
+    """implicit.h's ``Implicit``: a method's settings, newton.py's constants, counters."""
+
+    _fields_ = [(name, _I) for name in ("method", "jacobian_full", "count_multipliers",
+                                        "max_iter")] + \
+        [(name, _D) for name in ("am", "af", "beta", "gamma", "penalty_base", "alpha", "atol",
+                                 "length_scale", "roundoff", "atol_max", "tol_floor", "t_ref",
+                                 "noise_max", "near_indicator", "t_near", "slow_rate",
+                                 "diverging_rate", "singular_pivot")] + \
+        [("periodic", _P), ("blocks", _I), ("nbp", _I), ("fd_step", _D), ("bp_a", _P),
+         ("bp_b", _P), ("bp_band", _P), ("bp_w", _P)] + \
+        [(name, _I) for name in ("nnewton", "njev", "nlu", "nprojections", "reason")] + \
+        [(name, _D) for name in ("last_size", "last_residual", "last_tol")]
+
+
+class ImplicitCalls:
+    """The implicit methods' calls of ``Kernel`` (see the module docstring)."""
+
+    def _bind_implicit(self, lib) -> None:
+        signatures = {"mbd_implicit_kept_size": ([_P], _I),
+                      "mbd_implicit_solve": ([_P] * 5, ctypes.c_int),
+                      "mbd_implicit_attempt": ([_P, _P, _P, _P, _D, _P, _P, _P], ctypes.c_int),
+                      "mbd_implicit_steps": ([_P, _P, _P, _P, _D, _I, _P, _P, _I, _P, _D, _D,
+                                              _P, _P], ctypes.c_int)}
+        for name, (argtypes, restype) in signatures.items():
+            function = getattr(lib, name)
+            function.argtypes, function.restype = argtypes, restype
+        self._imp = lib
+        n, m = self.n, self.m
+        self.imp_y = np.zeros(5 * n + max(m, 1))
+        self.imp_x = np.zeros(4 * n + max(m, 1))
+        self.imp_rhs, self.imp_out = np.zeros(n + max(m, 1)), np.zeros(n + max(m, 1))
+        self._imp_p = tuple(a.ctypes.data for a in (self.imp_y, self.imp_x, self.imp_rhs,
+                                                    self.imp_out))
+
+    def implicit_settings(self, method: str, periodic, pattern=None, **values) -> Implicit:
+        """An ``Implicit`` for ``method`` (a key of METHODS) with ``values`` by field name;
+        with Psi_q's ``pattern`` (sparsity.JacobianPattern) K in 3 x 3 blocks per body."""
+        p = Implicit()
+        mask = np.ascontiguousarray(periodic, dtype=float)
+        self._arrays.append(mask)
+        p.method, p.periodic = METHODS[method], mask.ctypes.data
+        for name, value in values.items():
+            setattr(p, name, value)
+        if pattern is not None:
+            arrays = [np.ascontiguousarray(a, dtype=np.int64) for a in body_pairs(pattern)]
+            self._arrays += arrays
+            p.blocks, p.nbp = 1, arrays[0].size
+            p.bp_a, p.bp_b, p.bp_band, p.bp_w = (a.ctypes.data for a in arrays)
+        return p
+
+    def kept_matrix(self) -> np.ndarray:
+        """A fresh kept iteration matrix for implicit.h (not valid yet)."""
+        return np.zeros(self._imp.mbd_implicit_kept_size(self.address))
+
+    def _load_state(self, qw, turns, qd, qdd, a, lam) -> None:
+        n, y = self.n, self.imp_y
+        y[:n], y[n:2 * n], y[2 * n:3 * n], y[3 * n:4 * n], y[4 * n:5 * n] = qw, turns, qd, qdd, a
+        y[5 * n:5 * n + self.m] = lam
+
+    def implicit_attempt(self, p: Implicit, kept, state, h, motion, uf):
+        """One attempt over h from ``state`` = (q wrapped, turns, q', q'', a, lam) with the
+        inputs at its end: (status, x = (dq, q', q'', a, lam) as views of one copy)."""
+        self._load_state(*state)
+        b, m = self.buf, self.m
+        b.motion[:m], b.motion[m:2 * m], b.motion[2 * m:] = motion
+        if uf is not None and self.nf:
+            b.uf[:self.nf] = uf
+        py, px = self._imp_p[:2]
+        status = self._imp.mbd_implicit_attempt(self.address, ctypes.byref(p), kept.ctypes.data,
+                                                py, h, b.p_motion, b.p_uf, px)
+        return status, self._split(self.imp_x.copy())
+
+    def _split(self, x):
+        n = self.n
+        return x[:n], x[n:2 * n], x[2 * n:3 * n], x[3 * n:4 * n], x[4 * n:4 * n + self.m]
+
+    def implicit_steps(self, p: Implicit, kept, state, h, count, audit, divergence, roundoff):
+        """``count`` fixed steps with the inputs in ``buf.motions`` / ``buf.ufs`` (row k:
+        the end of step k): (status, steps done, the new state as ``implicit_attempt``
+        takes it)."""
+        self._load_state(*state)
+        b, n = self.buf, self.n
+        b.audit[:] = audit
+        status = self._imp.mbd_implicit_steps(
+            self.address, ctypes.byref(p), kept.ctypes.data, self.imp_y.ctypes.data, h, count,
+            b.p_motions, b.p_ufs, self.nf, b.p_audit, divergence, roundoff,
+            self.imp_x.ctypes.data, b.p_done)
+        y = self.imp_y.copy()
+        state = (y[:n], y[n:2 * n], y[2 * n:3 * n], y[3 * n:4 * n], y[4 * n:5 * n],
+                 y[5 * n:5 * n + self.m])
+        return status, int(b.done[0]), state
+
+    def implicit_solve(self, p: Implicit, kept, rhs) -> np.ndarray | None:
+        """S^-1 rhs (n + m) with the kept iteration matrix; None when it is not valid."""
+        size = self.n + self.m
+        self.imp_rhs[:size] = rhs
+        if self._imp.mbd_implicit_solve(self.address, ctypes.byref(p), kept.ctypes.data,
+                                        *self._imp_p[2:]) != 0:
+            return None
+        return self.imp_out[:size].copy()
+
+
+def body_pairs(pattern) -> tuple:
+    """Every pair (a, b) of Psi_q's kept entries in one body's columns whose rows fall in
+    the lower band (position of a's row >= b's, rows in the band's order): (a, b, band
+    index, index of K^-1's entry 9 body + 3 c_a + c_b). Rows that share a body share its
+    angle column, so the band of J M^-1 J^T holds them."""
+    rows, cols, m = np.asarray(pattern.rows), np.asarray(pattern.cols), pattern.m
+    position = np.empty(m, dtype=np.int64)
+    position[np.asarray(pattern.perm)] = np.arange(m)
+    out = ([], [], [], [])
+    for body in np.unique(cols // 3):
+        entries = np.flatnonzero(cols // 3 == body)
+        a, b = (x.ravel() for x in np.meshgrid(entries, entries, indexing="ij"))
+        i, j = position[rows[a]], position[rows[b]]
+        lower = i >= j
+        a, b, i, j = a[lower], b[lower], i[lower], j[lower]
+        if np.any(i - j > pattern.kd):
+            raise ValueError("rows sharing a body outside the band")
+        for k, values in enumerate((a, b, (i - j) * m + j, 9 * body + 3 * (cols[a] % 3) + cols[b] % 3)):
+            out[k].append(values)
+    return tuple(np.concatenate(x) if x else np.zeros(0, np.int64) for x in out)

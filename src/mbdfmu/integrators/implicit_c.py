@@ -1,0 +1,259 @@
+"""genalpha's and ali3p's steps in the C kernel (``equations/ckernel/implicit.h``).
+
+The C code is the Python step line for line (predictor, ``newton.newton_iterate`` with its
+convergence test, the step's end), with the iteration matrix [[K, Psi_q^T], [Psi_q, -E]]
+solved through its banded Schur complement Psi_q K^-1 Psi_q^T + E instead of a dense LU:
+so K must be diagonal or block-diagonal. Covered (``kernel_newton``): a mechanism without
+line rows (translational and slot joints: their geometric stiffness couples coordinates)
+whose applied forces that depend on the state each act on one moving body (springs and
+dampers to the ground, forces off a centre of mass: K has 3 x 3 blocks, their force
+Jacobians by forward differences as forces.py does them; genalpha with ``jacobian =
+"mass"``: any forces). Anything else, and an attempt the kernel hands back (K or the Schur complement
+near singular, a spring of zero length), runs the Python step (a dense LU), which then
+does what it always does. The kernel is the equations' C kernel (kernel "c", what FMUs
+run), or one built for this method under the numba kernel when it can be compiled.
+
+What stays in Python: the decisions (halving a failed step, the step control's
+acceptance and step factor, the energy audit's verdict, work limits). A fixed-step run
+takes RUN_LENGTH steps per C call with the energy check of constant forces inside; a step
+whose Newton iteration fails there is halved by ``newton.advance_with_halving`` as always.
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+
+import numpy as np
+
+from ..equations import ckernel
+from ..equations.forces import FD_STEP
+from ..model.scene import RotationalSpringDamper, SpringDamper
+from . import newton
+from .c_steps import NO_AUDIT, _audit_back, _audit_state, stage_inputs
+from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
+from .newton import IterationMatrix, NewtonFailure
+
+# Off: every step on the Python path (the tests compare the two).
+ENABLED = True
+# Fixed steps per C call: the work limits are checked between calls (ckernel.MAX_ROWS
+# rows of inputs).
+RUN_LENGTH = 64
+_OWN_KERNELS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+class KernelMatrix(IterationMatrix):
+    """An ``IterationMatrix`` that may hold the C kernel's kept matrix (``kept``, valid
+    when kept[0] != 0) instead of LAPACK factors: ``lu`` is then a marker and ``solve``
+    uses the kernel. Setting ``lu`` (the Python path) drops the C matrix."""
+
+    plain_fields = ("_lu", "h", "fresh", "indicator", "reach", "kept")
+
+    def __init__(self, kept: np.ndarray, newton):
+        self.kept, self.newton = kept, newton
+        super().__init__()
+
+    @property
+    def lu(self):
+        if self._lu is not None:
+            return self._lu
+        return True if self.kept[0] != 0.0 else None
+
+    @lu.setter
+    def lu(self, value):
+        self._lu = value
+        self.kept[0] = 0.0
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        if self._lu is not None:
+            return super().solve(b)
+        return self.newton.kernel.implicit_solve(self.newton.settings, self.kept, b)
+
+
+class KernelNewton:
+    """A method's kernel and its ``ckernel.implicit.Implicit`` settings."""
+
+    def __init__(self, method, kernel, blocks: bool):
+        eq = method.equations
+        self.kernel, self.genalpha = kernel, method.name == "genalpha"
+        am, af, beta, gamma = method.coefficients if self.genalpha else (0.0,) * 4
+        self.settings = kernel.implicit_settings(
+            method.name, method.periodic, eq.pattern if blocks else None, fd_step=FD_STEP,
+            jacobian_full=int(getattr(method, "jacobian", "") == "full"),
+            count_multipliers=int(self.genalpha), max_iter=newton.NEWTON_MAX_ITER, am=am, af=af,
+            beta=beta, gamma=gamma, length_scale=eq.length_scale, roundoff=newton.ROUNDOFF,
+            atol_max=newton.NEWTON_ATOL_MAX, tol_floor=newton.NEWTON_TOL_FLOOR, t_ref=newton.T_REF,
+            noise_max=newton.NOISE_MAX, near_indicator=newton.NEAR_SINGULAR_INDICATOR,
+            t_near=newton.T_NEAR, slow_rate=newton.NEWTON_SLOW_RATE,
+            diverging_rate=newton.NEWTON_DIVERGING_RATE, singular_pivot=newton.SINGULAR_PIVOT)
+
+    def prepare(self, method):
+        """The settings with the run's current values, counters cleared."""
+        p = self.settings
+        p.penalty_base = getattr(method, "penalty_base", 1.0)
+        p.alpha = getattr(method, "alpha_option", None) or 0.0
+        p.atol = method.atol
+        p.nnewton = p.njev = p.nlu = p.nprojections = p.reason = 0
+        return p
+
+    def count(self, stats) -> None:
+        p = self.settings
+        stats.nnewton += p.nnewton
+        stats.njev += p.njev
+        stats.nlu += p.nlu
+        stats.nprojections += p.nprojections
+
+    def failure(self) -> str:
+        p = self.settings
+        if p.reason in ckernel.implicit.NEWTON_REASONS:
+            return ckernel.implicit.NEWTON_REASONS[p.reason]
+        return (f"Newton did not converge in {p.max_iter} iterations (last increment "
+                f"{p.last_size:.3g}, constraint residual {p.last_residual:.3g}, tolerance "
+                f"{p.last_tol:.3g})")
+
+
+def _kernel(eq):
+    if eq.ckernel is not None:
+        return eq.ckernel
+    if eq.kernel != "numba" or not ckernel.available():
+        return None
+    if eq not in _OWN_KERNELS:
+        _OWN_KERNELS[eq] = ckernel.Kernel(eq)
+    return _OWN_KERNELS[eq]
+
+
+def kernel_newton(method) -> KernelNewton | None:
+    """The C path of ``method`` (genalpha or ali3p), or None where it runs in Python (see
+    the module docstring)."""
+    eq = method.equations
+    if not ENABLED or eq.constraint_set.line.n:
+        return None
+    blocks = eq.forces_depend_on_state() and getattr(method, "jacobian", None) != "mass"
+    if blocks and not all(_on_one_body(eq, f) for f in eq.applied.state_forces):
+        return None
+    kernel = _kernel(eq)
+    if kernel is None:
+        return None
+    try:
+        return KernelNewton(method, kernel, blocks)
+    except ValueError:      # K's blocks couple rows outside the band (ckernel.body_pairs)
+        return None
+
+
+def _on_one_body(eq, force) -> bool:
+    """The force acts on one moving body (the other end, if any, on the ground): its
+    Jacobian is a 3 x 3 block of K."""
+    if isinstance(force, RotationalSpringDamper):
+        joint = eq.scene.joint(force.joint)
+        ends = (joint.body_i, joint.body_j)
+    else:
+        ends = (force.body_i, force.body_j) if isinstance(force, SpringDamper) else (force.body,)
+    index = eq.applied.index
+    return sum(index.get(name, eq.nb) < eq.nb for name in ends) <= 1
+
+
+def _state(method) -> tuple:
+    a = method.a if method.name == "genalpha" else method.qdd
+    return method.qw, method.turns, method.qd, method.qdd, a, method.lam
+
+
+def attempt(method, t: float, h: float) -> dict | None:
+    """``_attempt(t, h)`` of genalpha or ali3p in C: the step not yet taken (their ``x``),
+    NewtonFailure, or None: the Python path does this attempt."""
+    kn = method.c_newton
+    if kn is None:
+        return None
+    t1 = t + h
+    u = method.inputs(t1)
+    p = kn.prepare(method)
+    method.matrix._lu = None        # a Python path's factors: the kernel keeps its own
+    status, (dq, qd, qdd, a, lam) = kn.kernel.implicit_attempt(
+        p, method.matrix.kept, _state(method), h, method.equations.motion_values(t1, u),
+        u.forces)
+    kn.count(method.stats)
+    if status == ckernel.OK:
+        return {"dq": dq, "qd": qd, "qdd": qdd, "lam": lam, "a": a, "t1": t1}
+    if status == ckernel.NEWTON:
+        raise NewtonFailure(kn.failure())
+    method.matrix.lu = None
+    return None
+
+
+class CompiledNewton:
+    """Mixin of genalpha and ali3p (first in their bases): the C path when ``kernel_newton``
+    gives one (``c_newton``), fixed steps and runs of them in C, a step failed in C halved
+    in Python."""
+
+    def restart(self):
+        super().restart()
+        self.c_newton = kernel_newton(self)
+        self._failed = None
+        if self.c_newton is not None:
+            self.matrix = KernelMatrix(self.c_newton.kernel.kept_matrix(), self.c_newton)
+
+    def set_state(self, state):
+        super().set_state(state)
+        if isinstance(self.matrix, KernelMatrix):
+            if self.c_newton is None:         # a state saved where the kernel ran
+                self.matrix = IterationMatrix()
+            else:
+                self.matrix.newton = self.c_newton
+
+    def _try_step(self, t, h):
+        if self._failed is not None:      # the C run's failure at this step: halve it
+            reason, self._failed = self._failed, None
+            raise NewtonFailure(reason)
+        super()._try_step(t, h)
+
+    def _step_impl(self, h):
+        """A fixed step in C (the stated accuracy's spot checks, steps one at a time);
+        in Python (halved if it failed in C) where the kernel hands it back."""
+        if self.c_newton is None or self.adaptive or self._failed is not None:
+            return super()._step_impl(h)
+        status, _ = self._c_run((self.t + h,), h, audited=False)
+        if status == ckernel.OK:
+            return True, h
+        self._failed = self.c_newton.failure() if status == ckernel.NEWTON else None
+        return super()._step_impl(h)
+
+    def _fixed_run(self, t0, h, k, stop, n, t_target):
+        eq = self.equations
+        if self.c_newton is None or self.watch is not None or \
+                (self.audit is not None and not eq.applied.is_constant):
+            return super()._fixed_run(t0, h, k, stop, n, t_target)
+        while k < stop:
+            count = min(RUN_LENGTH, stop - k)
+            status, done = self._c_run((t0 + h * np.arange(k, k + count)) + h, h,
+                                       audited=self.audit is not None)
+            k += done
+            self.t = t0 + k * h if k < n else t_target
+            self.stats.nsteps += done
+            if status == ckernel.ENERGY:
+                self._after_step()                      # says why
+            elif status != ckernel.OK:                  # this step in Python
+                self._failed = self.c_newton.failure() if status == ckernel.NEWTON else None
+                k = super()._fixed_run(t0, h, k, k + 1, n, t_target)
+            if self.limit is not None:
+                self.limit.check(self.stats, self.t, t_target)
+        return stop
+
+    def _c_run(self, ends, h: float, audited: bool) -> tuple[int, int]:
+        """Fixed steps of h ending at ``ends`` in one C call, the energy check of constant
+        forces inside when ``audited``: (status, steps done), the state taken."""
+        kn = self.c_newton
+        stage_inputs(self, ends, kn.kernel)
+        status, done, state = kn.kernel.implicit_steps(
+            kn.prepare(self), self.matrix.kept, _state(self), h, len(ends),
+            _audit_state(self.audit) if audited else NO_AUDIT,
+            ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF)
+        kn.count(self.stats)
+        if audited:
+            _audit_back(self.audit, kn.kernel.buf.audit)
+            if status == ckernel.ENERGY:      # _after_step checks this state again
+                self.audit.checks -= 1
+        if done:
+            self.qw, self.turns, self.qd, self.qdd, a, self.lam = state
+            if self.name == "genalpha":
+                self.a = a
+            self.q = self.qw + 2.0 * math.pi * self.turns
+        return status, done
