@@ -49,7 +49,7 @@ TEMPLATE = HERE / "scene_model.py"
 # fmpy or libcosimpy, and change the host's process).
 SHIPPED_PACKAGES = ("model", "equations", "integrators")
 SHIPPED_MODULES = ("__init__.py", "errors.py", "plain.py", "result.py", "signals.py",
-                   "simulation.py", "simulation_inputs.py")
+                   "simulation.py", "simulation_inputs.py", "fast_steps.py")
 # Work limits of one communication step (0: none): a step that needs more returns
 # fmi2Discard with the reason, and the FMU stays at its last communication point.
 MAX_STEPS_DEFAULT = 100_000

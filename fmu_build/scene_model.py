@@ -154,6 +154,7 @@ class Model(Slave):
         # in every fresh extraction of the FMU), see docs/performance.md
         sim = core.Simulation(scene, kernel=self.kernel, settings=settings, t0=build["t0"])
         self.slots = np.array([sim.output_names.index(n) for n in OUTPUTS], dtype=np.intp)
+        self.fast_inputs = self.core.fast_steps.settable_inputs(sim, self.variables)
         self.published_from = published_sources(self, sim)
         return sim
 
@@ -222,20 +223,18 @@ class Model(Slave):
         states = np.hstack((sim.q.reshape(-1, 3), sim.qd.reshape(-1, 3)))   # STATES' order
         self.values.update(zip(self.published, np.concatenate(
             (outputs, states.ravel(), sim.accelerations()[0])).tolist()))
-        kernel = sim.dense_reads_ahead()
-        if kernel is None:
-            self.disarm_fast_steps()
-        else:       # the coming steps inside the last one: by the wrapper, without Python
-            self.arm_fast_steps(*kernel.arm_dense_steps(sim.t, TIME_TOLERANCE,
-                                                        *self.published_from))
+        armed = self.core.fast_steps.arm(sim, self.limit[1] if self.limit else None,
+                                         TIME_TOLERANCE, self.fast_inputs, self.published_from)
+        self.set_fast_steps(armed)          # the coming steps in C, or through Python
 
     def catch_up(self):
-        kernel = self.sim.equations.ckernel if self.sim is not None else None
-        if kernel is None or not kernel.dense.t_now > self.sim.t:
+        if self.sim is None:
             return None
-        self.sim.advance(kernel.dense.t_now)      # the same arithmetic as the wrapper's
-        self.publish()
-        return self.sim.t
+        moved, held, pending = self.core.fast_steps.catch_up(self.sim, self.fast_inputs)
+        if moved:
+            self.publish()
+        self.set_in_wrapper(held, pending)
+        return self.sim.t if moved or pending else None
 
     STEP_CALCULATES = True          # publish() after every step sets the accelerations
 

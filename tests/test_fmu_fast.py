@@ -17,7 +17,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import mbdfmu  # noqa: E402
 from mbdfmu.equations import ckernel  # noqa: E402
 from mbdfmu.fmu_build.scene_fmu import KERNEL_FILE  # noqa: E402
-from fmu_models.harness import DISCARD, OK, get_state  # noqa: E402
+from fmu_models.harness import DISCARD, ERROR, OK, get_state  # noqa: E402
 from fmu_models.scenes import SCENES, scene_fmu, scene_host  # noqa: E402,F401
 
 pytestmark = pytest.mark.skipif(not ckernel.available(), reason="no C compiler for the kernel")
@@ -109,3 +109,131 @@ def test_steps_inside_the_solvers_step_are_the_wrappers_and_pythons_values(scene
     assert taken(fast) > 300
     # and the state it caught up with is the one it served
     assert fast.real(*names) == got[-1]
+
+
+def taken_by_wrapper(h) -> int:
+    """Communication steps the wrapper took without Python, as the slave logs them."""
+    return sum(int(m.split(": ")[1].split()[0]) for _, _, m in h.messages
+               if "taken by the wrapper" in m)
+
+
+def step_both(fast, slow, step: float, names) -> list[float]:
+    """One doStep of both instances, ``slow`` sent through Python for its next call
+    (fmi2SetDebugLogging after each step): ``names``' values, the same bit for bit."""
+    assert fast.step(step) == OK and slow.step(step) == OK, (fast.messages[-3:],
+                                                             slow.messages[-3:])
+    values = fast.real(*names)
+    assert values == slow.real(*names)
+    assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+    return values
+
+
+def test_rk4p_steps_with_a_driver_are_the_wrappers_and_pythons_values(scene_fmu, scene_host):
+    """The slider-crank (auto->rk4p; the motor's linear motion evaluated in C, ckernel/
+    fixed.h): the wrapper takes its doSteps (1 ms, some 3 ms) by itself, all but those
+    where rk4p's step-doubling check is due (about one in SPOT_CHECK_EVERY steps), and
+    every value it serves is bit for bit the one Python computes when each step goes
+    through it; a state taken after fast steps restores to the same values."""
+    from mbdfmu.integrators.stated_accuracy import SPOT_CHECK_EVERY
+    path = scene_fmu("slider_crank")
+    fast, slow = scene_host(path, "fast").init(), scene_host(path, "slow").init()
+    names = fast.outputs + ["crank.x", "rod.alpha"]
+    steps = 3 * SPOT_CHECK_EVERY + 7
+    got = []
+    for k in range(steps):
+        got.append(step_both(fast, slow, 3 * H if k % 10 == 9 else H, names))   # 3 rk4p steps
+    # the closed form of the drive: the crank's angle is the motor's rate times t
+    np.testing.assert_allclose(fast.real("crank.phi")[0], 314.1592653589793 * fast.t,
+                               rtol=1e-9)
+    state, t = get_state(fast), fast.t             # the slave catches up first
+    assert taken_by_wrapper(slow) == 0
+    assert steps - 8 <= taken_by_wrapper(fast) < steps
+    assert fast.real(*names) == got[-1]
+    more = run(fast, names, 5)
+    assert fast.status("fmi2SetFMUstate", state) == OK
+    fast.t = t
+    assert fast.real(*names) == got[-1]
+    np.testing.assert_array_equal(run(fast, names, 5), more)
+
+
+@pytest.fixture(scope="module")
+def crane_fmu(tmp_path_factory):
+    """The hydraulic crane's mechanism (dop853p, its cylinder force an input)."""
+    from mbdfmu.fmu_build.scene_fmu import build_fmu
+    scene = Path(__file__).resolve().parents[1] / "scenarios" / "hydraulic_crane" / "crane.toml"
+    return build_fmu(scene, tmp_path_factory.mktemp("crane") / "crane.fmu")
+
+
+def actuator(t: float) -> float:
+    """A cylinder force about holding the boom, swinging (N)."""
+    return 8420.0 * (1.0 + 0.05 * np.sin(2.0 * np.pi * t))
+
+
+def test_steps_after_an_input_set_are_the_wrappers_and_pythons_values(crane_fmu, scene_host):
+    """The crane (dop853p) with its cylinder force set by the master before every step:
+    the wrapper takes fmi2SetReal of the force and the step landing on the communication
+    point by itself (ckernel/adaptive.h: the restart after an input change, the step
+    controller), and every value is bit for bit Python's when each call goes through it.
+    A get between the set and the step (the accelerations follow the new force) and a
+    state saved there go through Python and agree too."""
+    fast, slow = scene_host(crane_fmu, "fast").init(), scene_host(crane_fmu, "slow").init()
+    force = [fast.vr["cylinder.actuator"]]
+    names = fast.outputs + [n for n in fast.vr if n.endswith((".alpha", ".ax", ".phi"))]
+    got = []
+    for k in range(200):
+        last = actuator(fast.t)
+        for h in (fast, slow):
+            assert h.set_real(force, [last]) == OK
+        if k == 150:              # read between the set and the step: through Python
+            assert fast.real(*names) == slow.real(*names)
+        got.append(step_both(fast, slow, 20 * H if k % 10 == 9 else H, names))
+    assert fast.real("cylinder.actuator") == [last]
+    assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK       # catches up
+    assert taken_by_wrapper(slow) == 0
+    assert taken_by_wrapper(fast) >= 190
+    # states taken after the wrapper's steps go on as Python's, restored or not
+    state_fast, state_slow, t = get_state(fast), get_state(slow), fast.t
+    assert fast.real(*names) == got[-1]
+    ahead = run(fast, names, 5, "cylinder.actuator")
+    np.testing.assert_array_equal(ahead, run(slow, names, 5, "cylinder.actuator"))
+    assert fast.status("fmi2SetFMUstate", state_fast) == OK and \
+        slow.status("fmi2SetFMUstate", state_slow) == OK
+    fast.t = slow.t = t
+    np.testing.assert_array_equal(run(fast, names, 5, "cylinder.actuator"), ahead)
+    np.testing.assert_array_equal(run(slow, names, 5, "cylinder.actuator"), ahead)
+
+
+def test_steps_beyond_the_work_limit_are_discarded_by_python_not_taken_by_the_wrapper(
+        scene_fmu, crane_fmu, scene_host):
+    """The wrapper's steps respect solver.max_steps_per_communication_step: a 1 ms step
+    (one rk4p step; one landing dop853p step) is its own, a 10 ms one needs more steps
+    than allowed, so Python takes it and discards it, saying why; the FMU stays where it
+    was and a shorter step goes on."""
+    for path, name, force in ((scene_fmu("slider_crank"), "slider.x", None),
+                              (crane_fmu, "boom.phi", "cylinder.actuator")):
+        h = scene_host(path)
+        assert h.set_int("solver.max_steps_per_communication_step", 1) == OK
+        before = run(h.init(), [name], 5, force)
+        if force is not None:
+            assert h.set_real([h.vr[force]], [actuator(h.t)]) == OK
+        assert h.status("fmi2DoStep", h.t, 10 * H, 1) == DISCARD
+        assert "solver.max_steps_per_communication_step" in h.messages[-1][2]
+        assert h.real(name) == [before[-1, 0]]
+        assert h.step(H) == OK
+        assert taken_by_wrapper(h) >= 3
+
+
+def test_a_set_the_wrapper_cannot_take_is_pythons_and_says_why(crane_fmu, scene_host):
+    """After the wrapper's steps and a force it took: a non-finite force is fmi2Discard and
+    a fixed parameter fmi2Error, said by Python as before; the valid values are applied."""
+    h = scene_host(crane_fmu).init()
+    vr = h.vr["cylinder.actuator"]
+    run(h, ["boom.phi"], 5, "cylinder.actuator")
+    assert h.set_real([vr], [9000.0]) == OK
+    assert h.set_real([vr], [float("nan")]) == DISCARD
+    assert "finite" in h.messages[-1][2]
+    assert h.real("cylinder.actuator") == [9000.0]
+    assert h.set_real([vr, h.vr["boom.mass"]], [9500.0, 1.0]) == ERROR
+    assert "boom.mass" in h.messages[-1][2]
+    assert h.real("cylinder.actuator") == [9500.0]
+    assert taken_by_wrapper(h) >= 3

@@ -146,14 +146,19 @@ struct Instance {
     size_t fast_count;
     /* the slave's FastSteps block (runtime/real_cache.py): enabled, a step function and
      * its two context pointers; fmi2DoSteps it takes leave the slave behind
-     * (fast_pending) until it catches up (M_SYNC) before any other call */
+     * (fast_pending) until it catches up (M_SYNC) before any other call; fmi2SetReal taken
+     * by its set function (fast_set) sends gets through Python until the next step */
     int64_t *fast_step;
     int fast_pending;
+    int fast_set;
 };
 
 /* runtime/real_cache.py FastSteps: 0 when it took the step and refreshed values. */
 typedef int (*FastStepFunction)(const void *model, void *context, double t, double h,
                                 double *values);
+/* ... and 0 when it applied every value set (inputs the step function reads). */
+typedef int (*FastSetFunction)(void *context, const unsigned int *vr, size_t nvr,
+                               const double *value, double *values);
 
 typedef struct {
     unsigned magic;
@@ -358,6 +363,7 @@ static int call(Instance *in, Method m, PyObject *args, PyObject **payload) {
     }
     if (in->fast_pending) {         /* the slave catches up with the steps taken here */
         in->fast_pending = 0;
+        in->fast_set = 0;
         int synced = call(in, M_SYNC, py.Py_BuildValue("()"), NULL);
         if (synced != ST_OK) {
             if (args) py.Py_DecRef(args);
@@ -509,8 +515,8 @@ static int copy_out(Instance *in, Kind kind, PyObject *payload, void *values, si
  * are valid (see Instance); 0 when Python must answer. */
 static int fast_get_real(void *c, const unsigned int vr[], size_t nvr, double value[]) {
     Instance *in = as_instance(c);
-    if (!in || in->fatal || !in->fast_valid || !*in->fast_valid || !python_alive()
-        || nvr > MAX_NVR || (nvr > 0 && (!vr || !value)))
+    if (!in || in->fatal || !in->fast_valid || !*in->fast_valid || in->fast_set
+        || !python_alive() || nvr > MAX_NVR || (nvr > 0 && (!vr || !value)))
         return 0;
     for (size_t i = 0; i < nvr; i++)
         if (vr[i] >= in->fast_count || !in->fast_mask[vr[i]]) return 0;
@@ -611,7 +617,28 @@ static int fast_do_step(void *c, double t, double h) {
         return 0;
     free_strings(in);
     in->fast_pending = 1;
+    in->fast_set = 0;
     in->fast_step[4]++;
+    return 1;
+}
+
+/* fmi2SetReal taken by the slave's FastSteps set function without Python (the fast
+ * steps armed, nothing called since the last step but gets, sets and such steps); 1 when
+ * it did. The slave learns the values when it catches up; gets go through Python until
+ * the next step (the values that follow inputs are the slave's to compute). */
+__attribute__((unused))
+static int fast_set_real(void *c, const unsigned int vr[], size_t nvr, const double value[]) {
+    Instance *in = as_instance(c);
+    if (!in || in->fatal || !in->fast_step || !in->fast_valid || !*in->fast_valid
+        || !in->fast_step[0] || !in->fast_step[5] || nvr > MAX_NVR || (nvr > 0 && (!vr || !value))
+        || !python_alive())
+        return 0;
+    FastSetFunction set = (FastSetFunction)(intptr_t)in->fast_step[5];
+    if (set((void *)(intptr_t)in->fast_step[3], vr, nvr, value, (double *)in->fast_values) != 0)
+        return 0;
+    free_strings(in);
+    in->fast_pending = 1;
+    in->fast_set = 1;
     return 1;
 }
 

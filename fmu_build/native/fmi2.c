@@ -116,6 +116,7 @@ fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 }
 fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                        const fmi2Real value[]) {
+    if (fast_set_real(c, vr, nvr, value)) return fmi2OK;
     return set_values(c, "fmi2SetReal", "Real", K_REAL, vr, nvr, value);
 }
 fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,

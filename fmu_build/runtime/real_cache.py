@@ -50,20 +50,23 @@ class RealCache:
 
 
 class FastSteps:
-    """The communication steps the wrapper takes by itself: a control block of five
+    """The communication steps the wrapper takes by itself: a control block of six
     integers the wrapper reads at every fmi2DoStep while the Real values are valid
     (``RealCache``): enabled, the address of a step function ``int f(model, context, t,
     h, values)`` (0: it took the step and refreshed ``values``, else Python must), its
-    two context addresses, and the count of steps it took (the wrapper adds to it). The model arms it after a step when the next steps need no
-    Python; the wrapper then asks the slave to catch up (``fmi_sync``) before any other
-    call."""
+    two context addresses, the count of steps it took (the wrapper adds to it), and 0 or
+    the address of ``int set(context, vrs, nvr, new, values)`` that takes fmi2SetReal of
+    inputs the step function reads (0: all applied; a get then goes through Python). The
+    model arms it after a step when the next steps need no Python; the wrapper then asks
+    the slave to catch up (``fmi_sync``) before any other call."""
 
     def __init__(self):
-        self.block = np.zeros(5, dtype=np.int64)
+        self.block = np.zeros(6, dtype=np.int64)
         self.address = self.block.ctypes.data
 
-    def arm(self, function: int, model: int, context: int) -> None:
+    def arm(self, function: int, model: int, context: int, setter: int = 0) -> None:
         self.block[1:4] = (function, model, context)
+        self.block[5] = setter
         self.block[0] = 1
 
     def taken(self) -> int:
@@ -79,10 +82,18 @@ class FastStepProtocol:
     """Mixin of ``Slave``: arming ``FastSteps`` (its ``_fmi_fast_steps``) and catching up
     with the steps the wrapper took (``fmi_sync``, called by the wrapper)."""
 
-    def arm_fast_steps(self, function: int, model: int, context: int) -> None:
+    def arm_fast_steps(self, function: int, model: int, context: int, setter: int = 0) -> None:
         """Let the wrapper take the coming fmi2DoSteps by itself (``FastSteps``) until any
-        other call; ``catch_up`` then brings the model to the time they reached."""
-        self._fmi_fast_steps.arm(function, model, context)
+        other call; ``catch_up`` then brings the model to the time they reached. With
+        ``setter``, fmi2SetReal too (``FastSteps``)."""
+        self._fmi_fast_steps.arm(function, model, context, setter)
+
+    def set_fast_steps(self, armed: tuple | None) -> None:
+        """``arm_fast_steps(*armed)``, or disarm them when ``armed`` is None."""
+        if armed is None:
+            self.disarm_fast_steps()
+        else:
+            self.arm_fast_steps(*armed)
 
     def disarm_fast_steps(self) -> None:
         self._fmi_fast_steps.disarm()
@@ -91,6 +102,21 @@ class FastStepProtocol:
         """After steps the wrapper took by itself: the model's state at their end and
         its time, or None when there were none (models that arm ``FastSteps``)."""
         return None
+
+    def set_in_wrapper(self, held, pending) -> None:
+        """For ``catch_up``, of the Real variables the wrapper's set function takes,
+        [(value reference, value)]: ``held`` the values the model now holds, ``pending``
+        those it took after its last step, now set as fmi2SetReal sets them (the next step
+        and every get then go through Python)."""
+        reals = self.variables.by_type["Real"]
+        self.values.update((reals[vr].name, value) for vr, value in held)
+        if not pending:
+            return
+        for vr, value in pending:
+            self.values[reals[vr].name] = self.set_since_step[reals[vr].name] = value
+        self._fmi_stale = self._fmi_calculates
+        self.disarm_fast_steps()
+        self._fmi_reals.invalidate()
 
     def fmi_sync(self):
         """Called by the wrapper before any call that follows steps it took by itself."""
@@ -103,5 +129,5 @@ class FastStepProtocol:
         if t is not None:
             self._fmi_at(t)
             self.log(f"t = {t!r} s: {taken} communication steps taken by the wrapper without "
-                     "Python (inside the solver's last step)")
+                     "Python (steps of the C kernel)")
         return status.OK, None

@@ -17,9 +17,10 @@ import numpy as np
 from ..equations import ckernel
 from ..equations.projection import PROJECTION_MAX_ITER
 from . import singular_zone
-from .base import Integrator
+from .base import STEP_COUNT_SLACK, Integrator
 from .dense_output import DenseStep
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
+from .stated_accuracy import SPOT_CHECK_EVERY, allowed_error
 
 # The energy check's running state as kernel.c reads it (rk4p_compiled.AuditField's order).
 AUDIT_FIELDS = ("active", "e0", "v0", "kinetic_max", "potential_swing", "magnitude", "checks",
@@ -211,3 +212,89 @@ def mc_step(rk, h: float, safety: float, min_factor: float, max_factor: float,
         return None
     return decide(rk, h, status, err, y_new, f_new, safety, min_factor, max_factor,
                   energy_min_gain, end_evaluated=True)
+
+
+# A CPU limit per communication step below this (s) keeps rk4p's steps in Python, where it
+# is checked: the wrapper's own steps (at most SPOT_CHECK_EVERY of them) are not timed.
+MIN_CPU_LIMIT = 0.01
+
+
+def wrapper_steps(limit) -> int | None:
+    """The steps (accepted or not) one communication step in C may take under ``limit``
+    (a ``WorkLimit`` or None), or None when a short CPU limit keeps the steps in Python."""
+    if limit is None:
+        return 2 ** 62
+    if limit.max_cpu is not None and limit.max_cpu < MIN_CPU_LIMIT:
+        return None
+    return limit.max_steps or 2 ** 62
+
+
+def fast_run(rk, limit, time_tol: float) -> dict | None:
+    """What ``ckernel/fixed.h`` needs to take rk4p's coming communication steps as
+    ``_advance_fixed`` would (its grid, its step-doubling checks left to Python, its work
+    limit), or None when they must go through Python: another method, an energy audit
+    (checked in Python after each step), no constraints, a short CPU limit."""
+    eq = rk.equations
+    if rk.name != "rk4p" or rk.audit is not None or eq.m == 0 or eq.ckernel is None or \
+            rk.out is not None:
+        return None
+    max_steps = wrapper_steps(limit)
+    if max_steps is None:
+        return None
+    accuracy = rk.accuracy
+    return dict(t_now=rk.t, time_tol=time_tol, h_max=rk.h, slack=STEP_COUNT_SLACK,
+                max_steps=max_steps, unchecked=accuracy.unchecked, check_every=SPOT_CHECK_EVERY,
+                tol=rk._projection_tol(), max_iter=PROJECTION_MAX_ITER, local=accuracy.local,
+                estimate=rk.stats.error_estimate, allowed=allowed_error(rk),
+                y=np.concatenate((rk.q, rk.qd)), f=rk.f)
+
+
+def adopt_fast_run(rk, steps: int, t: float, y, f, estimate: float) -> None:
+    """The state and counters after ``steps`` rk4p steps the FMU's wrapper took in C
+    (``fast_run``), as ``_advance_fixed`` with ``rk4p_run`` leaves them."""
+    n = rk.q.size
+    rk.q, rk.qd, rk.f, rk.t = y[:n].copy(), y[n:].copy(), f, t
+    stats = rk.stats
+    stats.nsteps += steps
+    stats.naccel += 4 * steps
+    stats.nprojections += steps
+    stats.error_estimate = estimate
+    rk.accuracy.charged = stats.nsteps
+    rk.accuracy.unchecked += steps
+
+
+def fast_prk_run(rk, limit, time_tol: float, factors: tuple) -> dict | None:
+    """What ``ckernel/adaptive.h`` needs to take an embedded pair's coming communication
+    steps as ``_advance_adaptive`` lands on them (ckernel.PrkRun's fields), or None when
+    they must go through Python: another method, auto's watch after each step, an energy
+    audit (or a scene whose restart would start one), a state inside the last step, a
+    short CPU limit. ``factors``: projected_rk.py's (safety, min, max) step factors."""
+    eq = rk.equations
+    if rk.name not in ("rk45p", "dop853p") or rk.watch is not None or rk.audit is not None or \
+            eq.nonconservative_reason() is None or eq.m == 0 or eq.ckernel is None or \
+            rk.out is not None or rk.energy_rejected is not None:
+        return None
+    max_work = wrapper_steps(limit)
+    if max_work is None:
+        return None
+    return dict(t_now=rk.t, time_tol=time_tol, h=rk.h, max_step=rk.max_step,
+                exponent=-1.0 / (rk.order + 1), safety=factors[0], min_factor=factors[1],
+                max_factor=factors[2], rtol=rk.local_tolerance * rk.rtol,
+                atol=rk.local_tolerance * rk.atol, tol=rk._projection_tol(),
+                max_iter=PROJECTION_MAX_ITER, indicator=rk.zone.indicator,
+                landing=int(rk.zone.landing), max_work=max_work,
+                y=np.concatenate((rk.q, rk.qd)), f=rk.f)
+
+
+def adopt_prk_run(rk, state: dict) -> None:
+    """The state and counters after communication steps the FMU's wrapper took
+    (``fast_prk_run``), as ``_advance_adaptive`` leaves them; the last step's dense output
+    is not kept (a step that lands on the communication point is never read inside)."""
+    n = rk.q.size
+    y = state["y"]
+    rk.q, rk.qd, rk.f, rk.t, rk.h = y[:n].copy(), y[n:].copy(), state["f"], state["t"], state["h"]
+    rk.out = rk.dense = rk.energy_rejected = None
+    rk.zone.indicator, rk.zone.crossing, rk.zone.landing = state["indicator"], False, \
+        state["landing"]
+    for name, count in state["counters"].items():
+        setattr(rk.stats, name, getattr(rk.stats, name) + count)

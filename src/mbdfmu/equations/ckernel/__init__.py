@@ -20,6 +20,8 @@ import numpy as np
 
 from ...model.scene import PointForce, RotationalSpringDamper, SpringDamper, Torque
 from .dense import DENSE_KINDS, DenseRead, DenseReads  # noqa: F401 (DENSE_KINDS: public here)
+from .adaptive import PrkSteps
+from .fixed import FixedSteps
 from .implicit import ImplicitCalls
 
 # Return codes of kernel.c (ST_*).
@@ -170,7 +172,7 @@ class Buffers:
         self.p_done = self.done.ctypes.data
 
 
-class Kernel(DenseReads, ImplicitCalls):
+class Kernel(DenseReads, FixedSteps, PrkSteps, ImplicitCalls):
     """The C kernel bound to one scene's ``Equations``; every method returns None where
     kernel.c hands the case back to the numpy path (a singular Schur complement, a spring
     of zero length), which then says or does what it always does."""

@@ -17,6 +17,9 @@
  *   mbd_singularity_indicator  singular.py singularity_indicator
  *   mbd_dense_state  ProjectedRK._output_at: the projected dense output inside a step
  *   mbd_dense_step   an FMU's communication step that only reads it (dense.h)
+ *   mbd_fixed_step   an FMU's communication step of rk4p with the drivers' motions (fixed.h)
+ *   mbd_prk_fast_step  an FMU's communication step of an embedded pair after inputs were
+ *                    set (mbd_prk_set), landing on the communication point (adaptive.h)
  *   mbd_implicit_*   genalpha.py / ali3p.py steps with newton.py's iteration on the
  *                    banded Schur complement (implicit.h)
  *
@@ -483,4 +486,6 @@ int mbd_singularity_indicator(const Model *M, const double *q, const double *cva
 #include "stepping.h"
 #include "outputs.h"
 #include "dense.h"
+#include "fixed.h"
+#include "adaptive.h"
 #include "implicit.h"

@@ -1,0 +1,173 @@
+/*
+ * adaptive.h (part of kernel.c): an FMU's communication step of an embedded pair (rk45p,
+ * dop853p) landing on the communication point, taken by its wrapper without Python, with
+ * the force inputs the master sets before every step (fmu_build/runtime real_cache.py
+ * FastSteps: fmi2SetReal of those inputs lands in PrkRun.uf without Python either).
+ *
+ * The decisions are Python's, in the same order and arithmetic: Simulation._reinitialize
+ * and ProjectedRK.restart after an input was set (projection, q'' and the singularity
+ * indicator), AdaptiveStepping._advance_adaptive without dense output (landing, the
+ * controller's proposal kept after a step cut short, rejections), c_steps.prk_attempt's
+ * step factors. Anything else (a step near a singular configuration, where
+ * singular_zone.py plans, a case the kernel hands back, too many rejections, the work
+ * limit) returns non-zero with nothing changed, and Python takes the step and says why.
+ * For scenes without drivers and without an energy audit (non-conservative forces).
+ */
+
+#define NEAR_ZONE 0.1                 /* singular_zone.NEAR_ZONE */
+#define MIN_STEP_RELATIVE 1e-13       /* adaptive.py */
+#define MAX_REJECTIONS_IN_A_ROW 60
+#define LAND_STRETCH 1.01
+#define LAND_SPLIT 1.5
+
+typedef struct {
+    double t_now, time_tol;
+    double h, max_step;            /* Integrator.h (the controller's proposal), max_step */
+    I ns; const double *A, *B, *E, *E3;   /* the pair (c_steps.tableau) */
+    double exponent, safety, min_factor, max_factor;
+    double rtol, atol;             /* local_tolerance times the method's */
+    double tol; I max_iter;        /* the projection after a step */
+    double reinit_tol;             /* Simulation._reinitialize's projection */
+    double indicator;              /* zone.indicator at t_now */
+    I landing;                     /* zone.landing of the last step */
+    I max_work;                    /* steps (accepted or not) one doStep may take */
+    const double *motion;          /* (c, c', c'') of every row: constant, no drivers */
+    double *motions, *ufs;         /* (ns + 1) rows of each: a trial's stage inputs */
+    double *uf;                    /* the force inputs as set (nf) */
+    I nvr; const I *vrs, *slots;   /* value reference of each settable input, its place in uf */
+    I *set;                        /* nvr: 1 where set since the last step */
+    I changed;                     /* an input was set since the last step */
+    double *uf_step;               /* the inputs the last step took (nf) */
+    double *y, *f, *y1, *f1;       /* the state (2n) and f = y'; working copies */
+    double *K, *y_new, *f_new;     /* prk_trial's stages ((ns + 1) 2n) and results */
+    I steps, nsteps, nrejected, naccel, nprojections;   /* since armed */
+    I nout, npub; const I *pub_dst, *pub_src;
+    double *V;                     /* (outputs, q, q', q''), then lam */
+} PrkRun;
+
+/* fmi2SetReal of inputs the kernel holds: 0 when every value reference is one of them
+ * and every value finite (then applied, also to the published values), else non-zero
+ * with nothing applied (Python sets them and says what is wrong). */
+int mbd_prk_set(PrkRun *r, const unsigned int *vr, size_t nvr, const double *value,
+                double *values) {
+    for (size_t i = 0; i < nvr; i++) {
+        I k = 0;
+        while (k < r->nvr && r->vrs[k] != (I)vr[i]) k++;
+        if (k == r->nvr || !isfinite(value[i])) return 1;
+    }
+    for (size_t i = 0; i < nvr; i++) {
+        I k = 0;
+        while (r->vrs[k] != (I)vr[i]) k++;
+        r->uf[r->slots[k]] = value[i];
+        r->set[k] = 1;
+        values[vr[i]] = value[i];
+    }
+    r->changed = 1;
+    return 0;
+}
+
+/* The landing step's size towards end (AdaptiveStepping._landing); *lands: it ends there. */
+static double landing_step(double proposal, double remaining, I *lands) {
+    *lands = 0;
+    if (LAND_STRETCH * proposal >= remaining) { *lands = 1; return remaining; }
+    if (remaining < LAND_SPLIT * proposal) return 0.5 * remaining;
+    return proposal;
+}
+
+/* One trial step from (y, f) (prk_attempt): 1 accepted, 0 rejected, -1 Python's case;
+ * *h_next the controller's next step, *c1 the indicator at the step's end. */
+static int prk_try(const Model *M, PrkRun *r, Scratch *s, const double *y, const double *f,
+                   double hh, double *h_next, double *c1, I *naccel, I *nproj) {
+    I n = M->n, n2 = 2 * n, ns = r->ns;
+    double err = 0.0;
+    int st = mbd_prk_trial(M, ns, r->A, r->B, r->E, r->E3, hh, y, f, r->motions, r->ufs,
+                           r->rtol, r->atol, r->tol, r->max_iter, r->y_new, r->f_new, &err, r->K);
+    if (st == ST_SINGULAR || st == ST_SPRING || st == ST_PROJECTION) return -1;
+    if (st == ST_NOT_FINITE) { *naccel += ns; *h_next = hh * r->min_factor; return 0; }
+    double *y_end = s->qv + 4 * n2;       /* the step's end before the projection */
+    for (I k = 0; k < n2; k++) {
+        double a = 0.0;
+        for (I j = 0; j < ns; j++) a += r->K[j * n2 + k] * r->B[j];
+        y_end[k] = y[k] + hh * a;
+    }
+    mbd_singularity_indicator(M, y_end, r->motion, c1);
+    if (*c1 < NEAR_ZONE) return -1;
+    *naccel += ns;
+    if (st == ST_ERROR_NORM) {
+        *h_next = hh * fmax(r->min_factor, r->safety * pow(err, r->exponent));
+        return 0;
+    }
+    *nproj += 1;
+    *naccel += 1;
+    *h_next = hh * (err == 0.0 ? r->max_factor : fmin(r->max_factor, r->safety * pow(err, r->exponent)));
+    return 1;
+}
+
+/* The wrapper's doStep from t over hc (see the header); values filled, state moved. */
+int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *values) {
+    I n = M->n, n2 = 2 * n, m = M->m, nf = M->nf;
+    if (!(fabs(t - r->t_now) <= r->time_tol * fmax(fabs(t), fabs(r->t_now)))) return ST_ERROR_NORM;
+    double end = t + hc, tt = r->t_now, h_ctl = r->h, c0 = r->indicator;
+    if (!(end > tt)) return ST_ERROR_NORM;
+    double *y = r->y1, *f = r->f1;
+    I naccel = 0, nsteps = 0, nrej = 0, nproj = 0, landing = r->landing, rejections = 0;
+    memcpy(y, r->y, (size_t)n2 * sizeof(double));
+    memcpy(f, r->f, (size_t)n2 * sizeof(double));
+    Scratch s = scratch(M, M->work);
+    for (I row = 0; row <= r->ns; row++)
+        if (nf) memcpy(r->ufs + row * nf, r->uf, (size_t)nf * sizeof(double));
+    if (r->changed) {      /* _reinitialize, then reset_state's restart (h kept) */
+        if (project(M, &s, y, y + n, r->motion, r->reinit_tol, r->max_iter) != ST_OK) return ST_PROJECTION;
+        memcpy(f, y + n, (size_t)n * sizeof(double));
+        if (mbd_accelerations(M, y, y + n, r->motion, r->motion + 2 * m, r->uf, f + n, s.lam) != ST_OK)
+            return ST_SINGULAR;
+        naccel += 1;
+        mbd_singularity_indicator(M, y, r->motion, &c0);
+        landing = 0;
+    }
+    while (tt < end) {
+        if (nsteps + nrej >= r->max_work) return ST_ERROR_NORM;      /* the work limit */
+        double h_min = MIN_STEP_RELATIVE * fmax(1.0, fabs(tt));
+        double proposal = fmin(h_ctl, r->max_step), h_next = 0.0, c1 = 0.0;
+        I lands;
+        double hh = landing_step(proposal, end - tt, &lands);
+        if (!(c0 >= NEAR_ZONE)) return ST_SINGULAR;        /* singular_zone.plan's case */
+        int ok = prk_try(M, r, &s, y, f, hh, &h_next, &c1, &naccel, &nproj);
+        if (ok < 0) return ST_SINGULAR;
+        if (ok) {
+            rejections = 0;
+            nsteps++;
+            memcpy(y, r->y_new, (size_t)n2 * sizeof(double));
+            memcpy(f, r->f_new, (size_t)n2 * sizeof(double));
+            c0 = c1;
+            landing = lands;
+            tt = lands ? end : tt + hh;
+            h_ctl = (hh < proposal && h_next >= hh) ? proposal : h_next;
+        } else {
+            rejections++;
+            nrej++;
+            landing = lands;
+            h_ctl = h_next;
+            if (h_next < h_min || rejections > MAX_REJECTIONS_IN_A_ROW) return ST_ERROR_NORM;
+        }
+    }
+    double *out = r->V, *q = out + r->nout, *qd = q + n, *qdd = qd + n, *lam = qdd + n;
+    memcpy(q, y, (size_t)n2 * sizeof(double));
+    if (mbd_state_outputs(M, q, qd, r->motion, r->uf, qdd, lam, out) != ST_OK) return ST_SINGULAR;
+    for (I k = 0; k < r->npub; k++) values[r->pub_dst[k]] = r->V[r->pub_src[k]];
+    memcpy(r->y, y, (size_t)n2 * sizeof(double));
+    memcpy(r->f, f, (size_t)n2 * sizeof(double));
+    r->t_now = end;
+    r->h = h_ctl;
+    r->indicator = c0;
+    r->landing = landing;
+    r->changed = 0;
+    for (I k = 0; k < r->nvr; k++) r->set[k] = 0;
+    if (nf) memcpy(r->uf_step, r->uf, (size_t)nf * sizeof(double));
+    r->steps += 1;
+    r->nsteps += nsteps;
+    r->nrejected += nrej;
+    r->naccel += naccel;
+    r->nprojections += nproj;
+    return ST_OK;
+}

@@ -1,0 +1,102 @@
+"""An FMU's communication steps of an embedded pair that land on the communication point,
+taken by its wrapper without Python (adaptive.h), with the force inputs the master sets
+before each step taken by the wrapper too (``mbd_prk_set``); armed by the slave after a
+Python step, read back when it catches up (``fmu_build/runtime/real_cache.py``
+FastSteps).
+
+``PrkSteps`` is a mixin of ``Kernel``: it uses the kernel's ``n``, ``m``, ``nf``, ``nout``,
+``address``, ``library`` and ``_dense_scratch`` (the published values' buffer, shared with
+the other fast steps: one kind is armed at a time).
+"""
+
+from __future__ import annotations
+
+import ctypes
+
+import numpy as np
+
+_P, _I, _D = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
+
+
+class PrkRun(ctypes.Structure):
+    """adaptive.h's ``PrkRun``."""
+
+    _fields_ = [("t_now", _D), ("time_tol", _D), ("h", _D), ("max_step", _D), ("ns", _I),
+                ("A", _P), ("B", _P), ("E", _P), ("E3", _P), ("exponent", _D), ("safety", _D),
+                ("min_factor", _D), ("max_factor", _D), ("rtol", _D), ("atol", _D),
+                ("tol", _D), ("max_iter", _I), ("reinit_tol", _D), ("indicator", _D),
+                ("landing", _I), ("max_work", _I), ("motion", _P), ("motions", _P),
+                ("ufs", _P), ("uf", _P), ("nvr", _I), ("vrs", _P), ("slots", _P), ("set", _P),
+                ("changed", _I), ("uf_step", _P), ("y", _P), ("f", _P), ("y1", _P),
+                ("f1", _P), ("K", _P), ("y_new", _P), ("f_new", _P), ("steps", _I),
+                ("nsteps", _I), ("nrejected", _I), ("naccel", _I), ("nprojections", _I),
+                ("nout", _I), ("npub", _I), ("pub_dst", _P), ("pub_src", _P), ("V", _P)]
+
+
+# What the slave reads back: the counters, then the state's fields.
+COUNTERS = ("nsteps", "nrejected", "naccel", "nprojections")
+
+
+class PrkSteps:
+    """The embedded pairs' fast steps of ``Kernel`` (see the module docstring)."""
+
+    prk: PrkRun | None = None
+
+    def arm_prk_steps(self, run: dict, tableau, inputs, pub_dst, pub_src) -> tuple:
+        """Let an FMU's wrapper take an embedded pair's communication steps
+        (``mbd_prk_fast_step``) from the state in ``run`` (PrkRun's scalar fields, and y, f,
+        motion: (c, c', c'') and uf: the held force inputs), with ``tableau`` (ns and the
+        addresses of A, B, E, E3: ``Kernel.tableau``) and ``inputs`` (value references and
+        places in uf of the inputs fmi2SetReal may set here), publishing as
+        ``DenseReads.arm_dense_steps`` does. Returns (the addresses of
+        ``mbd_prk_fast_step``, of the model, of the PrkRun, of ``mbd_prk_set``)."""
+        r = self.prk = PrkRun()
+        n2, ns, nf = 2 * self.n, tableau[0], max(self.nf, 1)
+        states = np.zeros(4 * n2)                        # y, f, y1, f1
+        states[:n2], states[n2:2 * n2] = run.pop("y"), run.pop("f")
+        motion = np.ascontiguousarray(run.pop("motion"), dtype=float)
+        uf = np.zeros(2 * nf)                            # uf, uf_step
+        uf[:self.nf] = uf[nf:nf + self.nf] = run.pop("uf")
+        vrs, slots = (np.ascontiguousarray(a, dtype=np.int64) for a in inputs)
+        dst, src = (np.ascontiguousarray(a, dtype=np.int64) for a in (pub_dst, pub_src))
+        arrays = dict(motion=motion, motions=np.tile(motion, ns + 1), ufs=np.zeros((ns + 1) * nf),
+                      uf=uf, vrs=vrs, slots=slots, set=np.zeros(max(vrs.size, 1), dtype=np.int64),
+                      states=states, K=np.zeros((ns + 1) * n2), y_new=np.zeros(n2),
+                      f_new=np.zeros(n2), pub_dst=dst, pub_src=src)
+        self._prk_arrays = arrays                       # what r points at
+        for name, value in run.items():
+            setattr(r, name, value)
+        r.ns, r.A, r.B, r.E, r.E3 = tableau[0], *(x or 0 for x in tableau[1:5])
+        for name in ("motion", "motions", "ufs", "uf", "vrs", "slots", "set", "K", "y_new",
+                     "f_new", "pub_dst", "pub_src"):
+            setattr(r, name, arrays[name].ctypes.data)
+        r.uf_step = uf.ctypes.data + 8 * nf
+        base = states.ctypes.data
+        r.y, r.f, r.y1, r.f1 = base, base + 8 * n2, base + 16 * n2, base + 24 * n2
+        r.nvr, r.npub, r.nout = vrs.size, dst.size, self.nout
+        r.V = self._dense_scratch.ctypes.data
+        step = ctypes.cast(self.library.mbd_prk_fast_step, ctypes.c_void_p).value
+        setter = ctypes.cast(self.library.mbd_prk_set, ctypes.c_void_p).value
+        return step, self.address, ctypes.addressof(r), setter
+
+    def prk_taken(self):
+        """What the wrapper did since arming or the last call: (steps it took, then the
+        state for ``c_steps.adopt_prk_run`` or None without steps, and [(value reference,
+        value)] of the inputs set since its last step). The counts start again; the run
+        stays where the wrapper points until armed anew."""
+        r = self.prk
+        if r is None:
+            return 0, None, []
+        a, n2, nf = self._prk_arrays, 2 * self.n, max(self.nf, 1)
+        pending = [(int(vr), float(a["uf"][slot])) for vr, slot, flag in
+                   zip(a["vrs"], a["slots"], a["set"]) if flag]
+        a["set"][:] = 0
+        if r.steps == 0:
+            return 0, None, pending
+        state = dict(t=float(r.t_now), h=float(r.h), indicator=float(r.indicator),
+                     landing=bool(r.landing), y=a["states"][:n2].copy(),
+                     f=a["states"][n2:2 * n2].copy(), uf=a["uf"][nf:nf + self.nf].copy(),
+                     counters={k: int(getattr(r, k)) for k in COUNTERS})
+        steps = int(r.steps)
+        r.steps = r.nsteps = r.nrejected = r.naccel = r.nprojections = 0
+        return steps, state, pending

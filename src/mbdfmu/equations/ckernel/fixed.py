@@ -1,0 +1,105 @@
+"""An FMU's communication steps of rk4p taken by its wrapper without Python (fixed.h): the
+drivers' motions as a table the kernel evaluates, the run's state and its step-doubling
+charge, armed by the slave after a Python step and read back when it catches up
+(``fmu_build/runtime/real_cache.py`` FastSteps).
+
+``FixedSteps`` is a mixin of ``Kernel``: it uses the kernel's ``n``, ``m``, ``nf``,
+``nout``, ``address``, ``library`` and ``_dense_scratch`` (the published values' buffer,
+shared with dense.py's steps: only one kind is armed at a time).
+"""
+
+from __future__ import annotations
+
+import ctypes
+
+import numpy as np
+
+from ...model.motion import ConstantMotion, HarmonicMotion, LinearMotion
+
+_P, _I, _D = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
+# fixed.h's MOTION_* codes of the motions it evaluates; any other kind stays with Python.
+MOTION_CODES = {ConstantMotion: 0, LinearMotion: 1, HarmonicMotion: 2}
+
+
+class FixedRun(ctypes.Structure):
+    """fixed.h's ``FixedRun``."""
+
+    _fields_ = [("t_now", _D), ("time_tol", _D), ("h_max", _D), ("slack", _D),
+                ("max_steps", _I), ("unchecked", _I), ("check_every", _I), ("tol", _D),
+                ("max_iter", _I), ("nmotion", _I), ("mrow", _P), ("mkind", _P), ("mcoef", _P),
+                ("offsets", _P), ("ufs", _P), ("y", _P), ("f", _P), ("save", _P),
+                ("motions", _P), ("steps", _I), ("local", _D), ("estimate", _D),
+                ("allowed", _D), ("nout", _I), ("npub", _I), ("pub_dst", _P), ("pub_src", _P),
+                ("V", _P)]
+
+
+def motion_coefficients(motion) -> list[float] | None:
+    """The four numbers fixed.h's ``motion_at`` reads for ``motion`` (a harmonic's angular
+    frequency computed here as motion.py computes it), or None for a kind it does not
+    know."""
+    kind = type(motion)
+    if kind is ConstantMotion:
+        return [motion.value, 0.0, 0.0, 0.0]
+    if kind is LinearMotion:
+        return [motion.start, motion.rate, 0.0, 0.0]
+    if kind is HarmonicMotion:
+        w = 2.0 * np.pi * motion.frequency      # math.pi: the same double
+        return [motion.offset, motion.amplitude, float(w), motion.phase]
+    return None
+
+
+def motion_table(constraint_set):
+    """(count, rows, codes, coefficients) of the drivers' motions, or None when one is of
+    a kind fixed.h does not evaluate (or a driver takes its motion from the inputs)."""
+    if constraint_set._input_rows.size:
+        return None
+    rows, codes, coefficients = [], [], []
+    for row, motion in constraint_set._motion_rows:
+        c = motion_coefficients(motion)
+        if c is None:
+            return None
+        rows.append(int(row)), codes.append(MOTION_CODES[type(motion)]), coefficients.append(c)
+    return (len(rows), np.array(rows or [0], dtype=np.int64), np.array(codes or [0], dtype=np.int64),
+            np.array(coefficients or [[0.0] * 4], dtype=float).ravel())
+
+
+class FixedSteps:
+    """The fixed-step calls of ``Kernel`` (see the module docstring)."""
+
+    fixed: FixedRun | None = None
+
+    def arm_fixed_steps(self, run: dict, table, offsets, uf, pub_dst, pub_src) -> tuple:
+        """Let an FMU's wrapper take rk4p's communication steps (``mbd_fixed_step``) from
+        the state in ``run`` (t_now, time_tol, h_max, slack, max_steps, unchecked,
+        check_every, tol, max_iter, local, estimate, allowed, y, f), the drivers' motion
+        ``table`` (``motion_table``), the constraints' ``offsets`` and the held force
+        inputs ``uf``, publishing as ``DenseReads.arm_dense_steps`` does. Returns (the
+        address of ``mbd_fixed_step``, of the model, of the FixedRun)."""
+        r = self.fixed = FixedRun()
+        n2, m = 2 * self.n, self.m
+        y = np.zeros(4 * n2)                            # y, f, and their saved copy
+        y[:n2], y[n2:2 * n2] = run.pop("y"), run.pop("f")
+        forces = np.tile(np.asarray(uf if self.nf else [0.0], dtype=float), 3)
+        dst, src = (np.ascontiguousarray(a, dtype=np.int64) for a in (pub_dst, pub_src))
+        arrays = (*table[1:], np.ascontiguousarray(offsets, dtype=float), forces, y,
+                  np.zeros(9 * max(m, 1)), dst, src)
+        self._fixed_arrays = arrays                     # what r points at
+        for name, value in run.items():
+            setattr(r, name, value)
+        r.nmotion = table[0]
+        r.mrow, r.mkind, r.mcoef, r.offsets, r.ufs = (a.ctypes.data for a in arrays[:5])
+        r.y, r.f, r.save = y.ctypes.data, y.ctypes.data + 8 * n2, y.ctypes.data + 16 * n2
+        r.motions, r.pub_dst, r.pub_src = (a.ctypes.data for a in arrays[6:])
+        r.npub, r.nout, r.V = dst.size, self.nout, self._dense_scratch.ctypes.data
+        function = ctypes.cast(self.library.mbd_fixed_step, ctypes.c_void_p).value
+        return function, self.address, ctypes.addressof(r)
+
+    def fixed_taken(self):
+        """(steps taken, t reached, y, f, estimate) by the wrapper since arming or the last
+        call, or None. The run stays where the wrapper points until armed anew."""
+        r = self.fixed
+        if r is None or r.steps == 0:
+            return None
+        n2, y = 2 * self.n, self._fixed_arrays[5]
+        steps, r.steps = int(r.steps), 0
+        return steps, float(r.t_now), y[:n2].copy(), y[n2:2 * n2].copy(), float(r.estimate)
