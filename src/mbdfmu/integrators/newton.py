@@ -187,13 +187,15 @@ class NewtonFailure(Exception):
 
 def _converged(tols: NewtonTolerances, matrix: IterationMatrix, size: float,
                residual: np.ndarray, Psi: np.ndarray) -> bool:
-    """Before an increment: Psi within the tolerance (near a singular configuration the
-    looser one), and the dynamic residual (as a displacement) too, or the last increment
-    if the matrix was evaluated in this step (module docstring)."""
-    tol = tols.near_singular if matrix.near_singular() else tols.tol
+    """Before an increment: Psi within the tolerance, and the last increment or the dynamic
+    residual (as a displacement) too; near a singular configuration the looser one."""
+    if matrix.near_singular():
+        tol = residual_tol = tols.near_singular
+    else:
+        tol, residual_tol = tols.tol, tols.residual
     if Psi.size and float(np.max(np.abs(Psi))) > tol:
         return False
-    return size <= tol and matrix.fresh or _dynamics_hold(tols, residual)
+    return size <= tol or float(np.max(np.abs(residual))) <= residual_tol
 
 
 def _dynamics_hold(tols: NewtonTolerances, residual: np.ndarray, noise: bool = False) -> bool:

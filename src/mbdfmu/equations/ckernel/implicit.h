@@ -71,14 +71,14 @@ static int near_singular(const Implicit *p, const double *kept) {
     return kept[KEPT_INDICATOR] < p->near_indicator;
 }
 
-/* Before an increment: Psi within the tolerance (near a singular configuration the looser
- * one), and the dynamic residual (as a displacement) too, or the last increment if the
- * matrix was evaluated in this step. */
+/* Before an increment: Psi within the tolerance, and the last increment or the dynamic
+ * residual (as a displacement) too; near a singular configuration the looser one. */
 static int newton_converged(const Implicit *p, const Tolerances *t, const double *kept,
                             double size, double residual, double psi) {
-    double tol = near_singular(p, kept) ? t->near_singular : t->tol;
+    double tol = t->tol, residual_tol = t->residual;
+    if (near_singular(p, kept)) tol = residual_tol = t->near_singular;
     if (psi > tol) return 0;
-    return (size <= tol && kept[KEPT_FRESH] != 0.0) || residual <= t->residual;
+    return size <= tol || residual <= residual_tol;
 }
 
 /* After an increment of max-norm size (previous < 0: the first): CONV_ESTIMATE, CONV_NOISE
