@@ -69,8 +69,8 @@ def crossing_error(method: str, h: float) -> float:
 def test_order_two_through_the_singular_crossing(method):
     # measured: genalpha 3.96e-8, 9.92e-9, 2.48e-9 (ratios 3.99, 4.00); before the Newton
     # iteration counted its multiplier increments (integrators/newton.py), the crossing left
-    # a velocity error that did not shrink with h: ratios 3.2, 1.9. ali3p 1.82e-8, 4.54e-9,
-    # 9.6e-10 (4.00, 4.74); before Newton checked the dynamic residual at increments of the
+    # a velocity error that did not shrink with h: ratios 3.2, 1.9. ali3p 1.83e-8, 4.76e-9,
+    # 1.10e-9 (3.85, 4.33); before Newton checked the dynamic residual at increments of the
     # noise's size: 2.5, 1.8.
     errors = [crossing_error(method, h) for h in (1.25e-4, 6.25e-5, 3.125e-5)]
     ratios = [errors[0] / errors[1], errors[1] / errors[2]]
