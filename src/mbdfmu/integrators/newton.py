@@ -48,6 +48,9 @@ penalty iteration contracts slowly along the direction where Psi_q loses rank, a
 crossing its increments kept the same size while the equations of motion were far off
 (``_dynamics_hold``). The residual test measures ali3p's multipliers by what they do,
 Psi_q^T lam at the current iterate, which its increments (positions only) do not.
+``_converged`` (before an increment) still accepts a last increment within the tolerance
+from a kept matrix: requiring a fresh one there made ali3p halve its steps at P2's
+crossings at coarse steps (docs/accuracy.md, "tried and taken back").
 """
 
 from __future__ import annotations
