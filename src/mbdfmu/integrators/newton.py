@@ -33,6 +33,24 @@ not shrink with h (P2's error levelled off near 1e-7). ali3p's multipliers along
 direction where Psi_q loses rank are set by its penalty and do not act on the motion, but
 through a kept matrix's Psi_q they seemed to (increments of 1e7 at P2's crossings at
 h = 2 ms, then halvings and a 20 times larger error): ali3p counts its positions only.
+
+Small increments prove convergence only with a matrix evaluated in the step. A kept matrix
+(Psi_q and K from earlier steps) contracts the constraint error at once but the dynamic
+residual slowly, and its increments said converged while the equations of motion were
+still off, with the same sign step after step: energy was lost where the motion is fastest,
+an error that did not shrink with h (docs/accuracy.md). So with a kept matrix, once the
+increments have converged, the residual is evaluated and the iteration goes on until the
+dynamic residual (as a displacement) is within ``tolerances.residual``; a kept matrix that
+does not reduce it by NEWTON_SLOW_RATE per iteration is re-evaluated, and an increment with
+a fresh matrix ends the iteration. Increments that stop shrinking at the noise level with a
+fresh matrix end it only if the residual is within the near-singular tolerance too: ali3p's
+penalty iteration contracts slowly along the direction where Psi_q loses rank, and at a
+crossing its increments kept the same size while the equations of motion were far off
+(``_dynamics_hold``). The residual test measures ali3p's multipliers by what they do,
+Psi_q^T lam at the current iterate, which its increments (positions only) do not.
+``_converged`` (before an increment) still accepts a last increment within the tolerance
+from a kept matrix: requiring a fresh one there made ali3p halve its steps at P2's
+crossings at coarse steps (docs/accuracy.md, "tried and taken back").
 """
 
 from __future__ import annotations
@@ -183,19 +201,27 @@ def _converged(tols: NewtonTolerances, matrix: IterationMatrix, size: float,
     return size <= tol or float(np.max(np.abs(residual))) <= residual_tol
 
 
-def _increment_converged(tols, matrix, size, previous, length_scale) -> bool:
+def _dynamics_hold(tols: NewtonTolerances, residual: np.ndarray, noise: bool = False) -> bool:
+    """The dynamic residual (as a displacement) within its tolerance; after increments of
+    rounding noise, within what that noise allows near a singular configuration."""
+    tol = max(tols.residual, tols.near_singular) if noise else tols.residual
+    return float(np.max(np.abs(residual))) <= tol
+
+
+def _increment_converged(tols, matrix, size, previous, length_scale) -> str | None:
     """After an increment of max-norm ``size``: is the remaining error below the tolerance?
     Estimated as theta / (1 - theta) size with the contraction theta = size / previous
-    (Hairer and Wanner II, eq. IV.8.10); a first increment must be ten times below it.
-    Increments of rounding noise that stop shrinking with a fresh matrix: converged."""
+    (Hairer and Wanner II, eq. IV.8.10); a first increment must be ten times below it:
+    "estimate". Increments of the rounding noise's size that stop shrinking with a fresh
+    matrix: "noise" (converged if the dynamic residual holds, ``_dynamics_hold``)."""
     tol = tols.near_singular if matrix.near_singular() else tols.tol
     if previous is None:
-        return size <= 0.1 * tol
+        return "estimate" if size <= 0.1 * tol else None
     theta = size / previous if previous > 0 else 0.0
     if matrix.fresh and size <= matrix.noise(tols, length_scale) and \
             NEWTON_SLOW_RATE < theta <= NEWTON_DIVERGING_RATE:
-        return True
-    return theta < 1.0 and theta / (1.0 - theta) * size <= tol
+        return "noise"
+    return "estimate" if theta < 1.0 and theta / (1.0 - theta) * size <= tol else None
 
 
 def _check_rate(matrix, tols, size, previous):
@@ -228,6 +254,7 @@ def newton_iterate(evaluate, build_matrix, apply, matrix: IterationMatrix, h: fl
     matrix.fresh = False
     previous, size, Psi = None, np.inf, np.zeros(0)
     n = mass.size
+    unchecked, last = False, None   # positions converged with a kept matrix; residual
     for _ in range(NEWTON_MAX_ITER):
         stats.nnewton += 1
         dynamic, Psi = evaluate()
@@ -235,6 +262,13 @@ def newton_iterate(evaluate, build_matrix, apply, matrix: IterationMatrix, h: fl
             raise NewtonFailure("non-finite residual")
         if _converged(tols, matrix, size, dynamic / mass, Psi):
             return
+        if unchecked:
+            if _dynamics_hold(tols, dynamic / mass, unchecked == "noise"):
+                return
+            rsize = float(np.max(np.abs(dynamic / mass)))
+            if last is not None and rsize > NEWTON_SLOW_RATE * last:
+                matrix.lu = None
+            last = rsize
         if matrix.lu is None:
             matrix.factor(*build_matrix(), h, stats, mass if count_multipliers else None)
         dx = -matrix.solve(np.concatenate((dynamic, Psi)))
@@ -242,7 +276,12 @@ def newton_iterate(evaluate, build_matrix, apply, matrix: IterationMatrix, h: fl
         if not np.isfinite(size):
             raise NewtonFailure("non-finite Newton increment")
         apply(dx)
-        if _increment_converged(tols, matrix, size, previous, length_scale):
+        if unchecked:
+            if matrix.fresh and unchecked == "estimate":
+                return
+            continue
+        unchecked = _increment_converged(tols, matrix, size, previous, length_scale)
+        if unchecked == "estimate" and matrix.fresh:
             return
         previous = _check_rate(matrix, tols, size, previous)
     residual = float(np.max(np.abs(Psi), initial=0.0))

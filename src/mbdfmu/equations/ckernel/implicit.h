@@ -81,17 +81,19 @@ static int newton_converged(const Implicit *p, const Tolerances *t, const double
     return size <= tol || residual <= residual_tol;
 }
 
-/* After an increment of max-norm size (previous < 0: the first). */
+/* After an increment of max-norm size (previous < 0: the first): CONV_ESTIMATE, CONV_NOISE
+ * (increments of the noise's size that stop shrinking with a fresh matrix) or 0. */
+enum { CONV_ESTIMATE = 1, CONV_NOISE = 2 };
 static int increment_converged(const Implicit *p, const Tolerances *t, const double *kept,
                                double size, double previous) {
     double tol = near_singular(p, kept) ? t->near_singular : t->tol;
-    if (previous < 0.0) return size <= 0.1 * tol;
+    if (previous < 0.0) return size <= 0.1 * tol ? CONV_ESTIMATE : 0;
     double theta = previous > 0.0 ? size / previous : 0.0;
     double noise = p->roundoff * t->size / fmax(kept[KEPT_INDICATOR] * kept[KEPT_INDICATOR], 1e-300);
     noise = fmax(t->stagnation, fmin(noise, p->noise_max * p->length_scale));
     if (kept[KEPT_FRESH] != 0.0 && size <= noise && p->slow_rate < theta && theta <= p->diverging_rate)
-        return 1;
-    return theta < 1.0 && theta / (1.0 - theta) * size <= tol;
+        return CONV_NOISE;
+    return theta < 1.0 && theta / (1.0 - theta) * size <= tol ? CONV_ESTIMATE : 0;
 }
 
 /* Watch the contraction: drop a kept matrix that converges slowly (returns -1: restart the
@@ -323,8 +325,8 @@ static int attempt(const Model *M, Implicit *p, Scratch *s, double *kept, const 
     }
     if (!(kept[KEPT_VALID] != 0.0 && kept[KEPT_H] == h)) kept[KEPT_VALID] = 0.0;
     kept[KEPT_FRESH] = 0.0;
-    double previous = -1.0, size = INFINITY, psi = 0.0;
-    int done = 0;
+    double previous = -1.0, size = INFINITY, psi = 0.0, last = -1.0;
+    int done = 0, unchecked = 0;   /* increments converged, the residual not yet seen */
     p->reason = NF_NONE;
     for (I it = 0; it < p->max_iter && !done; it++) {
         p->nnewton++;
@@ -341,6 +343,12 @@ static int attempt(const Model *M, Implicit *p, Scratch *s, double *kept, const 
         psi = 0.0;
         for (I r = 0; r < m; r++) psi = fmax(psi, fabs(s->psi[r]));
         if (newton_converged(p, &t, kept, size, residual, psi)) { done = 1; break; }
+        if (unchecked) {            /* newton.py: _dynamics_hold */
+            double rtol = unchecked == CONV_NOISE ? fmax(t.residual, t.near_singular) : t.residual;
+            if (residual <= rtol) { done = 1; break; }
+            if (last >= 0.0 && residual > p->slow_rate * last) kept[KEPT_VALID] = 0.0;
+            last = residual;
+        }
         if (kept[KEPT_VALID] == 0.0) {
             p->njev++;
             p->nlu++;
@@ -370,7 +378,12 @@ static int attempt(const Model *M, Implicit *p, Scratch *s, double *kept, const 
             for (I k = 0; k < n; k++) dq[k] += dx[k];
             for (I r = 0; r < m; r++) lam[r] += (4.0 / (h * h)) * dl[r];
         }
-        if (increment_converged(p, &t, kept, size, previous)) { done = 1; break; }
+        if (unchecked) {
+            if (kept[KEPT_FRESH] != 0.0 && unchecked == CONV_ESTIMATE) { done = 1; break; }
+            continue;
+        }
+        unchecked = increment_converged(p, &t, kept, size, previous);
+        if (unchecked == CONV_ESTIMATE && kept[KEPT_FRESH] != 0.0) { done = 1; break; }
         previous = check_rate(p, &t, kept, size, previous, &p->reason);
         if (p->reason != NF_NONE) return ST_NEWTON;
     }
