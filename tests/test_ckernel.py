@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 import mbdfmu
 from mbdfmu.equations import Equations, ckernel
 from mbdfmu.equations.projection import assemble
+from mbdfmu.equations.singular import singularity_indicator
 from mbdfmu.model import scene_from_dict
 
 from test_kernel import SCENES, augmented_solve, n_four_bar, scene
@@ -124,10 +125,14 @@ def test_c_kernel_equals_numpy_kernel(name, data):
     u, t = random_inputs(plain, rng), data.draw(st.floats(0.0, 1.0))
     qdd, lam = plain.accelerations(t, q, qd, u)
     qdd_c, lam_c = fast.accelerations(t, q, qd, u)
-    # round-off of two Cholesky orders, amplified by S's condition (nearly redundant rows)
+    # round-off of two Cholesky orders, amplified by S's condition, about 1 / indicator:
+    # nearly redundant rows (the parallelogram moved off its assembly) reach indicators of
+    # 1e-5, where 2000 random states differed by up to 3.1e5 eps / indicator
+    indicator = singularity_indicator(plain.constraints(t, q, u=u)[1])
+    rtol = 1e-7 + 1e6 * np.finfo(float).eps / max(indicator, 1e-300)
     scale = max(1.0, np.abs(qdd).max())
-    np.testing.assert_allclose(qdd_c, qdd, rtol=1e-7, atol=1e-7 * scale)
-    np.testing.assert_allclose(lam_c, lam, rtol=1e-7, atol=1e-7 * max(1.0, np.abs(lam).max()))
+    np.testing.assert_allclose(qdd_c, qdd, rtol=rtol, atol=rtol * scale)
+    np.testing.assert_allclose(lam_c, lam, rtol=rtol, atol=rtol * max(1.0, np.abs(lam).max()))
     y, y_c = plain.output_values(t, q, qd, qdd, lam, u), fast.output_values(t, q, qd, qdd, lam, u)
     np.testing.assert_allclose(y_c, y, rtol=1e-12, atol=1e-12 * max(1.0, np.nanmax(np.abs(y))))
 
@@ -136,7 +141,6 @@ def test_c_kernel_equals_numpy_kernel(name, data):
 def test_c_singularity_indicator_is_the_numpy_one(name):
     """The C indicator against singular.singularity_indicator on the same Psi_q (dense and
     banded), away from and right at P2's singular configuration (cranks horizontal)."""
-    from mbdfmu.equations.singular import singularity_indicator
     from mbdfmu.integrators.singular_zone import REDUNDANT
     sc = n_four_bar(40) if name == "n_four_bar_40" else any_scene(name)
     plain, fast = Equations(sc, kernel="numpy"), Equations(sc, kernel="c")
