@@ -128,23 +128,38 @@ def step_both(fast, slow, step: float, names) -> list[float]:
     return values
 
 
-def test_rk4p_steps_with_a_driver_are_the_wrappers_and_pythons_values(scene_fmu, scene_host):
-    """The slider-crank (auto->rk4p; the motor's linear motion evaluated in C, ckernel/
-    fixed.h): the wrapper takes its doSteps (1 ms, some 3 ms) by itself, all but those
-    where rk4p's step-doubling check is due (about one in SPOT_CHECK_EVERY steps), and
-    every value it serves is bit for bit the one Python computes when each step goes
+LINEAR_MOTOR = 'motion = { type = "linear", start = 0.0, rate = 314.1592653589793 }'
+HARMONIC_MOTOR = 'motion = { type = "harmonic", offset = 0.0, amplitude = 0.3, frequency = 40.0 }'
+# the drive's closed form: the crank's angle at t
+MOTOR_ANGLE = {"linear": lambda t: 314.1592653589793 * t,
+               "harmonic": lambda t: 0.3 * np.sin(2 * np.pi * 40.0 * t)}
+
+
+@pytest.mark.parametrize("motor", ["linear", "harmonic"])
+def test_rk4p_steps_with_a_driver_are_the_wrappers_and_pythons_values(
+        motor, scene_fmu, scene_host, tmp_path):
+    """The slider-crank (auto->rk4p; the motor's linear or harmonic motion evaluated in C,
+    ckernel/fixed.h): the wrapper takes its doSteps (1 ms, some 3 ms) by itself, all but
+    those where rk4p's step-doubling check is due (about one in SPOT_CHECK_EVERY steps),
+    and every value it serves is bit for bit the one Python computes when each step goes
     through it; a state taken after fast steps restores to the same values."""
+    from mbdfmu.fmu_build.scene_fmu import build_fmu
     from mbdfmu.integrators.stated_accuracy import SPOT_CHECK_EVERY
     path = scene_fmu("slider_crank")
+    if motor == "harmonic":
+        text = (SCENES / "slider_crank.toml").read_text()
+        assert LINEAR_MOTOR in text
+        scene = tmp_path / "slider_crank_harmonic.toml"
+        scene.write_text(text.replace(LINEAR_MOTOR, HARMONIC_MOTOR))
+        path = build_fmu(scene, tmp_path / "harmonic.fmu")
     fast, slow = scene_host(path, "fast").init(), scene_host(path, "slow").init()
     names = fast.outputs + ["crank.x", "rod.alpha"]
     steps = 3 * SPOT_CHECK_EVERY + 7
     got = []
     for k in range(steps):
         got.append(step_both(fast, slow, 3 * H if k % 10 == 9 else H, names))   # 3 rk4p steps
-    # the closed form of the drive: the crank's angle is the motor's rate times t
-    np.testing.assert_allclose(fast.real("crank.phi")[0], 314.1592653589793 * fast.t,
-                               rtol=1e-9)
+    np.testing.assert_allclose(fast.real("crank.phi")[0], MOTOR_ANGLE[motor](fast.t),
+                               rtol=1e-9, atol=1e-12)
     state, t = get_state(fast), fast.t             # the slave catches up first
     assert taken_by_wrapper(slow) == 0
     assert steps - 8 <= taken_by_wrapper(fast) < steps
