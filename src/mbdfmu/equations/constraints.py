@@ -65,7 +65,8 @@ class ConstraintSet:
     one-row joint's second entry is ``m``, a row of zeros), ``reaction_joints`` their index
     in the scene, ``joint_bj``, ``frame_*`` their body_j and reaction frame; couplers their
     row in ``coupler_rows`` and index in ``coupler_joints``; ``driver_rows`` the driver rows
-    in scene order; ``pattern`` Psi_q's nonzeros.
+    in scene order, split into ``input_rows`` (motion from the inputs) and ``motion_rows``
+    ((row, motion) pairs the set evaluates itself); ``pattern`` Psi_q's nonzeros.
     """
 
     def __init__(self, scene: Scene, minv: np.ndarray, kernel: str | None = None):
@@ -96,10 +97,10 @@ class ConstraintSet:
         self.coupler_joints = np.array([c[0] for c in couplers], dtype=int)
         self.coupler_rows = np.array([c[1] for c in couplers], dtype=int)
         # which drivers take their motion from the inputs, and which evaluate it themselves
-        self._input_rows = np.array([r for r, d in zip(self.driver_rows, scene.drivers)
-                                     if d.is_input], dtype=int)
-        self._motion_rows = [(r, d.motion) for r, d in zip(self.driver_rows, scene.drivers)
-                             if not d.is_input]
+        self.input_rows = np.array([r for r, d in zip(self.driver_rows, scene.drivers)
+                                    if d.is_input], dtype=int)
+        self.motion_rows = [(r, d.motion) for r, d in zip(self.driver_rows, scene.drivers)
+                            if not d.is_input]
         self._last_motion = None
         self._plan_pattern(minv)
 
@@ -149,10 +150,10 @@ class ConstraintSet:
         steps of the C kernel; ``us`` the inputs at each time (None: no input drivers)."""
         out = np.zeros((len(times), 3, self.m))
         out[:, 0, :] = self.offsets
-        for row, motion in self._motion_rows:
+        for row, motion in self.motion_rows:
             out[:, :, row] = [motion.evaluate(t) for t in times]
-        if self._input_rows.size:
-            out[:, :, self._input_rows] = np.array([u.motions.T for u in us])
+        if self.input_rows.size:
+            out[:, :, self.input_rows] = np.array([u.motions.T for u in us])
         return out
 
     def motion_values(self, t: float, u: InputValues):
@@ -161,17 +162,17 @@ class ConstraintSet:
         the last result is kept and returned again for the same t and input motions."""
         last = self._last_motion
         if last is not None and last[0] == t and (
-                not self._input_rows.size or np.array_equal(last[1], u.motions)):
+                not self.input_rows.size or np.array_equal(last[1], u.motions)):
             return last[2]
         c = self.offsets.copy()
         cd, cdd = np.zeros(self.m), np.zeros(self.m)
-        for row, motion in self._motion_rows:
+        for row, motion in self.motion_rows:
             c[row], cd[row], cdd[row] = motion.evaluate(t)
-        if self._input_rows.size:
-            c[self._input_rows], cd[self._input_rows], cdd[self._input_rows] = u.motions.T
+        if self.input_rows.size:
+            c[self.input_rows], cd[self.input_rows], cdd[self.input_rows] = u.motions.T
         for a in (c, cd, cdd):
             a.flags.writeable = False
-        self._last_motion = (t, u.motions.copy() if self._input_rows.size else None, (c, cd, cdd))
+        self._last_motion = (t, u.motions.copy() if self.input_rows.size else None, (c, cd, cdd))
         return c, cd, cdd
 
     def values(self, t: float, q: np.ndarray, qd: np.ndarray | None, u: InputValues):

@@ -51,10 +51,10 @@ def motion_coefficients(motion) -> list[float] | None:
 def motion_table(constraint_set):
     """(count, rows, codes, coefficients) of the drivers' motions, or None when one is of
     a kind fixed.h does not evaluate (or a driver takes its motion from the inputs)."""
-    if constraint_set._input_rows.size:
+    if constraint_set.input_rows.size:
         return None
     rows, codes, coefficients = [], [], []
-    for row, motion in constraint_set._motion_rows:
+    for row, motion in constraint_set.motion_rows:
         c = motion_coefficients(motion)
         if c is None:
             return None
