@@ -59,11 +59,13 @@ def stage_inputs(integrator, times, kernel=None) -> None:
 NO_AUDIT = np.zeros(len(AUDIT_FIELDS))      # inactive: no energy check in the kernel
 
 
-def _audit_state(audit) -> list:
+def audit_state(audit) -> list:
+    """An ``EnergyAudit``'s running state as the kernel's audit array (active)."""
     return [1.0] + [getattr(audit, name) for name in AUDIT_FIELDS[1:]]
 
 
-def _audit_back(audit, state) -> None:
+def audit_back(audit, state) -> None:
+    """The kernel's audit array back into the ``EnergyAudit`` after a compiled run."""
     for k, name in enumerate(AUDIT_FIELDS[1:], 1):
         setattr(audit, name, int(state[k]) if name == "checks" else float(state[k]))
 
@@ -109,13 +111,13 @@ def _rk4p_run(rk, t0: float, h: float, k: int, count: int) -> tuple[int, int]:
         starts = t0 + h * np.arange(k, k + count)
         stage_inputs(rk, (starts[:, None] + np.array([0.0, 0.5 * h, h])).ravel())
     constant = eq.applied.is_constant
-    audit = _audit_state(rk.audit) if constant and rk.audit is not None else NO_AUDIT
+    audit = audit_state(rk.audit) if constant and rk.audit is not None else NO_AUDIT
     n = rk.q.size
     q, qd, qdd, done, status = eq.ckernel.rk4p_steps(
         rk.q, rk.qd, rk.f[n:], h, count, rk._projection_tol(), PROJECTION_MAX_ITER,
         audit, ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF)
     if rk.audit is not None and constant:
-        _audit_back(rk.audit, eq.ckernel.buf.audit)
+        audit_back(rk.audit, eq.ckernel.buf.audit)
         if status == ckernel.ENERGY:      # _after_step checks this state again: count it once
             rk.audit.checks -= 1
     rk.q, rk.qd, rk.f = q, qd, np.concatenate((qd, qdd))

@@ -30,7 +30,7 @@ from ..equations import ckernel
 from ..equations.forces import FD_STEP
 from ..model.scene import RotationalSpringDamper, SpringDamper
 from . import newton
-from .c_steps import NO_AUDIT, _audit_back, _audit_state, stage_inputs
+from .c_steps import NO_AUDIT, audit_back, audit_state, stage_inputs
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
 from .newton import IterationMatrix, NewtonFailure
 
@@ -244,11 +244,11 @@ class CompiledNewton:
         stage_inputs(self, ends, kn.kernel)
         status, done, state = kn.kernel.implicit_steps(
             kn.prepare(self), self.matrix.kept, _state(self), h, len(ends),
-            _audit_state(self.audit) if audited else NO_AUDIT,
+            audit_state(self.audit) if audited else NO_AUDIT,
             ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF)
         kn.count(self.stats)
         if audited:
-            _audit_back(self.audit, kn.kernel.buf.audit)
+            audit_back(self.audit, kn.kernel.buf.audit)
             if status == ckernel.ENERGY:      # _after_step checks this state again
                 self.audit.checks -= 1
         if done:
