@@ -6,6 +6,11 @@ mechanisms, translated body for body and joint for joint from our scene files
 x, y, angle; initial velocities = the scene's) with an ``ObjectRigidBody2D`` of the same mass
 and inertia, gravity a ``LoadMassProportional`` per body, every revolute joint an
 ``ObjectJointRevolute2D`` between ``MarkerBodyPosition`` markers at the same body-fixed points.
+The same builder translates what benchmarks/fmu_speed.py's other mechanisms add: a
+translational joint (``ObjectJointPrismatic2D``, rotation locked), a constant-rate driver of a
+revolute joint to the ground (a velocity-level ``CoordinateConstraint`` on the body's angle:
+compiled, no Python user function), a constant point force (``LoadForceVector``) and a
+spring-damper with an actuator force (``ObjectConnectorSpringDamper``'s ``force``).
 
 - P1 (scenes/pendulum.toml): the 1 kg bob is a rigid body with the scene's tiny inertia
   1e-6 kg m^2, pinned to the ground by a revolute joint 1 m from its centre: the same
@@ -61,7 +66,7 @@ import statistics  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
-from dataclasses import dataclass  # noqa: E402
+from dataclasses import dataclass, field  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -71,9 +76,11 @@ from mbdfmu.bench import closed_forms as references  # noqa: E402
 
 try:
     import exudyn as exu
-    from exudyn.itemInterface import (LoadMassProportional, MarkerBodyMass,  # noqa: E402
-                                      MarkerBodyPosition, NodeRigidBody2D, ObjectGround,
-                                      ObjectJointRevolute2D, ObjectRigidBody2D)
+    from exudyn.itemInterface import (  # noqa: E402
+        CoordinateConstraint, LoadForceVector, LoadMassProportional, MarkerBodyMass,
+        MarkerBodyPosition, MarkerBodyRigid, MarkerNodeCoordinate, NodePointGround, NodeRigidBody2D,
+        ObjectConnectorSpringDamper, ObjectGround, ObjectJointPrismatic2D,
+        ObjectJointRevolute2D, ObjectRigidBody2D)
 except ImportError:  # the script says how to install it; the test skips
     exu = None
 
@@ -162,42 +169,123 @@ def length_scale(scene) -> float:
 
 @dataclass
 class ExudynModel:
-    """An Exudyn system built from a scene; ``bodies`` maps body names to object numbers.
-    The SystemContainer is kept: the system lives in it."""
+    """An Exudyn system built from a scene; ``bodies`` maps body names to object numbers,
+    ``drivers`` driver names to their coordinate constraints, ``actuators`` spring-damper
+    names to their connectors (the actuator force is the connector's ``force``, N, positive
+    pulling the ends together: minus our actuator input). The SystemContainer is kept: the
+    system lives in it."""
 
     sc: object
     mbs: object
     bodies: dict
+    drivers: dict = field(default_factory=dict)
+    actuators: dict = field(default_factory=dict)
 
 
-def exudyn_model(scene) -> ExudynModel:
-    """The scene as an Exudyn system: rigid bodies, gravity and revolute joints only."""
+def exudyn_model(scene, *, actuators: dict | None = None) -> ExudynModel:
+    """The scene as an Exudyn system: rigid bodies, gravity, revolute and translational
+    joints, constant-rate drivers of revolute joints, constant point forces and spring-dampers
+    (``actuators``: an actuator input's force by spring-damper name, N, held constant)."""
     if exu is None:
         raise ImportError("exudyn is not installed: pip install exudyn")
-    if scene.drivers or scene.forces:
-        raise ValueError(f"{scene.name}: drivers and forces are not translated to Exudyn")
     sc = exu.SystemContainer()
     mbs = sc.AddSystem()
-    bodies = {"ground": mbs.AddObject(ObjectGround(referencePosition=[0.0, 0.0, 0.0]))}
+    model = ExudynModel(sc, mbs, {"ground": mbs.AddObject(ObjectGround(
+        referencePosition=[0.0, 0.0, 0.0]))})
     gx, gy = scene.gravity
+    nodes = {}
     for b in scene.bodies:
-        node = mbs.AddNode(NodeRigidBody2D(
+        nodes[b.name] = mbs.AddNode(NodeRigidBody2D(
             referenceCoordinates=[b.position[0], b.position[1], b.angle],
             initialVelocities=[b.velocity[0], b.velocity[1], b.angular_velocity]))
-        body = mbs.AddObject(ObjectRigidBody2D(nodeNumber=node, mass=b.mass, inertia=b.inertia))
+        body = mbs.AddObject(ObjectRigidBody2D(nodeNumber=nodes[b.name], mass=b.mass,
+                                               inertia=b.inertia))
         mass = mbs.AddMarker(MarkerBodyMass(bodyNumber=body))
         mbs.AddLoad(LoadMassProportional(markerNumber=mass, loadVector=[gx, gy, 0.0]))
-        bodies[b.name] = body
+        model.bodies[b.name] = body
+    angles = {b.name: b.angle for b in scene.bodies} | {"ground": 0.0}
     for j in scene.joints:
-        if j.TYPE != "revolute":
-            raise ValueError(f'{scene.name}: joint "{j.name}" ({j.TYPE}) is not translated')
-        mi = mbs.AddMarker(MarkerBodyPosition(bodyNumber=bodies[j.body_i],
-                                              localPosition=[j.point_i[0], j.point_i[1], 0.0]))
-        mj = mbs.AddMarker(MarkerBodyPosition(bodyNumber=bodies[j.body_j],
-                                              localPosition=[j.point_j[0], j.point_j[1], 0.0]))
-        mbs.AddObject(ObjectJointRevolute2D(markerNumbers=[mi, mj]))
+        _exudyn_joint(scene, model, j, angles)
+    for d in scene.drivers:
+        model.drivers[d.name] = _exudyn_driver(scene, model, d, nodes, angles)
+    for f in scene.forces:
+        _exudyn_force(scene, model, f, actuators or {})
     mbs.Assemble()
-    return ExudynModel(sc, mbs, bodies)
+    return model
+
+
+def set_before_each_step(model: ExudynModel, name: str, force_of_t) -> None:
+    """The actuator force of spring-damper ``name`` set to ``force_of_t(t)`` (N, pushing the
+    ends apart) at the start of every step, as a co-simulation master sets an input: a
+    pre-step user function (Python, called by Exudyn once per step)."""
+    number = model.actuators[name]
+
+    def pre_step(mbs, t):
+        mbs.SetObjectParameter(number, "force", -force_of_t(t))
+        return True
+    model.mbs.SetPreStepUserFunction(pre_step)
+
+
+def _marker(mbs, body: int, point, rigid: bool = False) -> int:
+    kind = MarkerBodyRigid if rigid else MarkerBodyPosition  # rigid: position and orientation
+    return mbs.AddMarker(kind(bodyNumber=body, localPosition=[point[0], point[1], 0.0]))
+
+
+def _exudyn_joint(scene, model: ExudynModel, j, angles: dict) -> None:
+    mbs, bodies = model.mbs, model.bodies
+    rigid = j.TYPE == "translational"
+    mi = _marker(mbs, bodies[j.body_i], j.point_i, rigid)
+    mj = _marker(mbs, bodies[j.body_j], j.point_j, rigid)
+    if j.TYPE == "revolute":
+        mbs.AddObject(ObjectJointRevolute2D(markerNumbers=[mi, mj]))
+    elif j.TYPE == "translational":
+        # Ours: point_j on the line along axis_i, the relative angle kept at its initial
+        # value; Exudyn's: the normal is given in body_j's frame, so turn ours into it.
+        ax, ay = j.axis_i
+        turn = angles[j.body_i] - angles[j.body_j]
+        nx, ny = -ay, ax
+        c, s = math.cos(turn), math.sin(turn)
+        mbs.AddObject(ObjectJointPrismatic2D(
+            markerNumbers=[mi, mj], axisMarker0=[ax, ay, 0.0],
+            normalMarker1=[c * nx - s * ny, s * nx + c * ny, 0.0], constrainRotation=True))
+    else:
+        raise ValueError(f'{scene.name}: joint "{j.name}" ({j.TYPE}) is not translated')
+
+
+def _exudyn_driver(scene, model: ExudynModel, d, nodes: dict, angles: dict) -> int:
+    """A constant-rate driver of a revolute joint to the ground: a velocity-level coordinate
+    constraint on the body's angle (no Python user function, so Exudyn stays compiled);
+    the angle is right at t = 0, so it stays ``start + rate t``."""
+    joint = {j.name: j for j in scene.joints}.get(d.joint)
+    motion = d.motion
+    if (joint is None or joint.TYPE != "revolute" or joint.body_i != "ground"
+            or type(motion).__name__ != "LinearMotion"
+            or not math.isclose(motion.start, angles[joint.body_j], abs_tol=1e-12)):
+        raise ValueError(f'{scene.name}: driver "{d.name}" is not translated (only a linear '
+                         "motion of a revolute joint to the ground, from the body's angle)")
+    mbs = model.mbs
+    ground = mbs.AddNode(NodePointGround(referenceCoordinates=[0.0, 0.0, 0.0]))
+    m0 = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=nodes[joint.body_j], coordinate=2))
+    m1 = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=ground, coordinate=0))
+    # Exudyn's equation: factor1 q'(marker 1) - q'(marker 0) = offset, so the body goes second.
+    return mbs.AddObject(CoordinateConstraint(markerNumbers=[m1, m0], offset=motion.rate,
+                                              velocityLevel=True))
+
+
+def _exudyn_force(scene, model: ExudynModel, f, actuators: dict) -> None:
+    mbs, bodies = model.mbs, model.bodies
+    if f.TYPE == "force" and not f.input:
+        mbs.AddLoad(LoadForceVector(markerNumber=_marker(mbs, bodies[f.body], f.point),
+                                    loadVector=[f.value[0], f.value[1], 0.0]))
+    elif f.TYPE == "spring_damper":
+        markers = [_marker(mbs, bodies[f.body_i], f.point_i),
+                   _marker(mbs, bodies[f.body_j], f.point_j)]
+        push = actuators.get(f.name, 0.0) if f.actuator_input else 0.0
+        model.actuators[f.name] = mbs.AddObject(ObjectConnectorSpringDamper(
+            markerNumbers=markers, referenceLength=f.rest_length, stiffness=f.stiffness,
+            damping=f.damping, force=-push))
+    else:
+        raise ValueError(f'{scene.name}: force "{f.name}" ({f.TYPE}) is not translated')
 
 
 def exudyn_settings(*, step: float, t_end: float):
