@@ -171,12 +171,30 @@ def test_rk4p_steps_with_a_driver_are_the_wrappers_and_pythons_values(
     np.testing.assert_array_equal(run(fast, names, 5), more)
 
 
+CRANE = Path(__file__).resolve().parents[1] / "scenarios" / "hydraulic_crane" / "crane.toml"
+CRANE_METHOD = 'method = "dop853p"'
+
+
 @pytest.fixture(scope="module")
 def crane_fmu(tmp_path_factory):
     """The hydraulic crane's mechanism (dop853p, its cylinder force an input)."""
     from mbdfmu.fmu_build.scene_fmu import build_fmu
-    scene = Path(__file__).resolve().parents[1] / "scenarios" / "hydraulic_crane" / "crane.toml"
-    return build_fmu(scene, tmp_path_factory.mktemp("crane") / "crane.fmu")
+    return build_fmu(CRANE, tmp_path_factory.mktemp("crane") / "crane.fmu")
+
+
+@pytest.fixture(scope="module", params=["dop853p", "auto", "rk4p"])
+def crane_method_fmu(request, crane_fmu, tmp_path_factory):
+    """The crane's mechanism with its scene's method, with auto (it picks dop853p and
+    watches it) and with rk4p: (method, FMU)."""
+    from mbdfmu.fmu_build.scene_fmu import build_fmu
+    if request.param == "dop853p":
+        return request.param, crane_fmu
+    text = CRANE.read_text()
+    assert CRANE_METHOD in text
+    folder = tmp_path_factory.mktemp(f"crane_{request.param}")
+    scene = folder / "crane.toml"
+    scene.write_text(text.replace(CRANE_METHOD, f'method = "{request.param}"'))
+    return request.param, build_fmu(scene, folder / "crane.fmu")
 
 
 def actuator(t: float) -> float:
@@ -184,13 +202,17 @@ def actuator(t: float) -> float:
     return 8420.0 * (1.0 + 0.05 * np.sin(2.0 * np.pi * t))
 
 
-def test_steps_after_an_input_set_are_the_wrappers_and_pythons_values(crane_fmu, scene_host):
-    """The crane (dop853p) with its cylinder force set by the master before every step:
-    the wrapper takes fmi2SetReal of the force and the step landing on the communication
-    point by itself (ckernel/adaptive.h: the restart after an input change, the step
-    controller), and every value is bit for bit Python's when each call goes through it.
-    A get between the set and the step (the accelerations follow the new force) and a
+def test_steps_after_an_input_set_are_the_wrappers_and_pythons_values(crane_method_fmu,
+                                                                     scene_host):
+    """The crane with its cylinder force set by the master before every step: the wrapper
+    takes fmi2SetReal of the force and the step by itself (the restart after an input
+    change, then dop853p's step landing on the communication point with its controller,
+    ckernel/adaptive.h, also under auto, whose stiffness test it checks; or rk4p's steps,
+    ckernel/fixed.h), and every value is bit for bit Python's when each call goes through
+    it. A get between the set and the step (the accelerations follow the new force) and a
     state saved there go through Python and agree too."""
+    from mbdfmu.integrators.stated_accuracy import SPOT_CHECK_EVERY
+    method, crane_fmu = crane_method_fmu
     fast, slow = scene_host(crane_fmu, "fast").init(), scene_host(crane_fmu, "slow").init()
     force = [fast.vr["cylinder.actuator"]]
     names = fast.outputs + [n for n in fast.vr if n.endswith((".alpha", ".ax", ".phi"))]
@@ -205,7 +227,10 @@ def test_steps_after_an_input_set_are_the_wrappers_and_pythons_values(crane_fmu,
     assert fast.real("cylinder.actuator") == [last]
     assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK       # catches up
     assert taken_by_wrapper(slow) == 0
-    assert taken_by_wrapper(fast) >= 190
+    # rk4p: 580 steps, a doStep with a step-doubling check due in Python (one in
+    # SPOT_CHECK_EVERY steps, each of the 20 ms doSteps taking 20 of them)
+    due = 0 if method != "rk4p" else 2 * 580 // SPOT_CHECK_EVERY + 20
+    assert taken_by_wrapper(fast) >= 190 - due
     # states taken after the wrapper's steps go on as Python's, restored or not
     state_fast, state_slow, t = get_state(fast), get_state(slow), fast.t
     assert fast.real(*names) == got[-1]
@@ -252,3 +277,44 @@ def test_a_set_the_wrapper_cannot_take_is_pythons_and_says_why(crane_fmu, scene_
     assert "boom.mass" in h.messages[-1][2]
     assert h.real("cylinder.actuator") == [9500.0]
     assert taken_by_wrapper(h) >= 3
+
+
+@pytest.mark.parametrize("below", [False, True])
+def test_autos_stiffness_test_in_c_is_pythons(below, tmp_path):
+    """Under auto the wrapper's dop853p steps check auto's stiffness test (Hairer's h
+    |lambda|, auto_watch.stiffness) in C (adaptive.h): a step above the limit goes back to
+    Python, whose watcher counts it. Both compute it with the same C function: with the
+    limit at the h |lambda| Python computes for the same step, the wrapper takes the step
+    (and reaches Python's state bit for bit); one double below, it hands it back."""
+    from mbdfmu import fast_steps
+    from mbdfmu.integrators.auto_watch import STIFF_HLAMBDA, stiffness
+    scene = tmp_path / "crane.toml"
+    scene.write_text(CRANE.read_text().replace(CRANE_METHOD, 'method = "auto"'))
+
+    def crane():
+        sim = mbdfmu.Simulation(mbdfmu.load_scene(scene), kernel="c")
+        for k in range(5):
+            sim.set_input("cylinder.actuator", actuator(k * H))
+            sim.advance((k + 1) * H)
+        return sim
+
+    python, wrapper = crane(), crane()
+    steps = python.integrator.stats.nsteps
+    python.advance(6 * H)                  # the force held: one landing step
+    assert python.integrator.stats.nsteps == steps + 1 and python.method_name == "auto->dop853p"
+    h_lambda = stiffness(python.integrator.current)
+    assert 0.0 < h_lambda < STIFF_HLAMBDA
+    kind, kernel, (run, table), _ = fast_steps.fast_steps_ahead(wrapper, None, 1e-9)
+    assert kind == "prk" and run["stiff_limit"] == STIFF_HLAMBDA    # auto's watch, in C
+    run["stiff_limit"] = np.nextafter(h_lambda, 0.0) if below else h_lambda
+    none = np.zeros(0, dtype=np.int64)
+    step, model, context, _ = kernel.arm_prk_steps(run, table, (none, none), none, none)
+    call = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double,
+                            ctypes.c_double, ctypes.c_void_p)(step)
+    values = np.zeros(1)
+    assert (call(model, context, 5 * H, H, values.ctypes.data) == 0) == (not below)
+    moved, _, _ = fast_steps.catch_up(wrapper, (none, none))
+    assert moved == (not below)
+    if not below:
+        assert wrapper.t == python.t and np.array_equal(wrapper.q, python.q) and \
+            np.array_equal(wrapper.qd, python.qd)

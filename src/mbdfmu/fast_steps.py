@@ -8,13 +8,15 @@ wrapper serves are Python's bit for bit (tests/test_fmu_fast.py):
 * ``dense``: a step that ends inside an adaptive method's last step reads its dense output
   (``ckernel/dense.h``; ``Simulation.dense_reads_ahead``);
 * ``fixed``: rk4p's steps, the drivers' motions evaluated in C (``ckernel/fixed.h``);
-* ``prk``: an embedded pair's steps landing on the communication point, with the force
-  inputs the master sets before each step (``ckernel/adaptive.h``; the wrapper takes those
-  fmi2SetReal calls too).
+* ``prk``: an embedded pair's steps landing on the communication point (``ckernel/adaptive.h``).
 
-The last two need no events, no input changed since the step, every force input held, no
-driver taking its motion from the inputs and auto switching nothing; ``c_steps``'s
-``fast_run`` and ``fast_prk_run`` say the rest. This module reads ``Simulation``'s input
+Both take the force inputs the master sets before each step (the wrapper takes those
+fmi2SetReal calls too, then restarts as Python does; rk4p where the restart starts no
+energy audit). They need no events, no input changed since the step, every force input
+held, no driver taking its motion from the inputs, and under ``auto`` a watcher at rest
+(no switch pending, no stiff step counted; dop853p's steps checked in C against its
+stiffness test, ``auto_stiff_limit``); ``c_steps``'s ``fast_run`` and ``fast_prk_run``
+say the rest. This module reads ``Simulation``'s input
 bookkeeping (its ``_inputs_changed``, ``_drivers``, ``_forces``) as the class itself does.
 """
 
@@ -25,7 +27,8 @@ import numpy as np
 from .equations.ckernel.fixed import motion_table
 from .equations.projection import ASSEMBLY_TOL
 from .integrators.c_steps import adopt_fast_run, adopt_prk_run, fast_prk_run, fast_run, tableau
-from .integrators.projected_rk import MAX_FACTOR, MIN_FACTOR, SAFETY
+from .integrators.auto_watch import STIFF_HLAMBDA
+from .integrators.projected_rk import DOP853P, MAX_FACTOR, MIN_FACTOR, SAFETY
 from .signals import Held
 from .simulation import REINITIALIZE_TOL_FACTOR
 
@@ -43,27 +46,50 @@ def settable_inputs(sim, table) -> tuple[np.ndarray, np.ndarray]:
             np.array([p[1] for p in pairs], dtype=np.int64))
 
 
-def fast_steps_ahead(sim, limit, time_tol: float):
-    """("fixed", kernel, the arguments of ``arm_fixed_steps`` before the published values),
-    ("prk", kernel, those of ``arm_prk_steps`` before the inputs), or None."""
+def auto_stiff_limit(integrator, watcher) -> float | None:
+    """For ``fast_prk_run``: None when a watch after each step keeps the steps in Python;
+    0.0 when there is none or it is auto's and can only act on what adaptive.h checks
+    (rk45p: nothing; dop853p: Hairer's STIFF_HLAMBDA, against which adaptive.h checks an
+    upper bound of the h |lambda| numpy computes, so a step near it goes to Python).
+    ``watcher``: auto's ``AutoWatch`` or None."""
+    if integrator.watch is None:
+        return 0.0
+    # auto's watcher at rest: a step under the limit leaves it as it is (no pending
+    # switch, no stiff step counted, so a non-stiff one counts nothing either)
+    if watcher is None or integrator.watch != watcher.after_step or \
+            watcher.pending is not None or watcher.stiff:
+        return None
+    return STIFF_HLAMBDA if integrator.name == DOP853P.name else 0.0
+
+
+def fast_steps_ahead(sim, limit, time_tol: float, inputs=None):
+    """("fixed", kernel, the arguments of ``arm_fixed_steps`` before the published values,
+    and the keywords after them), ("prk", kernel, those of ``arm_prk_steps`` before the
+    inputs, and {}), or None. ``inputs``: ``settable_inputs``, which rk4p's steps take
+    from fmi2SetReal too where a restart starts no energy audit."""
     kernel, integrator, eq = sim.equations.ckernel, sim.integrator, sim.equations
     watcher = getattr(integrator, "watcher", None)
     if kernel is None or sim.events is not None or sim._inputs_changed or sim._drivers or \
             any(type(f) is not Held for f in sim._forces.values()) or \
             (watcher is not None and watcher.pending is not None):
         return None
+    current = getattr(integrator, "current", integrator)     # auto's integrator of the moment
     u = sim.inputs_at(sim.t)
+    reinit_tol = ASSEMBLY_TOL * eq.length_scale * REINITIALIZE_TOL_FACTOR
     table = motion_table(eq.constraint_set)
-    run = None if table is None else fast_run(integrator, limit, time_tol)
+    run = None if table is None else fast_run(current, limit, time_tol)
     if run is not None:
-        return "fixed", kernel, (run, table, eq.constraint_set.offsets, u.forces)
-    run = None if sim.scene.drivers or sim.inputs_known_ahead() else \
-        fast_prk_run(integrator, limit, time_tol, (SAFETY, MIN_FACTOR, MAX_FACTOR))
+        sets = {} if inputs is None or not len(inputs[0]) or eq.nonconservative_reason() is None \
+            else dict(inputs=inputs, reinit_tol=reinit_tol)
+        return "fixed", kernel, (run, table, eq.constraint_set.offsets, u.forces), sets
+    stiff_limit = auto_stiff_limit(current, watcher)
+    run = None if sim.scene.drivers or sim.inputs_known_ahead() or stiff_limit is None else \
+        fast_prk_run(current, limit, time_tol, (SAFETY, MIN_FACTOR, MAX_FACTOR), stiff_limit)
     if run is None:
         return None
     run.update(motion=np.concatenate(eq.motion_values(sim.t, u)), uf=u.forces,
-               reinit_tol=ASSEMBLY_TOL * eq.length_scale * REINITIALIZE_TOL_FACTOR)
-    return "prk", kernel, (run, tableau(integrator)[:5])
+               reinit_tol=reinit_tol)
+    return "prk", kernel, (run, tableau(current)[:5]), {}
 
 
 def arm(sim, limit, time_tol: float, inputs, published) -> tuple | None:
@@ -74,12 +100,12 @@ def arm(sim, limit, time_tol: float, inputs, published) -> tuple | None:
     kernel = sim.dense_reads_ahead()
     if kernel is not None:
         return kernel.arm_dense_steps(sim.t, time_tol, *published)
-    fast = fast_steps_ahead(sim, limit, time_tol)
+    fast = fast_steps_ahead(sim, limit, time_tol, inputs)
     if fast is None:
         return None
-    kind, kernel, arguments = fast
+    kind, kernel, arguments, keywords = fast
     if kind == "fixed":
-        return kernel.arm_fixed_steps(*arguments, *published)
+        return kernel.arm_fixed_steps(*arguments, *published, **keywords)
     return kernel.arm_prk_steps(*arguments, inputs, *published)
 
 
@@ -91,14 +117,17 @@ def catch_up(sim, inputs) -> tuple[bool, list, list]:
     kernel = sim.equations.ckernel
     if kernel is None:
         return False, [], []
-    fixed, (_, prk, pending) = kernel.fixed_taken(), kernel.prk_taken()
+    (fixed, fixed_pending), (_, prk, pending) = kernel.fixed_taken(), kernel.prk_taken()
+    pending = pending + fixed_pending
     if fixed is not None:
-        adopt_fast_run(sim.integrator, *fixed)
+        *taken, restarts, uf = fixed
+        adopt_fast_run(sim.integrator, *taken)
+        sim.integrator.stats.naccel += restarts       # each restart's f, as Python's
+        if restarts:
+            hold_forces(sim, uf)
     if prk is not None:
         adopt_prk_run(sim.integrator, prk)
-        for item, where in sim.equations.layout.forces.items():
-            sim._forces[item] = Held(prk["uf"][where].copy())
-        sim._cache = sim._held = None
+        hold_forces(sim, prk["uf"])
     elif fixed is not None:
         sim._cache = None
     elif kernel.dense.t_now > sim.t:
@@ -107,3 +136,11 @@ def catch_up(sim, inputs) -> tuple[bool, list, list]:
         return False, [], pending
     forces = sim.inputs_at(sim.t).forces
     return True, [(int(vr), float(forces[slot])) for vr, slot in zip(*inputs)], pending
+
+
+def hold_forces(sim, uf) -> None:
+    """The force inputs ``uf`` the wrapper's steps held, as ``Simulation.set_input`` and
+    its reinitialization leave them."""
+    for item, where in sim.equations.layout.forces.items():
+        sim._forces[item] = Held(uf[where].copy())
+    sim._cache = sim._held = None

@@ -41,7 +41,7 @@ import numpy as np
 
 from ..errors import SolverError, WorkLimitError
 from ..plain import Plain, decode, encode
-from . import singular_zone
+from . import c_steps, singular_zone
 from .ali3p import ALI3P
 from .choose import STIFF_STEP_RATIO, stiff_reason
 from .genalpha import GeneralizedAlpha
@@ -72,7 +72,9 @@ def stiffness(integrator) -> float:
     times h, y_12 the stage at t + h (0 when it cannot be told)."""
     if integrator.name != DOP853P.name or integrator.dense is None:
         return 0.0
-    step = integrator.dense
+    step, kernel = integrator.dense, integrator.equations.ckernel
+    if kernel is not None:   # the C kernel's sums: an FMU's wrapper checks its steps with them
+        return kernel.stiff_h_lambda(c_steps.tableau(integrator), step.K, step.y_old, step.h)
     s = integrator.n_stages - 1           # the stage at C = 1 (scipy's DOP853 tableau)
     y_s = step.y_old + step.h * (step.K[:s].T @ integrator.A[s, :s])
     den = float(np.linalg.norm(step.y_new - y_s))

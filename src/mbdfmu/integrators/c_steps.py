@@ -272,14 +272,18 @@ def adopt_fast_run(rk, steps: int, t: float, y, f, estimate: float) -> None:
     rk.accuracy.charge(rk, h)     # within ``estimate``, the bound the wrapper kept
 
 
-def fast_prk_run(rk, limit, time_tol: float, factors: tuple) -> dict | None:
+def fast_prk_run(rk, limit, time_tol: float, factors: tuple,
+                 stiff_limit: float | None = None) -> dict | None:
     """What ``ckernel/adaptive.h`` needs to take an embedded pair's coming communication
     steps as ``_advance_adaptive`` lands on them (ckernel.PrkRun's fields), or None when
-    they must go through Python: another method, auto's watch after each step, an energy
-    audit (or a scene whose restart would start one), a state inside the last step, a
-    short CPU limit. ``factors``: projected_rk.py's (safety, min, max) step factors."""
+    they must go through Python: another method, a watch after each step (unless
+    ``stiff_limit`` says auto's watch can be kept in C: 0, nothing to check, or the h
+    |lambda| above which a step goes to Python), an energy audit (or a scene whose restart
+    would start one), a state inside the last step, a short CPU limit. ``factors``:
+    projected_rk.py's (safety, min, max) step factors."""
     eq = rk.equations
-    if rk.name not in ("rk45p", "dop853p") or rk.watch is not None or rk.audit is not None or \
+    if rk.name not in ("rk45p", "dop853p") or (rk.watch is not None and stiff_limit is None) or \
+            rk.audit is not None or \
             eq.nonconservative_reason() is None or eq.m == 0 or eq.ckernel is None or \
             rk.out is not None or rk.energy_rejected is not None:
         return None
@@ -291,7 +295,7 @@ def fast_prk_run(rk, limit, time_tol: float, factors: tuple) -> dict | None:
                 max_factor=factors[2], rtol=rk.local_tolerance * rk.rtol,
                 atol=rk.local_tolerance * rk.atol, tol=rk._projection_tol(),
                 max_iter=PROJECTION_MAX_ITER, indicator=rk.zone.indicator,
-                landing=int(rk.zone.landing), max_work=max_work,
+                landing=int(rk.zone.landing), max_work=max_work, stiff_limit=stiff_limit or 0.0,
                 y=np.concatenate((rk.q, rk.qd)), f=rk.f)
 
 

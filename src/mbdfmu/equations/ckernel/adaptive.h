@@ -12,6 +12,8 @@
  * singular_zone.py plans, a case the kernel hands back, too many rejections, the work
  * limit) returns non-zero with nothing changed, and Python takes the step and says why.
  * For scenes without drivers and without an energy audit (non-conservative forces).
+ * Under auto (stiff_limit > 0, dop853p), a step that auto's stiffness rule would count
+ * (auto_watch.stiffness above stiff_limit) hands the doStep back to Python as well.
  */
 
 #define NEAR_ZONE 0.1                 /* singular_zone.NEAR_ZONE */
@@ -43,7 +45,29 @@ typedef struct {
     I steps, nsteps, nrejected, naccel, nprojections;   /* since armed */
     I nout, npub; const I *pub_dst, *pub_src;
     double *V;                     /* (outputs, q, q', q''), then lam */
+    double stiff_limit;            /* > 0: auto's watch; Hairer's h |lambda| at most this */
 } PrkRun;
+
+/* auto_watch.stiffness, Hairer's h |lambda| of a step of the pair (ns stages, A (ns, ns),
+ * B) from y over hh with stages K ((ns + 1) rows of n2, the last f at the unprojected end):
+ * h ||K_ns - K_s|| / ||y_end - y_s||, y_s the stage at C = 1 (s = ns - 1), y_end the end
+ * before the projection; 0 when y_end = y_s. Python calls this function too, so that the
+ * watcher of auto and this file's steps count the same steps (y_end - y_s is often at the
+ * round-off of y: another summation order would change it in its leading digits). */
+double mbd_stiff_h_lambda(I ns, const double *A, const double *B, I n2, const double *K,
+                          const double *y, double hh) {
+    I st = ns - 1;
+    double num = 0.0, den = 0.0;
+    for (I k = 0; k < n2; k++) {
+        double b = 0.0, a = 0.0;
+        for (I j = 0; j < ns; j++) b += K[j * n2 + k] * B[j];
+        for (I j = 0; j < st; j++) a += K[j * n2 + k] * A[st * ns + j];
+        double d = (y[k] + hh * b) - (y[k] + hh * a), e = K[ns * n2 + k] - K[st * n2 + k];
+        den += d * d;
+        num += e * e;
+    }
+    return den > 0.0 ? hh * sqrt(num) / sqrt(den) : 0.0;
+}
 
 /* fmi2SetReal of inputs the kernel holds: 0 when every value reference is one of them
  * and every value finite (then applied, also to the published values), else non-zero
@@ -134,6 +158,9 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
         if (!(c0 >= NEAR_ZONE)) return ST_SINGULAR;        /* singular_zone.plan's case */
         int ok = prk_try(M, r, &s, y, f, hh, &h_next, &c1, &naccel, &nproj);
         if (ok < 0) return ST_SINGULAR;
+        if (ok && r->stiff_limit > 0.0 &&
+                mbd_stiff_h_lambda(r->ns, r->A, r->B, n2, r->K, y, hh) > r->stiff_limit)
+            return ST_SINGULAR;               /* auto's watch counts this step: Python's */
         if (ok) {
             rejections = 0;
             nsteps++;

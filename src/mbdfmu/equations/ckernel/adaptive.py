@@ -30,7 +30,8 @@ class PrkRun(ctypes.Structure):
                 ("changed", _I), ("uf_step", _P), ("y", _P), ("f", _P), ("y1", _P),
                 ("f1", _P), ("K", _P), ("y_new", _P), ("f_new", _P), ("steps", _I),
                 ("nsteps", _I), ("nrejected", _I), ("naccel", _I), ("nprojections", _I),
-                ("nout", _I), ("npub", _I), ("pub_dst", _P), ("pub_src", _P), ("V", _P)]
+                ("nout", _I), ("npub", _I), ("pub_dst", _P), ("pub_src", _P), ("V", _P),
+                ("stiff_limit", _D)]
 
 
 # What the slave reads back: the counters, then the state's fields.
@@ -78,6 +79,19 @@ class PrkSteps:
         step = ctypes.cast(self.library.mbd_prk_fast_step, ctypes.c_void_p).value
         setter = ctypes.cast(self.library.mbd_prk_set, ctypes.c_void_p).value
         return step, self.address, ctypes.addressof(r), setter
+
+    def stiff_h_lambda(self, tableau, K, y, h: float) -> float:
+        """Hairer's h |lambda| of an embedded pair's step (``auto_watch.stiffness``) as
+        adaptive.h computes it for the wrapper's steps: ``tableau`` from ``Kernel.tableau``,
+        K its stages ((ns + 1) rows, the last f at the unprojected end), from y over h."""
+        function = self.library.mbd_stiff_h_lambda
+        if function.restype is not ctypes.c_double:
+            function.argtypes = [_I, _P, _P, _I, _P, _P, _D]
+            function.restype = ctypes.c_double
+        K = np.ascontiguousarray(K, dtype=float)
+        y = np.ascontiguousarray(y, dtype=float)
+        return float(function(tableau[0], tableau[1], tableau[2], y.size, K.ctypes.data,
+                              y.ctypes.data, h))
 
     def prk_taken(self):
         """What the wrapper did since arming or the last call: (steps it took, then the

@@ -2,7 +2,8 @@
  * fixed.h (part of kernel.c): an FMU's communication step of rk4p taken by its wrapper
  * without Python (fmu_build/runtime real_cache.py FastSteps), for scenes whose drivers
  * follow motions the kernel evaluates (constant, linear, harmonic) and whose force inputs
- * are held.
+ * are held or set by the master before a step (mbd_fixed_set: fmi2SetReal of a force input
+ * taken by the wrapper, then Simulation._reinitialize and the restart as Python does them).
  *
  * The arithmetic is Python's, in the same order: the grid of Integrator.fixed_grid (equal
  * steps no longer than h_max up to t + h, times t0 + j step), motion.py's evaluate() at
@@ -22,7 +23,7 @@ typedef struct {
     I nmotion;               /* driver rows: row, kind (MOTION_*), four coefficients each */
     const I *mrow, *mkind; const double *mcoef;
     const double *offsets;   /* c of every row (m), the drivers' rows overwritten */
-    const double *ufs;       /* the held force inputs, three times (3 nf) */
+    double *ufs;             /* the held force inputs, three times (3 nf) */
     double *y, *f, *save;    /* the state (2n each) and f = y'; a copy to roll back */
     double *motions;         /* (3, 3m): one step's stage inputs; then (3m) at t + h */
     I steps;                 /* steps taken since the slave armed this */
@@ -30,7 +31,35 @@ typedef struct {
     I nout, npub;            /* values[pub_dst[k]] = V[pub_src[k]] after a step ... */
     const I *pub_dst, *pub_src;
     double *V;               /* ... V = (outputs, q, q', q''): nout + 3n; then lam (m) */
+    /* force inputs set by fmi2SetReal (mbd_fixed_set; nvr = 0: none may be set here) */
+    double reinit_tol;       /* Simulation._reinitialize's projection */
+    double *uf;              /* the force inputs as set (nf) */
+    I nvr; const I *vrs, *slots;   /* value reference of each settable input, its place in uf */
+    I *set;                  /* nvr: 1 where set since the last step */
+    I changed;               /* an input was set since the last step */
+    I restarts;              /* steps since armed that began with a restart */
 } FixedRun;
+
+/* fmi2SetReal of inputs the kernel holds, as mbd_prk_set: 0 when every value reference is
+ * one of them and every value finite (then applied, also to the published values), else
+ * non-zero with nothing applied (Python sets them and says what is wrong). */
+int mbd_fixed_set(FixedRun *r, const unsigned int *vr, size_t nvr, const double *value,
+                  double *values) {
+    for (size_t i = 0; i < nvr; i++) {
+        I k = 0;
+        while (k < r->nvr && r->vrs[k] != (I)vr[i]) k++;
+        if (k == r->nvr || !isfinite(value[i])) return 1;
+    }
+    for (size_t i = 0; i < nvr; i++) {
+        I k = 0;
+        while (r->vrs[k] != (I)vr[i]) k++;
+        r->uf[r->slots[k]] = value[i];
+        r->set[k] = 1;
+        values[vr[i]] = value[i];
+    }
+    r->changed = 1;
+    return 0;
+}
 
 /* (c, c', c'') of every row at t into out (3m), as ConstraintSet.motion_values. */
 static void motion_at(const Model *M, const FixedRun *r, double t, double *out) {
@@ -54,6 +83,22 @@ static void motion_at(const Model *M, const FixedRun *r, double t, double *out) 
     }
 }
 
+/* After an input was set: Simulation._reinitialize's projection at t0 and the restart's
+ * f = (q', q'') with the new inputs; the inputs then held over the step's stages. */
+static int fixed_restart(const Model *M, FixedRun *r, Scratch *s, double t0) {
+    I n = M->n, m = M->m, nf = M->nf;
+    motion_at(M, r, t0, r->motions);
+    int st = project(M, s, r->y, r->y + n, r->motions, r->reinit_tol, r->max_iter);
+    if (st != ST_OK) return st;
+    memcpy(r->f, r->y + n, (size_t)n * sizeof(double));
+    st = mbd_accelerations(M, r->y, r->y + n, r->motions, r->motions + 2 * m, r->uf, r->f + n,
+                           s->lam);
+    if (st != ST_OK) return st;
+    for (I row = 0; row < 3; row++)
+        if (nf) memcpy(r->ufs + row * nf, r->uf, (size_t)nf * sizeof(double));
+    return ST_OK;
+}
+
 /* The wrapper's doStep from t over h: the steps of the grid, V and values filled, t_now
  * moved; non-zero (nothing changed) when Python must take it: another time, more steps
  * than allowed, an estimated error beyond the stated accuracy, or whatever the kernel
@@ -75,6 +120,14 @@ int mbd_fixed_step(const Model *M, FixedRun *r, double t, double h, double *valu
     double *K = s.qv, *ys = K + 4 * n2;
     memcpy(r->save, r->y, (size_t)n2 * sizeof(double));
     memcpy(r->save + n2, r->f, (size_t)n2 * sizeof(double));
+    if (r->changed) {
+        int st = fixed_restart(M, r, &s, t0);
+        if (st != ST_OK) {
+            memcpy(r->y, r->save, (size_t)n2 * sizeof(double));
+            memcpy(r->f, r->save + n2, (size_t)n2 * sizeof(double));
+            return st;
+        }
+    }
     for (I j = 0; j < steps; j++) {
         double start = t0 + step * (double)j;
         motion_at(M, r, start, r->motions);
@@ -98,6 +151,9 @@ int mbd_fixed_step(const Model *M, FixedRun *r, double t, double h, double *valu
     }
     for (I k = 0; k < r->npub; k++) values[r->pub_dst[k]] = r->V[r->pub_src[k]];
     r->t_now = end;
+    r->restarts += r->changed;
+    r->changed = 0;
+    for (I k = 0; k < r->nvr; k++) r->set[k] = 0;
     r->steps += steps;
     r->unchecked += steps;
     r->estimate = estimate;

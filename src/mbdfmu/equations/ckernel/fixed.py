@@ -1,7 +1,8 @@
 """An FMU's communication steps of rk4p taken by its wrapper without Python (fixed.h): the
 drivers' motions as a table the kernel evaluates, the run's state and its step-doubling
 charge, armed by the slave after a Python step and read back when it catches up
-(``fmu_build/runtime/real_cache.py`` FastSteps).
+(``fmu_build/runtime/real_cache.py`` FastSteps); with the force inputs the master sets
+before a step taken by the wrapper too (``mbd_fixed_set``), as adaptive.py's.
 
 ``FixedSteps`` is a mixin of ``Kernel``: it uses the kernel's ``n``, ``m``, ``nf``,
 ``nout``, ``address``, ``library`` and ``_dense_scratch`` (the published values' buffer,
@@ -30,7 +31,8 @@ class FixedRun(ctypes.Structure):
                 ("offsets", _P), ("ufs", _P), ("y", _P), ("f", _P), ("save", _P),
                 ("motions", _P), ("steps", _I), ("local", _D), ("estimate", _D),
                 ("allowed", _D), ("nout", _I), ("npub", _I), ("pub_dst", _P), ("pub_src", _P),
-                ("V", _P)]
+                ("V", _P), ("reinit_tol", _D), ("uf", _P), ("nvr", _I), ("vrs", _P),
+                ("slots", _P), ("set", _P), ("changed", _I), ("restarts", _I)]
 
 
 def motion_coefficients(motion) -> list[float] | None:
@@ -68,38 +70,62 @@ class FixedSteps:
 
     fixed: FixedRun | None = None
 
-    def arm_fixed_steps(self, run: dict, table, offsets, uf, pub_dst, pub_src) -> tuple:
+    def arm_fixed_steps(self, run: dict, table, offsets, uf, pub_dst, pub_src,
+                        inputs=None, reinit_tol: float = 0.0) -> tuple:
         """Let an FMU's wrapper take rk4p's communication steps (``mbd_fixed_step``) from
         the state in ``run`` (t_now, time_tol, h_max, slack, max_steps, unchecked,
         check_every, tol, max_iter, local, estimate, allowed, y, f), the drivers' motion
         ``table`` (``motion_table``), the constraints' ``offsets`` and the held force
-        inputs ``uf``, publishing as ``DenseReads.arm_dense_steps`` does. Returns (the
-        address of ``mbd_fixed_step``, of the model, of the FixedRun)."""
+        inputs ``uf``, publishing as ``DenseReads.arm_dense_steps`` does. With ``inputs``
+        (value references and places in uf of the inputs fmi2SetReal may set here) the
+        wrapper takes those sets too (``mbd_fixed_set``; ``reinit_tol``: the projection
+        after one). Returns (the address of ``mbd_fixed_step``, of the model, of the
+        FixedRun), then that of ``mbd_fixed_set`` with ``inputs``."""
         r = self.fixed = FixedRun()
-        n2, m = 2 * self.n, self.m
+        n2, m, nf = 2 * self.n, self.m, max(self.nf, 1)
         y = np.zeros(4 * n2)                            # y, f, and their saved copy
         y[:n2], y[n2:2 * n2] = run.pop("y"), run.pop("f")
-        forces = np.tile(np.asarray(uf if self.nf else [0.0], dtype=float), 3)
+        held = np.asarray(uf if self.nf else [0.0], dtype=float)
+        forces = np.concatenate((np.tile(held, 3), held))   # three stages' copies, then uf
+        vrs, slots = (np.ascontiguousarray(a, dtype=np.int64) for a in
+                      (inputs if inputs is not None else ([], [])))
         dst, src = (np.ascontiguousarray(a, dtype=np.int64) for a in (pub_dst, pub_src))
         arrays = (*table[1:], np.ascontiguousarray(offsets, dtype=float), forces, y,
-                  np.zeros(9 * max(m, 1)), dst, src)
+                  np.zeros(9 * max(m, 1)), dst, src, vrs, slots,
+                  np.zeros(max(vrs.size, 1), dtype=np.int64))
         self._fixed_arrays = arrays                     # what r points at
         for name, value in run.items():
             setattr(r, name, value)
         r.nmotion = table[0]
         r.mrow, r.mkind, r.mcoef, r.offsets, r.ufs = (a.ctypes.data for a in arrays[:5])
+        r.uf = forces.ctypes.data + 8 * 3 * nf
         r.y, r.f, r.save = y.ctypes.data, y.ctypes.data + 8 * n2, y.ctypes.data + 16 * n2
-        r.motions, r.pub_dst, r.pub_src = (a.ctypes.data for a in arrays[6:])
+        r.motions, r.pub_dst, r.pub_src, r.vrs, r.slots, r.set = \
+            (a.ctypes.data for a in arrays[6:])
         r.npub, r.nout, r.V = dst.size, self.nout, self._dense_scratch.ctypes.data
+        r.nvr, r.reinit_tol = vrs.size, reinit_tol
         function = ctypes.cast(self.library.mbd_fixed_step, ctypes.c_void_p).value
-        return function, self.address, ctypes.addressof(r)
+        armed = (function, self.address, ctypes.addressof(r))
+        if inputs is None:
+            return armed
+        return (*armed, ctypes.cast(self.library.mbd_fixed_set, ctypes.c_void_p).value)
 
     def fixed_taken(self):
-        """(steps taken, t reached, y, f, estimate) by the wrapper since arming or the last
-        call, or None. The run stays where the wrapper points until armed anew."""
+        """What the wrapper did since arming or the last call: ((steps taken, t reached, y,
+        f, estimate, restarts after a set, the force inputs the last step held) or None
+        without steps, and [(value reference, value)] of the inputs set since its last
+        step). The run stays where the wrapper points until armed anew."""
         r = self.fixed
-        if r is None or r.steps == 0:
-            return None
-        n2, y = 2 * self.n, self._fixed_arrays[5]
-        steps, r.steps = int(r.steps), 0
-        return steps, float(r.t_now), y[:n2].copy(), y[n2:2 * n2].copy(), float(r.estimate)
+        if r is None:
+            return None, []
+        a, nf = self._fixed_arrays, max(self.nf, 1)
+        forces, vrs, slots, flags = a[4], a[9], a[10], a[11]
+        pending = [(int(vr), float(forces[3 * nf + slot])) for vr, slot, flag in
+                   zip(vrs, slots, flags) if flag]
+        flags[:] = 0
+        if r.steps == 0:
+            return None, pending
+        n2, y = 2 * self.n, a[5]
+        steps, restarts, r.steps, r.restarts = int(r.steps), int(r.restarts), 0, 0
+        return (steps, float(r.t_now), y[:n2].copy(), y[n2:2 * n2].copy(), float(r.estimate),
+                restarts, forces[:self.nf].copy()), pending
