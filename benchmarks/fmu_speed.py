@@ -4,7 +4,8 @@ called directly and Exudyn's generalized-alpha on the same mechanism.
 
 Cases: the slider-crank (P4), P2 N = 2 (scenes/n_four_bar_2.toml), the hydraulic crane's
 mechanism (scenarios/hydraulic_crane/crane.toml, its actuator force set by the master at
-every step as a connected input would: a hold force plus a swing), and P1 (the pendulum).
+every step as a connected input would: a hold force plus a swing), the same with ``auto``
+in place of its scene's dop853p (``VARIANTS``), and P1 (the pendulum).
 
 - cold: a fresh Python process extracts the FMU to a new folder (not timed), then
   ``FMU2Slave`` (the binary loaded), instantiate, setup, initialization and the first
@@ -62,6 +63,9 @@ CASES = {"slider-crank (P4)": ROOT / "scenes" / "slider_crank.toml",
          "P2 N = 2": ROOT / "scenes" / "n_four_bar_2.toml",
          "crane mechanism": ROOT / "scenarios" / "hydraulic_crane" / "crane.toml",
          "P1 pendulum": ROOT / "scenes" / "pendulum.toml"}
+# A case run on a variant of another's scene: the crane's mechanism with auto in place of
+# its scene's dop853p (the FMU's default settings choosing, the master setting the force).
+VARIANTS = {"crane mechanism, auto": ("crane mechanism", 'method = "dop853p"', 'method = "auto"')}
 STEPS = (1e-3, 1e-2)
 HOLD = 8420.0                  # N: the cylinder force that about holds the crane's boom
 
@@ -72,7 +76,23 @@ def actuator(t: float) -> float:
 
 
 def input_of(case: str) -> str | None:
-    return "cylinder.actuator" if case == "crane mechanism" else None
+    return "cylinder.actuator" if case.startswith("crane mechanism") else None
+
+
+def scene_paths(folder: Path) -> dict:
+    """Every case's scene file, in the order of the tables; the variants written into
+    ``folder``."""
+    paths = {}
+    for case, path in CASES.items():
+        paths[case] = path
+        for variant, (base, old, new) in VARIANTS.items():
+            if base == case:
+                text = path.read_text()
+                if old not in text:
+                    raise SystemExit(f"{path}: no line {old!r} to vary for {variant!r}")
+                paths[variant] = folder / f"variant{len(paths)}.toml"
+                paths[variant].write_text(text.replace(old, new))
+    return paths
 
 
 # ------------------------------------------------------------------------------ cold
@@ -217,14 +237,14 @@ def direct_run(scene_path: Path, case: str, h: float, n: int, kernel: str) -> tu
     return (time.perf_counter() - w) / n, (time.process_time() - c) / n
 
 
-def exudyn_run(case: str, t_end: float, *, per_step: bool = False) -> float:
+def exudyn_run(case: str, scene_path: Path, t_end: float, *, per_step: bool = False) -> float:
     """CPU s per 1 ms step of Exudyn's generalized-alpha (model building, assembly and the
     solve, as ``exudyn_compare.run_exudyn``) on the case's mechanism. The crane's cylinder
     force: held at ``HOLD`` over the run (Exudyn's favourable case), or with ``per_step`` set
     to ``actuator(t)`` before every step by a pre-step user function, as our master sets the
     FMU's input."""
     import exudyn_compare as ex
-    scene = mbdfmu.load_scene(CASES[case])
+    scene = mbdfmu.load_scene(scene_path)
     name = input_of(case)
     start = time.process_time()
     model = ex.exudyn_model(scene, actuators={name.split(".")[0]: HOLD} if name else None)
@@ -237,7 +257,7 @@ def exudyn_run(case: str, t_end: float, *, per_step: bool = False) -> float:
     return cpu / max(1, info["nsteps"])
 
 
-def exudyn_per_step(case: str, t_end: float, repeat: int) -> dict:
+def exudyn_per_step(case: str, scene_path: Path, t_end: float, repeat: int) -> dict:
     """Exudyn's CPU µs per 1 ms step, best of ``repeat`` (after a warm-up): ``exudyn_cpu_us``
     and, for the crane, ``exudyn_set_cpu_us`` (its force set before every step)."""
     try:
@@ -249,14 +269,15 @@ def exudyn_per_step(case: str, t_end: float, repeat: int) -> dict:
     modes = {"exudyn_cpu_us": False} | ({"exudyn_set_cpu_us": True} if input_of(case) else {})
     out = {}
     for key, per_step in modes.items():
-        exudyn_run(case, 0.01, per_step=per_step)                       # warm-up
-        out[key] = min(exudyn_run(case, t_end, per_step=per_step) for _ in range(repeat)) * 1e6
+        exudyn_run(case, scene_path, 0.01, per_step=per_step)            # warm-up
+        out[key] = min(exudyn_run(case, scene_path, t_end, per_step=per_step)
+                       for _ in range(repeat)) * 1e6
     return out
 
 
 # ------------------------------------------------------------------------------ the run
 
-def measure(case: str, fmu: Path, h: float, args) -> dict:
+def measure(case: str, scene_path: Path, fmu: Path, h: float, args) -> dict:
     n = max(1, int(round(args.t_end / h)))
     row = {"case": case, "step_ms": h * 1e3, "method": "", "outputs": 0}
     row.update({f"cold_fmpy_{k}": v for k, v in cold(COLD_FMPY, fmu, h).items()})
@@ -272,17 +293,17 @@ def measure(case: str, fmu: Path, h: float, args) -> dict:
         samples.setdefault("cosim", []).append(cosim_run(fmu, case, h, n))
         for kernel in ("c", "numpy"):
             samples.setdefault(f"direct_{kernel}", []).append(
-                direct_run(CASES[case], case, h, n if kernel == "c" else max(1, n // 5), kernel))
+                direct_run(scene_path, case, h, n if kernel == "c" else max(1, n // 5), kernel))
     for key, values in samples.items():
         row[f"{key}_wall_us"] = statistics.median(v[0] for v in values) * 1e6
         row[f"{key}_cpu_us"] = statistics.median(v[1] for v in values) * 1e6
     row["fmpy_cpu_best_us"] = min(v[1] for v in samples["fmpy"]) * 1e6
     row["rtf_fmpy"] = h / (row["fmpy_wall_us"] * 1e-6)
     row["rtf_cosim"] = h / (row["cosim_wall_us"] * 1e-6)
-    sim = mbdfmu.Simulation(mbdfmu.load_scene(CASES[case]))
+    sim = mbdfmu.Simulation(mbdfmu.load_scene(scene_path))
     row["method"] = sim.method_name
     if h == 1e-3:
-        row.update(exudyn_per_step(case, args.t_end, args.repeat))
+        row.update(exudyn_per_step(case, scene_path, args.t_end, args.repeat))
     return row
 
 
@@ -346,11 +367,12 @@ def main(argv=None) -> int:
     steps = STEPS[:1] if args.quick else STEPS
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
+        paths = scene_paths(Path(tmp))
         fmus = {case: build_fmu(path, output=Path(tmp) / f"case{k}.fmu")
-                for k, (case, path) in enumerate(CASES.items())}
+                for k, (case, path) in enumerate(paths.items())}
         for case, fmu in fmus.items():
             for h in steps:
-                rows.append(measure(case, fmu, h, args))
+                rows.append(measure(case, paths[case], fmu, h, args))
                 print(json.dumps(rows[-1]), flush=True)
     header = (f"`python benchmarks/fmu_speed.py --t-end {args.t_end:g} --repeat {args.repeat}`: "
               f"median of {args.repeat}, wall clock per communication step (µs), the real-time "
