@@ -5,7 +5,7 @@ called directly and Exudyn's generalized-alpha on the same mechanism.
 Cases: the slider-crank (P4), P2 N = 2 (scenes/n_four_bar_2.toml), the hydraulic crane's
 mechanism (scenarios/hydraulic_crane/crane.toml, its actuator force set by the master at
 every step as a connected input would: a hold force plus a swing), the same with ``auto``
-in place of its scene's dop853p (``VARIANTS``), and P1 (the pendulum).
+and with rk4p in place of its scene's dop853p (``VARIANTS``), and P1 (the pendulum).
 
 - cold: a fresh Python process extracts the FMU to a new folder (not timed), then
   ``FMU2Slave`` (the binary loaded), instantiate, setup, initialization and the first
@@ -63,9 +63,11 @@ CASES = {"slider-crank (P4)": ROOT / "scenes" / "slider_crank.toml",
          "P2 N = 2": ROOT / "scenes" / "n_four_bar_2.toml",
          "crane mechanism": ROOT / "scenarios" / "hydraulic_crane" / "crane.toml",
          "P1 pendulum": ROOT / "scenes" / "pendulum.toml"}
-# A case run on a variant of another's scene: the crane's mechanism with auto in place of
-# its scene's dop853p (the FMU's default settings choosing, the master setting the force).
-VARIANTS = {"crane mechanism, auto": ("crane mechanism", 'method = "dop853p"', 'method = "auto"')}
+# Cases run on a variant of another's scene: the crane's mechanism with auto in place of
+# its scene's dop853p (the FMU's default settings choosing, the master setting the force),
+# and with rk4p (the wrapper's rk4p steps after each fmi2SetReal).
+VARIANTS = {"crane mechanism, auto": ("crane mechanism", 'method = "dop853p"', 'method = "auto"'),
+            "crane mechanism, rk4p": ("crane mechanism", 'method = "dop853p"', 'method = "rk4p"')}
 STEPS = (1e-3, 1e-2)
 HOLD = 8420.0                  # N: the cylinder force that about holds the crane's boom
 
