@@ -69,25 +69,11 @@ double mbd_stiff_h_lambda(I ns, const double *A, const double *B, I n2, const do
     return den > 0.0 ? hh * sqrt(num) / sqrt(den) : 0.0;
 }
 
-/* fmi2SetReal of inputs the kernel holds: 0 when every value reference is one of them
- * and every value finite (then applied, also to the published values), else non-zero
- * with nothing applied (Python sets them and says what is wrong). */
+/* fmi2SetReal of inputs the kernel holds (fixed.h's set_force_inputs). */
 int mbd_prk_set(PrkRun *r, const unsigned int *vr, size_t nvr, const double *value,
                 double *values) {
-    for (size_t i = 0; i < nvr; i++) {
-        I k = 0;
-        while (k < r->nvr && r->vrs[k] != (I)vr[i]) k++;
-        if (k == r->nvr || !isfinite(value[i])) return 1;
-    }
-    for (size_t i = 0; i < nvr; i++) {
-        I k = 0;
-        while (r->vrs[k] != (I)vr[i]) k++;
-        r->uf[r->slots[k]] = value[i];
-        r->set[k] = 1;
-        values[vr[i]] = value[i];
-    }
-    r->changed = 1;
-    return 0;
+    return set_force_inputs(r->nvr, r->vrs, r->slots, r->uf, r->set, &r->changed, vr, nvr,
+                            value, values);
 }
 
 /* The landing step's size towards end (AdaptiveStepping._landing); *lands: it ends there. */

@@ -40,25 +40,33 @@ typedef struct {
     I restarts;              /* steps since armed that began with a restart */
 } FixedRun;
 
-/* fmi2SetReal of inputs the kernel holds, as mbd_prk_set: 0 when every value reference is
- * one of them and every value finite (then applied, also to the published values), else
+/* fmi2SetReal of force inputs a fast step holds (mbd_fixed_set, adaptive.h's
+ * mbd_prk_set): 0 when every value reference is one of the nknown settable ones and every
+ * value finite (then applied to uf, flagged in set, also to the published values), else
  * non-zero with nothing applied (Python sets them and says what is wrong). */
-int mbd_fixed_set(FixedRun *r, const unsigned int *vr, size_t nvr, const double *value,
-                  double *values) {
+static int set_force_inputs(I nknown, const I *vrs, const I *slots, double *uf, I *set,
+                            I *changed, const unsigned int *vr, size_t nvr,
+                            const double *value, double *values) {
     for (size_t i = 0; i < nvr; i++) {
         I k = 0;
-        while (k < r->nvr && r->vrs[k] != (I)vr[i]) k++;
-        if (k == r->nvr || !isfinite(value[i])) return 1;
+        while (k < nknown && vrs[k] != (I)vr[i]) k++;
+        if (k == nknown || !isfinite(value[i])) return 1;
     }
     for (size_t i = 0; i < nvr; i++) {
         I k = 0;
-        while (r->vrs[k] != (I)vr[i]) k++;
-        r->uf[r->slots[k]] = value[i];
-        r->set[k] = 1;
+        while (vrs[k] != (I)vr[i]) k++;
+        uf[slots[k]] = value[i];
+        set[k] = 1;
         values[vr[i]] = value[i];
     }
-    r->changed = 1;
+    *changed = 1;
     return 0;
+}
+
+int mbd_fixed_set(FixedRun *r, const unsigned int *vr, size_t nvr, const double *value,
+                  double *values) {
+    return set_force_inputs(r->nvr, r->vrs, r->slots, r->uf, r->set, &r->changed, vr, nvr,
+                            value, values);
 }
 
 /* (c, c', c'') of every row at t into out (3m), as ConstraintSet.motion_values. */
