@@ -155,10 +155,17 @@ class Slave(StateProtocol, DerivativeProtocol, Fmi3Protocol, FastStepProtocol):
             self.values[self.variables.independent] = t
 
     def _fmi_error(self, reason: str) -> int:
-        """Log ``reason``, enter the Error state, and return fmi2Error."""
+        """Log ``reason``, enter the Error state, and return fmi2Error. The wrapper then
+        serves nothing and steps nothing by itself (a failed fmi2GetReal reaches Python
+        without clearing its flags), so the next call is refused here with the reason."""
         self._fmi_log.status(status.ERROR, reason)
-        self._fmi_state = State.ERROR
+        self._fmi_broken()
         return status.ERROR
+
+    def _fmi_broken(self) -> None:
+        self._fmi_state = State.ERROR
+        self._fmi_fast_steps.disarm()
+        self._fmi_reals.invalidate()
 
     def _fmi_refresh(self) -> None:
         if self._fmi_dirty:
@@ -247,7 +254,7 @@ class Slave(StateProtocol, DerivativeProtocol, Fmi3Protocol, FastStepProtocol):
             skipped = tuple(access.SKIPPED[type_name] for _ in vrs)
             return self._fmi_error(f"{function}: {type(exc).__name__}: {exc}"), skipped
         if code == status.ERROR:
-            self._fmi_state = State.ERROR
+            self._fmi_broken()
         return code, values
 
     def fmi2_set(self, type_name: str, vrs: tuple, values: tuple):
@@ -266,7 +273,7 @@ class Slave(StateProtocol, DerivativeProtocol, Fmi3Protocol, FastStepProtocol):
             self._fmi_dirty = True
         self._fmi_stale = self._fmi_calculates
         if code == status.ERROR:
-            self._fmi_state = State.ERROR
+            self._fmi_broken()
         return code, None
 
     @fmi_function("fmi2DoStep")
