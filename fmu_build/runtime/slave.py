@@ -61,6 +61,15 @@ STATUS_ANSWERS = {("Real", LAST_SUCCESSFUL_TIME), ("Boolean", TERMINATED)}
 GET_STATES, SET_STATES = ALLOWED["fmi2GetReal"], ALLOWED["fmi2SetReal"]
 
 
+
+def enter_error(slave) -> None:
+    """The Error state: the wrapper then serves nothing and steps nothing by itself (a
+    failed fmi2GetReal reaches Python without clearing its flags), so the next call is
+    refused by the runtime with the reason."""
+    slave._fmi_state = State.ERROR
+    slave._fmi_fast_steps.disarm()
+    slave._fmi_reals.invalidate()
+
 class Slave(StateProtocol, DerivativeProtocol, Fmi3Protocol, FastStepProtocol):
     """Base class of every model; see the module docstring for what a model implements."""
 
@@ -155,17 +164,10 @@ class Slave(StateProtocol, DerivativeProtocol, Fmi3Protocol, FastStepProtocol):
             self.values[self.variables.independent] = t
 
     def _fmi_error(self, reason: str) -> int:
-        """Log ``reason``, enter the Error state, and return fmi2Error. The wrapper then
-        serves nothing and steps nothing by itself (a failed fmi2GetReal reaches Python
-        without clearing its flags), so the next call is refused here with the reason."""
+        """Log ``reason``, enter the Error state, and return fmi2Error."""
         self._fmi_log.status(status.ERROR, reason)
-        self._fmi_broken()
+        enter_error(self)
         return status.ERROR
-
-    def _fmi_broken(self) -> None:
-        self._fmi_state = State.ERROR
-        self._fmi_fast_steps.disarm()
-        self._fmi_reals.invalidate()
 
     def _fmi_refresh(self) -> None:
         if self._fmi_dirty:
@@ -254,7 +256,7 @@ class Slave(StateProtocol, DerivativeProtocol, Fmi3Protocol, FastStepProtocol):
             skipped = tuple(access.SKIPPED[type_name] for _ in vrs)
             return self._fmi_error(f"{function}: {type(exc).__name__}: {exc}"), skipped
         if code == status.ERROR:
-            self._fmi_broken()
+            enter_error(self)
         return code, values
 
     def fmi2_set(self, type_name: str, vrs: tuple, values: tuple):
@@ -273,7 +275,7 @@ class Slave(StateProtocol, DerivativeProtocol, Fmi3Protocol, FastStepProtocol):
             self._fmi_dirty = True
         self._fmi_stale = self._fmi_calculates
         if code == status.ERROR:
-            self._fmi_broken()
+            enter_error(self)
         return code, None
 
     @fmi_function("fmi2DoStep")
