@@ -39,6 +39,9 @@ ENABLED = True
 # Fixed steps per C call: the work limits are checked between calls (ckernel.MAX_ROWS
 # rows of inputs).
 RUN_LENGTH = 64
+# Largest n + m solved by the kernel's dense LU (implicit_dense.h) where the banded Schur
+# complement does not apply; above it the Python step's LAPACK LU (blocked) is the cheaper.
+DENSE_MAX = 120
 _OWN_KERNELS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
@@ -73,12 +76,13 @@ class KernelMatrix(IterationMatrix):
 class KernelNewton:
     """A method's kernel and its ``ckernel.implicit.Implicit`` settings."""
 
-    def __init__(self, method, kernel, blocks: bool):
+    def __init__(self, method, kernel, blocks: bool, dense: bool = False):
         eq = method.equations
-        self.kernel, self.genalpha = kernel, method.name == "genalpha"
+        self.kernel, self.genalpha, self.dense = kernel, method.name == "genalpha", dense
         am, af, beta, gamma = method.coefficients if self.genalpha else (0.0,) * 4
         self.settings = kernel.implicit_settings(
             method.name, method.periodic, eq.pattern if blocks else None, fd_step=FD_STEP,
+            dense=int(dense), fd=int(dense and eq.forces_depend_on_state()),
             jacobian_full=int(getattr(method, "jacobian", "") == "full"),
             count_multipliers=int(self.genalpha), max_iter=newton.NEWTON_MAX_ITER, am=am, af=af,
             beta=beta, gamma=gamma, length_scale=eq.length_scale, roundoff=newton.ROUNDOFF,
@@ -126,18 +130,19 @@ def kernel_newton(method) -> KernelNewton | None:
     """The C path of ``method`` (genalpha or ali3p), or None where it runs in Python (see
     the module docstring)."""
     eq = method.equations
-    if not ENABLED or eq.constraint_set.line.n:
-        return None
-    blocks = eq.forces_depend_on_state() and getattr(method, "jacobian", None) != "mass"
-    if blocks and not all(_on_one_body(eq, f) for f in eq.applied.state_forces):
-        return None
-    kernel = _kernel(eq)
+    kernel = _kernel(eq) if ENABLED else None
     if kernel is None:
         return None
-    try:
-        return KernelNewton(method, kernel, blocks)
-    except ValueError:      # K's blocks couple rows outside the band (ckernel.body_pairs)
+    blocks = eq.forces_depend_on_state() and getattr(method, "jacobian", None) != "mass"
+    if not eq.constraint_set.line.n and not (
+            blocks and not all(_on_one_body(eq, f) for f in eq.applied.state_forces)):
+        try:
+            return KernelNewton(method, kernel, blocks)
+        except ValueError:  # K's blocks couple rows outside the band (ckernel.body_pairs)
+            pass
+    if eq.n + eq.m > DENSE_MAX:
         return None
+    return KernelNewton(method, kernel, False, dense=True)
 
 
 def _on_one_body(eq, force) -> bool:
@@ -186,10 +191,13 @@ class CompiledNewton:
 
     def restart(self):
         super().restart()
-        self.c_newton = kernel_newton(self)
+        # once per run: a restart (every input a master sets) keeps the method's settings
+        if "c_newton" not in self.__dict__:
+            self.c_newton = kernel_newton(self)
         self._failed = None
         if self.c_newton is not None:
-            self.matrix = KernelMatrix(self.c_newton.kernel.kept_matrix(), self.c_newton)
+            self.matrix = KernelMatrix(self.c_newton.kernel.kept_matrix(self.c_newton.dense),
+                                       self.c_newton)
 
     def set_state(self, state):
         super().set_state(state)

@@ -43,6 +43,8 @@ typedef struct {
     const I *bp_a, *bp_b, *bp_band, *bp_w;
     I nnewton, njev, nlu, nprojections, reason;   /* counters and the last failure's reason */
     double last_size, last_residual, last_tol;   /* for the failure's message */
+    /* dense: the whole matrix by a dense LU (implicit_dense.h), with fd: K's force terms */
+    I dense, fd;
 } Implicit;
 
 I mbd_implicit_kept_size(const Model *M) {
@@ -164,6 +166,8 @@ static void k_inverse(const Model *M, const Implicit *p, const double *kinv, con
     }
 }
 
+#include "implicit_dense.h"
+
 /* Factorise at the current iterate: K = M + c_h H(lam) (its diagonal: coincidence rows'
  * d2/dphi2; c_h = D for genalpha "full", h^2/4 for ali3p, 0 for "mass"), with blocks minus
  * cq dF/dq + cv dF/dq'; S = J K^-1 J^T + E in band storage. values: Psi_q's at the iterate
@@ -172,6 +176,7 @@ static int factor_matrix(const Model *M, const Implicit *p, Scratch *s, double *
                          const double *values, const double *lam, double c_h, double cq,
                          double cv, double e, double h, const double *q, const double *qd,
                          const double *uf, const double *F0, double *w) {
+    if (p->dense) return saddle_factor(M, p, s, kept, values, lam, c_h, cq, cv, e, h, q, qd, uf, F0, w);
     I n = M->n, m = M->m, nb = M->nb;
     double *kinv = kept + KEPT_HEAD, *v = kinv + 3 * n, *L = v + M->nkeep, dmin, dmax;
     double *hdiag = p->blocks ? w : kinv;
@@ -221,6 +226,7 @@ static int factor_matrix(const Model *M, const Implicit *p, Scratch *s, double *
  * tn (n) scratch. */
 static void kept_solve(const Model *M, const Implicit *p, const double *kept, const double *a,
                        const double *b, double *x, double *y, double *tm, double *tn) {
+    if (p->dense) { saddle_solve(M, kept, a, b, x, y); return; }
     I n = M->n, m = M->m;
     const double *kinv = kept + KEPT_HEAD, *v = kinv + 3 * n, *L = v + M->nkeep;
     k_inverse(M, p, kinv, a, x);
