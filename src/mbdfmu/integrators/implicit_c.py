@@ -1,17 +1,25 @@
 """genalpha's and ali3p's steps in the C kernel (``equations/ckernel/implicit.h``).
 
 The C code is the Python step line for line (predictor, ``newton.newton_iterate`` with its
-convergence test, the step's end), with the iteration matrix [[K, Psi_q^T], [Psi_q, -E]]
-solved through its banded Schur complement Psi_q K^-1 Psi_q^T + E instead of a dense LU:
-so K must be diagonal or block-diagonal. Covered (``kernel_newton``): a mechanism without
-line rows (translational and slot joints: their geometric stiffness couples coordinates)
-whose applied forces that depend on the state each act on one moving body (springs and
-dampers to the ground, forces off a centre of mass: K has 3 x 3 blocks, their force
-Jacobians by forward differences as forces.py does them; genalpha with ``jacobian =
-"mass"``: any forces). Anything else, and an attempt the kernel hands back (K or the Schur complement
-near singular, a spring of zero length), runs the Python step (a dense LU), which then
-does what it always does. The kernel is the equations' C kernel (kernel "c", what FMUs
-run), or one built for this method under the numba kernel when it can be compiled.
+convergence test, the step's end) on another linear solver for the iteration matrix
+[[K, Psi_q^T], [Psi_q, -E]] (``kernel_newton`` chooses):
+
+- the banded Schur complement Psi_q K^-1 Psi_q^T + E, where K is diagonal or
+  block-diagonal: no line rows (translational and slot joints: their geometric stiffness
+  couples coordinates) and forces of the state that each act on one moving body (springs
+  and dampers to the ground, forces off a centre of mass: K has 3 x 3 blocks, their force
+  Jacobians by forward differences as forces.py does them; genalpha with ``jacobian =
+  "mass"``: any forces). Its cost grows linearly with the mechanism.
+- otherwise a dense LU with partial pivoting of the whole matrix (``implicit_dense.h``),
+  K built as the Python step builds it (the line rows' geometric stiffness, every force
+  Jacobian by forward differences one coordinate at a time), up to DENSE_MAX unknowns
+  n + m: the slider-crank, the crane, springs between two moving bodies.
+
+Larger mechanisms of the second kind, and an attempt the kernel hands back (K or the
+Schur complement near singular, a dense LU's pivots below newton.py's singular ratio, a
+spring of zero length), run the Python step (LAPACK's LU), which then does what it always
+does. The kernel is the equations' C kernel (kernel "c", what FMUs run), or one built for
+this method under the numba kernel when it can be compiled.
 
 What stays in Python: the decisions (halving a failed step, the step control's
 acceptance and step factor, the energy audit's verdict, work limits). A fixed-step run
@@ -40,8 +48,9 @@ ENABLED = True
 # rows of inputs).
 RUN_LENGTH = 64
 # Largest n + m solved by the kernel's dense LU (implicit_dense.h) where the banded Schur
-# complement does not apply; above it the Python step's LAPACK LU (blocked) is the cheaper.
-DENSE_MAX = 120
+# complement does not apply: its cost grows as (n + m)^3, and beyond a few hundred unknowns
+# the Python step's blocked LAPACK LU catches up (benchmarks/implicit_speed.py).
+DENSE_MAX = 250
 _OWN_KERNELS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 

@@ -1,4 +1,4 @@
-"""Compiling the C kernel (``kernel.c`` with its two headers) into a shared library.
+"""Compiling the C kernel (``kernel.c`` with its headers, SOURCES) into a shared library.
 
 ``compile_kernel()`` builds it once per content (sources, compiler, flags: a SHA-256 names
 the file) into the per-user cache (``$MBDFMU_CACHE_DIR``, else ``$XDG_CACHE_HOME/mbdfmu``,

@@ -7,7 +7,8 @@
  * is solved through its Schur complement S = Psi_q K^-1 Psi_q^T + E in band storage (the
  * pattern of J M^-1 J^T, solve.h), which needs K diagonal: no line rows (their geometric
  * stiffness couples coordinates) and applied forces that do not depend on the state (or
- * genalpha's jacobian "mass"). The caller checks that (integrators/implicit_c.py). K's
+ * genalpha's jacobian "mass"); other mechanisms solve the whole matrix by a dense LU
+ * (implicit_dense.h, Implicit.dense). The caller checks that (integrators/implicit_c.py). K's
  * diagonal must be positive and S's Cholesky pivots not below the singular-pivot ratio:
  * otherwise ST_SINGULAR and the attempt is redone on the numpy path (a dense LU), which then
  * does what it always does there.
