@@ -6,7 +6,7 @@ state between two moving bodies, which the banded Schur complement does not take
 As in test_implicit_c.py, the C step is meant to be the Python step with another linear
 solver: the two agree to a small fraction of the method's error (against closed forms:
 P4's kinematics, P11's reduction, the rigid pendulum; or a tight DOP853 reference), and a
-saved state continues bit for bit.
+saved state continues bit for bit (test_implicit_c.py).
 """
 import math
 from pathlib import Path
@@ -138,16 +138,3 @@ def test_a_stiff_spring_between_two_bodies_under_auto_in_c(monkeypatch):
     assert res.stats["nsteps"] == results[False].stats["nsteps"]
     assert float(np.max(np.abs(res["bob.x"] - results[False]["bob.x"]))) <= 1e-3 * error
 
-
-@pytest.mark.parametrize("method", METHODS)
-def test_a_saved_state_continues_bit_for_bit_with_the_dense_matrix(method):
-    sim = mbdfmu.Simulation(free_slider_crank(), method=method, step=1e-3, kernel="c",
-                            rtol=0.1, atol=0.1)
-    assert sim.integrator.c_newton.dense
-    sim.advance(0.1)
-    saved = sim.integrator.get_state()
-    sim.advance(0.2)
-    first = sim.integrator.q.copy()
-    sim.integrator.set_state(saved)
-    sim.advance(0.2)
-    assert np.array_equal(sim.integrator.q, first)

@@ -215,12 +215,7 @@ static int factor_matrix(const Model *M, const Implicit *p, Scratch *s, double *
     if (!all_finite_values(L, size)) return ST_NOT_FINITE;
     if (m && (!band_cholesky(L, m, M->kd, &dmin, &dmax) || !(dmin * dmin > p->singular_pivot * dmax * dmax)))
         return ST_SINGULAR;
-    kept[KEPT_VALID] = 1.0;
-    kept[KEPT_H] = h;
-    kept[KEPT_FRESH] = 1.0;
-    kept[KEPT_E] = e;
-    kept[KEPT_INDICATOR] = m ? indicator_of(M, s, v) : INFINITY;
-    return ST_OK;
+    return kept_valid(M, s, kept, v, h, e);
 }
 
 /* [[K, J^T], [J, -E]] (x; y) = (a; b) with the kept factors: x (n), y (m); tm (m) and

@@ -16,6 +16,18 @@
  * (mbd_implicit_dense_kept_size): the LU ((n + m)^2, row-major) then its pivots.
  */
 
+/* A matrix just factorised at the iterate: kept for step h, with E = e I and the
+ * singularity indicator of its Psi_q (values v); both solvers' end. */
+static int kept_valid(const Model *M, Scratch *s, double *kept, const double *v, double h,
+                      double e) {
+    kept[KEPT_VALID] = 1.0;
+    kept[KEPT_H] = h;
+    kept[KEPT_FRESH] = 1.0;
+    kept[KEPT_E] = e;
+    kept[KEPT_INDICATOR] = M->m ? indicator_of(M, s, v) : INFINITY;
+    return ST_OK;
+}
+
 I mbd_implicit_dense_kept_size(const Model *M) {
     I size = M->n + M->m;
     return mbd_implicit_kept_size(M) + size * size + size;
@@ -145,12 +157,7 @@ static int saddle_factor(const Model *M, const Implicit *p, Scratch *s, double *
     saddle_lu(A, N, piv, &pmin, &pmax);
     if (!(pmin > p->singular_pivot * pmax)) return ST_SINGULAR;
     memcpy(v, values, (size_t)M->nkeep * sizeof(double));
-    kept[KEPT_VALID] = 1.0;
-    kept[KEPT_H] = h;
-    kept[KEPT_FRESH] = 1.0;
-    kept[KEPT_E] = e;
-    kept[KEPT_INDICATOR] = m ? indicator_of(M, s, v) : INFINITY;
-    return ST_OK;
+    return kept_valid(M, s, kept, v, h, e);
 }
 
 /* kept_solve's dense case: (x (n); y (m)) = LU^-1 (a; b), x and y apart in memory. */
