@@ -138,3 +138,65 @@ def test_a_stiff_spring_between_two_bodies_under_auto_in_c(monkeypatch):
     assert res.stats["nsteps"] == results[False].stats["nsteps"]
     assert float(np.max(np.abs(res["bob.x"] - results[False]["bob.x"]))) <= 1e-3 * error
 
+
+
+def bead_on_arm():
+    """A pendulum arm with a bead in a slot along it (a line row between two moving bodies,
+    off both centres, so every term of its geometric stiffness is there) and a spring from
+    the arm's tip to the bead."""
+    return scene_from_dict({
+        "name": "bead", "gravity": [0.0, -9.81],
+        "body": [{"name": "arm", "mass": 2.0, "inertia": 0.2, "position": [0.5, 0.0],
+                  "angular_velocity": 1.0, "velocity": [0.0, 0.5]},
+                 {"name": "bead", "mass": 0.5, "inertia": 0.01, "position": [0.8, -0.1]}],
+        "joint": [{"name": "pivot", "type": "revolute", "body_i": "ground",
+                   "point_i": [0.0, 0.0], "body_j": "arm", "point_j": [-0.5, 0.0]},
+                  {"name": "slot", "type": "slot", "body_i": "arm", "point_i": [0.0, 0.0],
+                   "axis_i": [1.0, 0.0], "body_j": "bead", "point_j": [0.0, 0.1]}],
+        "force": [{"name": "spring", "type": "spring_damper", "body_i": "arm",
+                   "point_i": [0.5, 0.0], "body_j": "bead", "point_j": [0.0, 0.0],
+                   "stiffness": 500.0, "damping": 2.0, "rest_length": 0.1}]})
+
+
+def python_matrix(it, h):
+    """The Python step's iteration matrix at its predictor (genalpha.py, ali3p.py)."""
+    t1 = it.t + h
+    if it.name == "genalpha":
+        am, af, beta, gamma = it.coefficients
+        D = h * h * beta * (1.0 - af) / (1.0 - am)
+        G = h * gamma * (1.0 - af) / (1.0 - am)
+        a = (af * it.qdd - am * it.a + (1.0 - af) * it.qdd) / (1.0 - am)
+        q = it.qw + h * it.qd + h * h * ((0.5 - beta) * it.a + beta * a)
+        qd = it.qd + h * ((1.0 - gamma) * it.a + gamma * a)
+        _, J = it.constraints(t1, q)
+        return it._iteration_matrix(t1, q, qd, J, it.lam, D, G)
+    dq = h * it.qd + 0.5 * h * h * it.qdd
+    _, J = it.constraints(t1, it.qw + dq)
+    return it._augmented_matrix(t1, it.qw + dq, (2.0 / h) * dq - it.qd, J, it.lam, h,
+                                0.25 * h * h * it.alpha(h))
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_the_dense_matrix_is_the_python_steps(method):
+    """The matrix the kernel factorises at the predictor (one iteration: factorised there)
+    against the Python step's matrix there, through their solves; at h = 10 ms the line
+    row's geometric stiffness and the spring's Jacobian change it by percents."""
+    h = 0.01
+    sim = mbdfmu.Simulation(bead_on_arm(), method=method, step=h, kernel="c", rtol=0.1, atol=0.1)
+    it = sim.integrator
+    newton = it.c_newton
+    assert newton.dense and newton.settings.fd == 1
+    p = newton.prepare(it)
+    p.max_iter = 1
+    u = it.inputs(it.t + h)
+    newton.kernel.implicit_attempt(p, it.matrix.kept, implicit_c._state(it), h,
+                                   it.equations.motion_values(it.t + h, u), u.forces)
+    S = python_matrix(it, h)
+    b = np.random.default_rng(1).standard_normal(S.shape[0])
+    want = np.linalg.solve(S, b)
+    got = newton.kernel.implicit_solve(p, it.matrix.kept, b)
+    assert np.max(np.abs(got - want)) <= 1e-9 * np.max(np.abs(want))      # measured 2e-17
+    n = it.equations.n
+    bare = S.copy()
+    bare[:n, :n] = np.diag(it.equations.mass)
+    assert np.max(np.abs(np.linalg.solve(bare, b) - want)) > 1e-3 * np.max(np.abs(want))  # 7e-3
