@@ -44,10 +44,10 @@ from .newton import IterationMatrix, NewtonFailure
 
 # Off: every step on the Python path (the tests compare the two).
 ENABLED = True
-# A genalpha step whose iteration matrix has a singularity indicator below this runs the
-# Python step (a dense LU): the Schur complement's solve squares the condition number
-# (ali3p's is bounded by its penalty), and at P2's crossings its noise left velocity
-# errors that did not shrink with h.
+# A genalpha step through the Schur complement whose iteration matrix has a singularity
+# indicator below this runs a dense LU (the Python step): the Schur complement squares the
+# condition number (ali3p's is bounded by its penalty), and at P2's crossings its noise
+# left velocity errors that did not shrink with h.
 DENSE_BELOW = 1e-3
 # Fixed steps per C call: the work limits are checked between calls (ckernel.MAX_ROWS
 # rows of inputs).

@@ -377,7 +377,7 @@ static int attempt(const Model *M, Implicit *p, Scratch *s, double *kept, const 
             /* next to a singular configuration genalpha's Schur complement (ali3p's has
              * its penalty's E) squares the condition number, and its solve's noise
              * became velocity errors: the dense LU there */
-            if (e == 0.0 && kept[KEPT_INDICATOR] < p->dense_below) {
+            if (e == 0.0 && !p->dense && kept[KEPT_INDICATOR] < p->dense_below) {
                 kept[KEPT_VALID] = 0.0;
                 return ST_SINGULAR;
             }
