@@ -14,6 +14,15 @@ static int rhs(const Model *M, Scratch *s, const double *y, const double *motion
     return accelerations(M, s, y, y + n, motion, motion + 2 * m, uf, f + n, lam);
 }
 
+/* rhs at the state project() just left (same q: S's factor kept from the velocity
+ * projection, not computed again). */
+static int rhs_projected(const Model *M, Scratch *s, const double *y, const double *motion,
+                         const double *uf, double *f, double *lam) {
+    I n = M->n, m = M->m;
+    memcpy(f, y + n, (size_t)n * sizeof(double));
+    return accelerations_at(M, s, y, y + n, motion, motion + 2 * m, uf, f + n, lam, s->kept);
+}
+
 static int all_finite(const double *x, I k) {
     for (I i = 0; i < k; i++) if (!isfinite(x[i])) return 0;
     return 1;
@@ -46,7 +55,7 @@ static int rk4p_step(const Model *M, Scratch *s, double *y, double *f, double h,
     if (!all_finite(ys, n2)) return ST_NOT_FINITE;
     int r = project(M, s, ys, ys + M->n, motions + 6 * m, tol, max_iter);
     if (r != ST_OK) return r;
-    r = rhs(M, s, ys, motions + 6 * m, ufs + 2 * nf, K, s->lam);
+    r = rhs_projected(M, s, ys, motions + 6 * m, ufs + 2 * nf, K, s->lam);
     if (r != ST_OK) return r;
     if (!all_finite(K + M->n, M->n)) return ST_NOT_FINITE;
     memo_store(M, ys, ys + M->n, motions + 6 * m, motions + 8 * m, ufs + 2 * nf, K + M->n, s->lam);
@@ -153,7 +162,7 @@ int mbd_prk_trial(const Model *M, I ns, const double *A, const double *B, const 
     r = project(M, &s, y_new, y_new + n, motions + ns * 3 * m, tol, max_iter);
     if (r == ST_SINGULAR || r == ST_SPRING) return r;
     if (r != ST_OK) return ST_PROJECTION;
-    r = rhs(M, &s, y_new, motions + ns * 3 * m, ufs + ns * nf, f_new, s.lam);
+    r = rhs_projected(M, &s, y_new, motions + ns * 3 * m, ufs + ns * nf, f_new, s.lam);
     if (r == ST_OK) memo_store(M, y_new, y_new + n, motions + ns * 3 * m, motions + ns * 3 * m + 2 * m, ufs + ns * nf, f_new + n, s.lam);
     return r;
 }
