@@ -3,7 +3,8 @@
 The arithmetic of a step (stages, error norm, projections, the next q'') runs in one C
 call (``equations.ckernel``); what a step decides stays here, line for line as in
 ``RK4P._advance_fixed`` / ``ProjectedRK._step_impl`` (acceptance, step factors, the energy
-audit, counters). Input signals are evaluated in Python at every time a step needs them
+audit, counters), except in runs of an embedded pair's steps (``prk_run``), which take
+them in C the same way. Input signals are evaluated in Python at every time a step needs them
 (once per run when they cannot change: no drivers, no force inputs). Whatever the kernel
 hands back (a singular Schur complement, a failed projection, a non-finite state, a
 spring of zero length) is redone by the Python step, which then does and says what it

@@ -12,7 +12,9 @@
  *   mbd_rk4p_steps   rk4p.py's step (rk4_step, _project, the next q'') for runs of steps,
  *                    with rk4p_compiled.py's energy check for constant forces
  *   mbd_prk_trial    projected_rk.py ProjectedRK._step_impl's arithmetic: stages, error
- *                    norm, projections, the next q'' (the decisions stay in Python)
+ *                    norm, projections, the next q'' (the decisions stay in Python);
+ *                    mbd_prk_trial_near also near singular configurations (stepping.h)
+ *   mbd_prk_run      runs of those steps with _advance_adaptive's decisions (adaptive.h)
  *   mbd_outputs      dynamics.py Equations.output_values (reactions eqs. 16-17, 28)
  *   mbd_singularity_indicator  singular.py singularity_indicator
  *   mbd_dense_state  ProjectedRK._output_at: the projected dense output inside a step
