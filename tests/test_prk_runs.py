@@ -18,19 +18,25 @@ COUNTERS = ("nsteps", "nrejected", "naccel", "nprojections")
 
 
 def _run(scene, method, t_end, monkeypatch, *, runs=True, kernel="c", **options):
-    """(Simulation after advance(t_end), calls of the C run)."""
-    calls = []
+    """(Simulation after advance(t_end), calls of the C run, attempts decided in Python)."""
+    calls, attempts = [], []
 
     def counted(*args, **kwargs):
         calls.append(1)
         return prk_run(*args, **kwargs)
-    prk_run = c_steps.ckernel_prk_run
+
+    def attempt(*args, **kwargs):
+        attempts.append(1)
+        return prk_attempt(*args, **kwargs)
+    prk_run, prk_attempt = c_steps.ckernel_prk_run, c_steps.prk_attempt
     monkeypatch.setattr(c_steps, "PRK_RUNS", runs)
     monkeypatch.setattr(c_steps, "ckernel_prk_run", counted)
+    monkeypatch.setattr(c_steps, "prk_attempt", attempt)
     sim = mbdfmu.Simulation(scene, method=method, kernel=kernel, **options)
     sim.advance(t_end)
     monkeypatch.setattr(c_steps, "ckernel_prk_run", prk_run)
-    return sim, len(calls)
+    monkeypatch.setattr(c_steps, "prk_attempt", prk_attempt)
+    return sim, len(calls), len(attempts)
 
 
 def _same_run(a, b, rel):
@@ -51,13 +57,16 @@ def _b0_error(sim, t_end):
 
 @pytest.mark.parametrize("method", ["dop853p", "rk45p"])
 def test_p2_runs_in_c_take_the_python_loops_steps(method, monkeypatch):
-    # 10 s of P2 N = 2 pass its singular configurations (cranks horizontal) 6 times: the
-    # run hands those steps to Python's planning, energy audited all along
+    # 10 s of P2 N = 2 pass its singular configurations (cranks horizontal) 6 times, the
+    # steps planned across them (singular_zone.py), energy audited all along: every
+    # attempt in C, none left to Python
     scene = mbdfmu.load_scene("n_four_bar_2")
     options = dict(rtol=1e-6, atol=2e-8)
-    looped, none = _run(scene, method, 10.0, monkeypatch, runs=False, **options)
-    ran, calls = _run(scene, method, 10.0, monkeypatch, **options)
-    assert none == 0 and calls >= 6
+    looped, none, in_python = _run(scene, method, 10.0, monkeypatch, runs=False, **options)
+    ran, calls, left = _run(scene, method, 10.0, monkeypatch, **options)
+    stats = looped.integrator.stats
+    assert none == 0 and in_python == stats.nsteps + stats.nrejected
+    assert calls >= 1 and left == 0
     _same_run(looped, ran, 1e-8)
     audit_a, audit_b = looped.integrator.audit, ran.integrator.audit
     assert audit_b.checks == audit_a.checks == ran.integrator.stats.nsteps
@@ -70,8 +79,8 @@ def test_p2_trials_near_singular_configurations_match_the_numpy_kernel(monkeypat
     # constraints near the singular configurations, projections)
     scene = mbdfmu.load_scene("n_four_bar_2")
     options = dict(rtol=1e-6, atol=2e-8)
-    numpy_run, _ = _run(scene, "dop853p", 10.0, monkeypatch, kernel="numpy", **options)
-    c_run, _ = _run(scene, "dop853p", 10.0, monkeypatch, **options)
+    numpy_run, _, _ = _run(scene, "dop853p", 10.0, monkeypatch, kernel="numpy", **options)
+    c_run, _, _ = _run(scene, "dop853p", 10.0, monkeypatch, runs=False, **options)
     _same_run(numpy_run, c_run, 1e-8)
     assert _b0_error(numpy_run, 10.0) < 1e-6
 
@@ -85,13 +94,13 @@ def test_runs_in_c_with_a_damped_spring(monkeypatch):
             force["damping"] = 20.0
     scene = scene_from_dict(data)
     options = dict(rtol=1e-6, atol=1e-9)
-    looped, _ = _run(scene, "dop853p", 0.03, monkeypatch, runs=False, **options)
-    ran, calls = _run(scene, "dop853p", 0.03, monkeypatch, **options)
+    looped, _, _ = _run(scene, "dop853p", 0.03, monkeypatch, runs=False, **options)
+    ran, calls, _ = _run(scene, "dop853p", 0.03, monkeypatch, **options)
     assert ran.integrator.audit is None and calls >= 1
     assert ran.integrator.stats.nsteps > 20
     _same_run(looped, ran, 1e-8)
     # the damper takes energy out: below the undamped run's crank speed at the end
-    undamped, _ = _run(mbdfmu.load_scene("andrews"), "dop853p", 0.03, monkeypatch, **options)
+    undamped, _, _ = _run(mbdfmu.load_scene("andrews"), "dop853p", 0.03, monkeypatch, **options)
     assert abs(ran.outputs()["crank.omega"]) < abs(undamped.outputs()["crank.omega"])
 
 

@@ -351,7 +351,8 @@ def prk_run(rk, t_target: float, dense: bool, rejections: int, factors: tuple,
                     divergence=ENERGY_DIVERGENCE_FRACTION, roundoff=ENERGY_ROUNDOFF)
     audit = audit_state(rk.audit) if rk.audit is not None else None
     motion = np.concatenate(eq.motion_values(rk.t))
-    status, p, b = ckernel_prk_run(eq.ckernel, table[:-1], settings, np.concatenate(
+    gaps = singular_zone.gaps(rk.C[:rk.n_stages])
+    status, p, b = ckernel_prk_run(eq.ckernel, table[:-1], gaps, settings, np.concatenate(
         (rk.q, rk.qd)), rk.f, motion, audit)
     r = p.r
     for name in ("nsteps", "nrejected", "naccel", "nprojections"):

@@ -167,8 +167,7 @@ class ProjectedRK(AdaptiveStepping, Integrator):
 
     def _steps_in_c(self, t_target, dense, rejections):
         cls = type(self)
-        if not (self.zone.indicator >= singular_zone.NEAR_ZONE and
-                cls._step_impl is ProjectedRK._step_impl and
+        if not (cls._step_impl is ProjectedRK._step_impl and
                 cls._plan_step is ProjectedRK._plan_step and c_steps.prk_runs(self)):
             return None
         status, rejections = c_steps.prk_run(self, t_target, dense, rejections,

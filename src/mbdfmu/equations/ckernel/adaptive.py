@@ -111,7 +111,7 @@ class PrkPy(ctypes.Structure):
                 ("energy_rejected", _D), ("audit", _P), ("step_factor", _D),
                 ("min_gain", _D), ("jump_limit", _D), ("divergence", _D), ("roundoff", _D),
                 ("t_old", _D), ("h_old", _D), ("y_old", _P), ("y_end", _P), ("K_old", _P),
-                ("stepped", _I)]
+                ("stepped", _I), ("ngaps", _I), ("gap_mid", _P), ("gap_width", _P)]
 
 
 class PrkRunBuffers:
@@ -127,9 +127,10 @@ class PrkRunBuffers:
         self.audit = np.zeros(13)
 
 
-def prk_run(kernel, tableau, settings: dict, y, f, motion, audit):
+def prk_run(kernel, tableau, gaps, settings: dict, y, f, motion, audit):
     """Steps of an embedded pair in one call of ``mbd_prk_run`` (adaptive.h) from (y, f) at
     ``settings["t"]``: PrkPy's scalar fields (and PrkRun's, ``settings["run"]``), the
+    middles and widths of the gaps between the tableau's nodes (``singular_zone.gaps``), the
     constant stage inputs ``motion`` ((c, c', c'')), the energy audit's state (13 values,
     updated in place) or None. Returns (status, the PrkPy, its buffers): the state in
     buffers.y / .f, the last accepted step in .y_old, .y_end, .K_old."""
@@ -145,6 +146,8 @@ def prk_run(kernel, tableau, settings: dict, y, f, motion, audit):
         r.motion = b.motions.ctypes.data
         for name in ("y_old", "y_end", "K_old"):
             setattr(p, name, getattr(b, name).ctypes.data)
+        b.gaps = [np.ascontiguousarray(a, dtype=float) for a in gaps]
+        p.ngaps, p.gap_mid, p.gap_width = b.gaps[0].size, *(a.ctypes.data for a in b.gaps)
         function = kernel.library.mbd_prk_run
         function.argtypes, function.restype = [_P, _P], ctypes.c_int
         cache[key] = (p, b, function)
