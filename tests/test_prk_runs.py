@@ -12,6 +12,7 @@ import pytest
 import mbdfmu
 from mbdfmu.bench.closed_forms import n_four_bar_B0
 from mbdfmu.integrators import c_steps
+from mbdfmu.integrators.work import WorkLimit
 from mbdfmu.model.reader import resolve_scene_path, scene_from_dict
 
 COUNTERS = ("nsteps", "nrejected", "naccel", "nprojections")
@@ -117,3 +118,31 @@ def test_dense_outputs_inside_a_run_of_steps(monkeypatch):
             phis.append(sim.outputs()["crank0.phi"])
         values.append(np.array(phis))
     assert np.max(np.abs(values[0] - values[1])) < 1e-10
+
+
+def _failure(scene, monkeypatch, runs, prepare, **advance):
+    monkeypatch.setattr(c_steps, "PRK_RUNS", runs)
+    sim = mbdfmu.Simulation(scene, method="dop853p", kernel="c", rtol=1e-6, atol=2e-8)
+    prepare(sim)
+    with pytest.raises(mbdfmu.SolverError) as failure:
+        sim.advance(10.0, **advance)
+    stats = sim.integrator.stats
+    return str(failure.value), (stats.nsteps, stats.nrejected)
+
+
+def test_runs_in_c_stop_where_the_python_loop_stops(monkeypatch):
+    # a work limit of 50 steps (the runs stop at it, not at their 64 attempts) and an
+    # energy budget a million times tighter than the method's (the audit's check fails
+    # after some step): the same message at the same time, the state rolled back alike
+    scene = mbdfmu.load_scene("n_four_bar_2")
+
+    def nothing(sim):
+        pass
+
+    def tight(sim):
+        sim.integrator.audit.factor *= 1e-6
+    for prepare, advance in ((nothing, dict(limit=WorkLimit(max_steps=50))), (tight, {})):
+        looped = _failure(scene, monkeypatch, False, prepare, **advance)
+        ran = _failure(scene, monkeypatch, True, prepare, **advance)
+        assert ran == looped
+        assert "t = " in ran[0]
