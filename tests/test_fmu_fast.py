@@ -140,7 +140,8 @@ def test_rk4p_steps_with_a_driver_are_the_wrappers_and_pythons_values(
         motor, scene_fmu, scene_host, tmp_path):
     """The slider-crank (auto->rk4p; the motor's linear or harmonic motion evaluated in C,
     ckernel/fixed.h): the wrapper takes its doSteps (1 ms, some 3 ms) by itself, all but
-    those where rk4p's step-doubling check is due (about one in SPOT_CHECK_EVERY steps),
+    those where rk4p's step-doubling check is due (after SPOT_CHECK_EVERY steps, then at
+    intervals that double while the checks agree),
     and every value it serves is bit for bit the one Python computes when each step goes
     through it; a state taken after fast steps restores to the same values."""
     from mbdfmu.fmu_build.scene_fmu import build_fmu
@@ -154,7 +155,7 @@ def test_rk4p_steps_with_a_driver_are_the_wrappers_and_pythons_values(
         path = build_fmu(scene, tmp_path / "harmonic.fmu")
     fast, slow = scene_host(path, "fast").init(), scene_host(path, "slow").init()
     names = fast.outputs + ["crank.x", "rod.alpha"]
-    steps = 3 * SPOT_CHECK_EVERY + 7
+    steps = 16 * SPOT_CHECK_EVERY + 7
     got = []
     for k in range(steps):
         got.append(step_both(fast, slow, 3 * H if k % 10 == 9 else H, names))   # 3 rk4p steps
@@ -162,7 +163,7 @@ def test_rk4p_steps_with_a_driver_are_the_wrappers_and_pythons_values(
                                rtol=1e-9, atol=1e-12)
     state, t = get_state(fast), fast.t             # the slave catches up first
     assert taken_by_wrapper(slow) == 0
-    assert steps - 8 <= taken_by_wrapper(fast) < steps
+    assert steps // 2 <= taken_by_wrapper(fast) < steps
     assert fast.real(*names) == got[-1]
     more = run(fast, names, 5)
     assert fast.status("fmi2SetFMUstate", state) == OK
@@ -228,7 +229,7 @@ def test_steps_beyond_the_work_limit_are_discarded_by_python_not_taken_by_the_wr
                               (crane_fmu, "boom.phi", "cylinder.actuator")):
         h = scene_host(path)
         assert h.set_int("solver.max_steps_per_communication_step", 1) == OK
-        before = run(h.init(), [name], 5, force)
+        before = run(h.init(), [name], 12, force)
         if force is not None:
             assert h.set_real([h.vr[force]], [actuator(h.t)]) == OK
         assert h.status("fmi2DoStep", h.t, 10 * H, 1) == DISCARD

@@ -80,20 +80,26 @@ def test_step_control_agrees_with_the_python_step(monkeypatch):
     assert float(np.max(np.abs(a["bob.x"] - b["bob.x"]))) <= 0.05 * error   # measured 0.5 %
 
 
-def test_what_the_c_step_does_not_cover_runs_in_python():
-    """Translational joints (line rows) and forces of the state between two moving bodies
-    run the Python step; a spring to the ground gives K 3 x 3 blocks."""
-    for scene, method, covered, blocks in (
-            (mbdfmu.load_scene("slider_crank"), "genalpha", False, None),
-            (mbdfmu.load_scene("rod_pendulum"), "ali3p", True, 0),
-            (mbdfmu.load_scene("andrews"), "genalpha", True, 1),
-            (spring_pendulum(1e8), "genalpha", True, 1),
-            (spring_pendulum(1e8, between_bodies=True), "ali3p", False, None)):
-        sim = mbdfmu.Simulation(scene, method=method, kernel="c")
-        newton = sim.integrator.c_newton
-        assert (newton is not None) == covered, scene.name
-        if covered:
-            assert newton.settings.blocks == blocks
+def test_what_the_c_step_covers_and_how():
+    """A spring to the ground gives K 3 x 3 blocks (banded Schur complement); translational
+    joints (line rows) and forces of the state between two moving bodies the dense LU
+    (implicit_dense.h); beyond DENSE_MAX unknowns the Python step."""
+    for scene, method, blocks, dense in (
+            (mbdfmu.load_scene("slider_crank"), "genalpha", 0, 1),
+            (mbdfmu.load_scene("rod_pendulum"), "ali3p", 0, 0),
+            (mbdfmu.load_scene("andrews"), "genalpha", 1, 0),
+            (spring_pendulum(1e8), "genalpha", 1, 0),
+            (spring_pendulum(1e8, between_bodies=True), "ali3p", 0, 1)):
+        newton = mbdfmu.Simulation(scene, method=method, kernel="c").integrator.c_newton
+        assert (newton.settings.blocks, newton.settings.dense) == (blocks, dense), scene.name
+    big = mbdfmu.load_scene("n_four_bar_40")        # no line rows: banded, whatever its size
+    assert not mbdfmu.Simulation(big, method="ali3p", kernel="c").integrator.c_newton.dense
+
+
+def test_a_dense_case_beyond_its_size_runs_in_python(monkeypatch):
+    monkeypatch.setattr(implicit_c, "DENSE_MAX", 8)      # the slider-crank: n + m = 9 + 9
+    sim = mbdfmu.Simulation(mbdfmu.load_scene("slider_crank"), method="genalpha", kernel="c")
+    assert sim.integrator.c_newton is None
 
 
 def spring_pendulum(k: float, between_bodies: bool = False):
@@ -146,9 +152,12 @@ def test_a_stiff_spring_under_auto_meets_its_tolerance_in_c(monkeypatch):
     assert float(np.max(np.abs(res["bob.x"] - results[False]["bob.x"]))) <= 1e-3 * error
 
 
-def test_a_saved_state_continues_bit_for_bit():
-    """The kept iteration matrix is part of the run's state (an FMU's saved state)."""
-    sim = mbdfmu.Simulation(mbdfmu.load_scene("n_four_bar_2"), method="genalpha", step=1e-3, kernel="c")
+@pytest.mark.parametrize("scene, method", [("n_four_bar_2", "genalpha"),
+                                           ("slider_crank", "genalpha"), ("slider_crank", "ali3p")])
+def test_a_saved_state_continues_bit_for_bit(scene, method):
+    """The kept iteration matrix is part of the run's state (an FMU's saved state), the
+    banded one (P2) and the dense LU (the slider-crank)."""
+    sim = mbdfmu.Simulation(mbdfmu.load_scene(scene), method=method, step=1e-3, kernel="c")
     sim.advance(0.3)
     saved = sim.integrator.get_state()
     sim.advance(0.5)

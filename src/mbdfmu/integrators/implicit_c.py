@@ -1,17 +1,25 @@
 """genalpha's and ali3p's steps in the C kernel (``equations/ckernel/implicit.h``).
 
 The C code is the Python step line for line (predictor, ``newton.newton_iterate`` with its
-convergence test, the step's end), with the iteration matrix [[K, Psi_q^T], [Psi_q, -E]]
-solved through its banded Schur complement Psi_q K^-1 Psi_q^T + E instead of a dense LU:
-so K must be diagonal or block-diagonal. Covered (``kernel_newton``): a mechanism without
-line rows (translational and slot joints: their geometric stiffness couples coordinates)
-whose applied forces that depend on the state each act on one moving body (springs and
-dampers to the ground, forces off a centre of mass: K has 3 x 3 blocks, their force
-Jacobians by forward differences as forces.py does them; genalpha with ``jacobian =
-"mass"``: any forces). Anything else, and an attempt the kernel hands back (K or the Schur complement
-near singular, a spring of zero length), runs the Python step (a dense LU), which then
-does what it always does. The kernel is the equations' C kernel (kernel "c", what FMUs
-run), or one built for this method under the numba kernel when it can be compiled.
+convergence test, the step's end) on another linear solver for the iteration matrix
+[[K, Psi_q^T], [Psi_q, -E]] (``kernel_newton`` chooses):
+
+- the banded Schur complement Psi_q K^-1 Psi_q^T + E, where K is diagonal or
+  block-diagonal: no line rows (translational and slot joints: their geometric stiffness
+  couples coordinates) and forces of the state that each act on one moving body (springs
+  and dampers to the ground, forces off a centre of mass: K has 3 x 3 blocks, their force
+  Jacobians by forward differences as forces.py does them; genalpha with ``jacobian =
+  "mass"``: any forces). Its cost grows linearly with the mechanism.
+- otherwise a dense LU with partial pivoting of the whole matrix (``implicit_dense.h``),
+  K built as the Python step builds it (the line rows' geometric stiffness, every force
+  Jacobian by forward differences one coordinate at a time), up to DENSE_MAX unknowns
+  n + m: the slider-crank, the crane, springs between two moving bodies.
+
+Larger mechanisms of the second kind, and an attempt the kernel hands back (K or the
+Schur complement near singular, a dense LU's pivots below newton.py's singular ratio, a
+spring of zero length), run the Python step (LAPACK's LU), which then does what it always
+does. The kernel is the equations' C kernel (kernel "c", what FMUs run), or one built for
+this method under the numba kernel when it can be compiled.
 
 What stays in Python: the decisions (halving a failed step, the step control's
 acceptance and step factor, the energy audit's verdict, work limits). A fixed-step run
@@ -39,6 +47,10 @@ ENABLED = True
 # Fixed steps per C call: the work limits are checked between calls (ckernel.MAX_ROWS
 # rows of inputs).
 RUN_LENGTH = 64
+# Largest n + m solved by the kernel's dense LU (implicit_dense.h) where the banded Schur
+# complement does not apply: its cost grows as (n + m)^3, and beyond a few hundred unknowns
+# the Python step's blocked LAPACK LU catches up (benchmarks/implicit_speed.py).
+DENSE_MAX = 250
 _OWN_KERNELS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
@@ -73,12 +85,13 @@ class KernelMatrix(IterationMatrix):
 class KernelNewton:
     """A method's kernel and its ``ckernel.implicit.Implicit`` settings."""
 
-    def __init__(self, method, kernel, blocks: bool):
+    def __init__(self, method, kernel, blocks: bool, dense: bool = False):
         eq = method.equations
-        self.kernel, self.genalpha = kernel, method.name == "genalpha"
+        self.kernel, self.genalpha, self.dense = kernel, method.name == "genalpha", dense
         am, af, beta, gamma = method.coefficients if self.genalpha else (0.0,) * 4
         self.settings = kernel.implicit_settings(
             method.name, method.periodic, eq.pattern if blocks else None, fd_step=FD_STEP,
+            dense=int(dense), fd=int(dense and eq.forces_depend_on_state()),
             jacobian_full=int(getattr(method, "jacobian", "") == "full"),
             count_multipliers=int(self.genalpha), max_iter=newton.NEWTON_MAX_ITER, am=am, af=af,
             beta=beta, gamma=gamma, length_scale=eq.length_scale, roundoff=newton.ROUNDOFF,
@@ -126,18 +139,19 @@ def kernel_newton(method) -> KernelNewton | None:
     """The C path of ``method`` (genalpha or ali3p), or None where it runs in Python (see
     the module docstring)."""
     eq = method.equations
-    if not ENABLED or eq.constraint_set.line.n:
-        return None
-    blocks = eq.forces_depend_on_state() and getattr(method, "jacobian", None) != "mass"
-    if blocks and not all(_on_one_body(eq, f) for f in eq.applied.state_forces):
-        return None
-    kernel = _kernel(eq)
+    kernel = _kernel(eq) if ENABLED else None
     if kernel is None:
         return None
-    try:
-        return KernelNewton(method, kernel, blocks)
-    except ValueError:      # K's blocks couple rows outside the band (ckernel.body_pairs)
+    blocks = eq.forces_depend_on_state() and getattr(method, "jacobian", None) != "mass"
+    if not eq.constraint_set.line.n and not (
+            blocks and not all(_on_one_body(eq, f) for f in eq.applied.state_forces)):
+        try:
+            return KernelNewton(method, kernel, blocks)
+        except ValueError:  # K's blocks couple rows outside the band (ckernel.body_pairs)
+            pass
+    if eq.n + eq.m > DENSE_MAX:
         return None
+    return KernelNewton(method, kernel, False, dense=True)
 
 
 def _on_one_body(eq, force) -> bool:
@@ -186,10 +200,13 @@ class CompiledNewton:
 
     def restart(self):
         super().restart()
-        self.c_newton = kernel_newton(self)
+        # once per run: a restart (every input a master sets) keeps the method's settings
+        if "c_newton" not in self.__dict__:
+            self.c_newton = kernel_newton(self)
         self._failed = None
         if self.c_newton is not None:
-            self.matrix = KernelMatrix(self.c_newton.kernel.kept_matrix(), self.c_newton)
+            self.matrix = KernelMatrix(self.c_newton.kernel.kept_matrix(self.c_newton.dense),
+                                       self.c_newton)
 
     def set_state(self, state):
         super().set_state(state)

@@ -34,14 +34,22 @@ from ..errors import SolverError
 from ..plain import Plain
 from .energy_audit import ENERGY_TOL_FACTOR
 
-# Steps between two step-doubling checks of a fixed-step run: at least SPOT_CHECK_EVERY,
-# growing to the steps taken so far over SPOT_CHECK_SHARE, at most SPOT_CHECK_MAX. A check
-# costs three steps and a save and two restores of the state, which in Python weigh as much
-# as a few hundred compiled rk4p steps: short runs are sampled densely, long ones are not
-# slowed by more than a few percent (benchmarks/fixed_step_estimate.py).
-SPOT_CHECK_EVERY = 50
+# Steps between two step-doubling checks of a fixed-step run. A check costs three steps and
+# a save and two restores of the state, which in Python weigh as much as a few hundred
+# compiled rk4p steps, so checks are sampled: the first after SPOT_CHECK_EVERY steps, then
+# the interval doubles up to the steps taken so far over SPOT_CHECK_SHARE (at most
+# SPOT_CHECK_MAX), and halves when a check finds a local error more than SPOT_CHECK_CHANGE
+# times the one charged (it grows faster than it is sampled: checks every 50 steps missed
+# the peak of Andrews' mechanism's local error and under-estimated 30 times). Steps are
+# charged with an envelope of the checks: the last one's local error, or the envelope
+# before it times SPOT_CHECK_DECAY if larger, so that an error varying along a period
+# (a crank's turn) is charged near its peak however the checks fall on it; the steps since
+# the last check are charged again when a check finds more.
+SPOT_CHECK_EVERY = 4
 SPOT_CHECK_SHARE = 4
 SPOT_CHECK_MAX = 200
+SPOT_CHECK_CHANGE = 2.0
+SPOT_CHECK_DECAY = 0.5
 # The orders of q's and q''s local errors of methods that state none: genalpha, ali3p.
 DEFAULT_ORDERS = (2, 2)
 
@@ -66,13 +74,14 @@ class ErrorEstimate(Plain):
     steps charged and the steps since the last check."""
 
     plain_fields = ("local", "local_v", "sum_q", "sum_v", "sum_vt", "charged", "unchecked",
-                    "every")
+                    "every", "since")
     flat_fields = True
 
     def __init__(self):
         self.local, self.local_v, self.charged, self.unchecked = 0.0, 0.0, 0, SPOT_CHECK_EVERY
         self.sum_q = self.sum_v = self.sum_vt = 0.0
         self.every = SPOT_CHECK_EVERY     # steps from one check to the next
+        self.since = 0                    # steps charged since the last check
 
     def due(self) -> bool:
         return self.unchecked >= self.every
@@ -90,11 +99,12 @@ class ErrorEstimate(Plain):
             integrator.t += 0.5 * h
             step(0.5 * h)
             p_q, p_v = getattr(integrator, "orders", DEFAULT_ORDERS)
-            self.local = richardson_factor(p_q) * float(np.max(np.abs(one - integrator.q),
-                                                               initial=0.0))
-            self.local_v = richardson_factor(p_v) * float(np.max(np.abs(one_v - integrator.qd),
-                                                                 initial=0.0)) \
+            local = richardson_factor(p_q) * float(np.max(np.abs(one - integrator.q),
+                                                          initial=0.0))
+            local_v = richardson_factor(p_v) * float(np.max(np.abs(one_v - integrator.qd),
+                                                            initial=0.0)) \
                 if getattr(integrator, "carry_velocity_error", False) else 0.0
+            self._resample(integrator, h, local, local_v)
         except SolverError:
             pass                          # the run itself will say why
         finally:
@@ -102,9 +112,26 @@ class ErrorEstimate(Plain):
             _restore(integrator, saved)
             for name in WORK_FIELDS:      # the check's evaluations are work done
                 setattr(integrator.stats, name, getattr(work, name))
-        self.unchecked = 0
-        self.every = min(SPOT_CHECK_MAX, max(SPOT_CHECK_EVERY,
-                                             integrator.stats.nsteps // SPOT_CHECK_SHARE))
+        self.unchecked = self.since = 0
+
+    def _resample(self, integrator, h: float, local: float, local_v: float) -> None:
+        """Take a check's local errors into the envelope charged per step; charge the steps
+        since the last check with what it adds; set the interval to the next check."""
+        env_q = max(local, SPOT_CHECK_DECAY * self.local)
+        env_v = max(local_v, SPOT_CHECK_DECAY * self.local_v)
+        rising = local > SPOT_CHECK_CHANGE * self.local or local_v > SPOT_CHECK_CHANGE * self.local_v
+        self._add(integrator.t, h, self.since, max(0.0, env_q - self.local),
+                  max(0.0, env_v - self.local_v))
+        self.local, self.local_v = env_q, env_v
+        grow = min(SPOT_CHECK_MAX, max(SPOT_CHECK_EVERY,
+                                       integrator.stats.nsteps // SPOT_CHECK_SHARE))
+        self.every = max(1, self.every // 2) if rising else min(grow, 2 * self.every)
+
+    def _add(self, t: float, h: float, steps: int, dq: float, dv: float) -> None:
+        """Charge ``steps`` steps of size h ending at t with local errors dq and dv."""
+        self.sum_q += dq * steps
+        self.sum_v += dv * steps
+        self.sum_vt += dv * steps * (t - 0.5 * steps * h)   # at the steps' middle
 
     def growth_bound(self, h: float) -> float:
         """An upper bound of the estimate's growth per step of at most h until the next
@@ -119,9 +146,8 @@ class ErrorEstimate(Plain):
         done = stats.nsteps - self.charged
         self.charged = stats.nsteps
         self.unchecked += done
-        self.sum_q += self.local * done
-        self.sum_v += self.local_v * done
-        self.sum_vt += self.local_v * done * (t - 0.5 * done * h)   # at the steps' middle
+        self.since += done
+        self._add(t, h, done, self.local, self.local_v)
         stats.error_estimate = self.sum_q + max(0.0, t * self.sum_v - self.sum_vt)
         allowed = allowed_error(integrator)
         if stats.error_estimate > allowed:

@@ -1,4 +1,4 @@
-"""Compiling the C kernel (``kernel.c`` with its two headers) into a shared library.
+"""Compiling the C kernel (``kernel.c`` with its headers, SOURCES) into a shared library.
 
 ``compile_kernel()`` builds it once per content (sources, compiler, flags: a SHA-256 names
 the file) into the per-user cache (``$MBDFMU_CACHE_DIR``, else ``$XDG_CACHE_HOME/mbdfmu``,
@@ -18,7 +18,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 SOURCES = ("kernel.c", "solve.h", "stepping.h", "outputs.h", "dense.h", "fixed.h",
-           "adaptive.h", "implicit.h")
+           "adaptive.h", "implicit.h", "implicit_dense.h")
 # -O2 without -ffast-math: the kernel must round like the numpy code it translates.
 CFLAGS = ("-O2", "-shared", "-fPIC", "-std=gnu11", "-fno-fast-math", "-Wall")
 

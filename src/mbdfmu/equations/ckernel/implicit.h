@@ -7,7 +7,8 @@
  * is solved through its Schur complement S = Psi_q K^-1 Psi_q^T + E in band storage (the
  * pattern of J M^-1 J^T, solve.h), which needs K diagonal: no line rows (their geometric
  * stiffness couples coordinates) and applied forces that do not depend on the state (or
- * genalpha's jacobian "mass"). The caller checks that (integrators/implicit_c.py). K's
+ * genalpha's jacobian "mass"); other mechanisms solve the whole matrix by a dense LU
+ * (implicit_dense.h, Implicit.dense). The caller checks that (integrators/implicit_c.py). K's
  * diagonal must be positive and S's Cholesky pivots not below the singular-pivot ratio:
  * otherwise ST_SINGULAR and the attempt is redone on the numpy path (a dense LU), which then
  * does what it always does there.
@@ -43,6 +44,8 @@ typedef struct {
     const I *bp_a, *bp_b, *bp_band, *bp_w;
     I nnewton, njev, nlu, nprojections, reason;   /* counters and the last failure's reason */
     double last_size, last_residual, last_tol;   /* for the failure's message */
+    /* dense: the whole matrix by a dense LU (implicit_dense.h), with fd: K's force terms */
+    I dense, fd;
 } Implicit;
 
 I mbd_implicit_kept_size(const Model *M) {
@@ -164,6 +167,8 @@ static void k_inverse(const Model *M, const Implicit *p, const double *kinv, con
     }
 }
 
+#include "implicit_dense.h"
+
 /* Factorise at the current iterate: K = M + c_h H(lam) (its diagonal: coincidence rows'
  * d2/dphi2; c_h = D for genalpha "full", h^2/4 for ali3p, 0 for "mass"), with blocks minus
  * cq dF/dq + cv dF/dq'; S = J K^-1 J^T + E in band storage. values: Psi_q's at the iterate
@@ -172,6 +177,7 @@ static int factor_matrix(const Model *M, const Implicit *p, Scratch *s, double *
                          const double *values, const double *lam, double c_h, double cq,
                          double cv, double e, double h, const double *q, const double *qd,
                          const double *uf, const double *F0, double *w) {
+    if (p->dense) return saddle_factor(M, p, s, kept, values, lam, c_h, cq, cv, e, h, q, qd, uf, F0, w);
     I n = M->n, m = M->m, nb = M->nb;
     double *kinv = kept + KEPT_HEAD, *v = kinv + 3 * n, *L = v + M->nkeep, dmin, dmax;
     double *hdiag = p->blocks ? w : kinv;
@@ -209,18 +215,14 @@ static int factor_matrix(const Model *M, const Implicit *p, Scratch *s, double *
     if (!all_finite_values(L, size)) return ST_NOT_FINITE;
     if (m && (!band_cholesky(L, m, M->kd, &dmin, &dmax) || !(dmin * dmin > p->singular_pivot * dmax * dmax)))
         return ST_SINGULAR;
-    kept[KEPT_VALID] = 1.0;
-    kept[KEPT_H] = h;
-    kept[KEPT_FRESH] = 1.0;
-    kept[KEPT_E] = e;
-    kept[KEPT_INDICATOR] = m ? indicator_of(M, s, v) : INFINITY;
-    return ST_OK;
+    return kept_valid(M, s, kept, v, h, e);
 }
 
 /* [[K, J^T], [J, -E]] (x; y) = (a; b) with the kept factors: x (n), y (m); tm (m) and
  * tn (n) scratch. */
 static void kept_solve(const Model *M, const Implicit *p, const double *kept, const double *a,
                        const double *b, double *x, double *y, double *tm, double *tn) {
+    if (p->dense) { saddle_solve(M, kept, a, b, x, y); return; }
     I n = M->n, m = M->m;
     const double *kinv = kept + KEPT_HEAD, *v = kinv + 3 * n, *L = v + M->nkeep;
     k_inverse(M, p, kinv, a, x);

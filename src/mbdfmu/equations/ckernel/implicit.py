@@ -31,7 +31,8 @@ class Implicit(ctypes.Structure):
         [("periodic", _P), ("blocks", _I), ("nbp", _I), ("fd_step", _D), ("bp_a", _P),
          ("bp_b", _P), ("bp_band", _P), ("bp_w", _P)] + \
         [(name, _I) for name in ("nnewton", "njev", "nlu", "nprojections", "reason")] + \
-        [(name, _D) for name in ("last_size", "last_residual", "last_tol")]
+        [(name, _D) for name in ("last_size", "last_residual", "last_tol")] + \
+        [("dense", _I), ("fd", _I)]
 
 
 class ImplicitCalls:
@@ -39,6 +40,7 @@ class ImplicitCalls:
 
     def _bind_implicit(self, lib) -> None:
         signatures = {"mbd_implicit_kept_size": ([_P], _I),
+                      "mbd_implicit_dense_kept_size": ([_P], _I),
                       "mbd_implicit_solve": ([_P] * 5, ctypes.c_int),
                       "mbd_implicit_attempt": ([_P, _P, _P, _P, _D, _P, _P, _P], ctypes.c_int),
                       "mbd_implicit_steps": ([_P, _P, _P, _P, _D, _I, _P, _P, _I, _P, _D, _D,
@@ -70,9 +72,11 @@ class ImplicitCalls:
             p.bp_a, p.bp_b, p.bp_band, p.bp_w = (a.ctypes.data for a in arrays)
         return p
 
-    def kept_matrix(self) -> np.ndarray:
-        """A fresh kept iteration matrix for implicit.h (not valid yet)."""
-        return np.zeros(self._imp.mbd_implicit_kept_size(self.address))
+    def kept_matrix(self, dense: bool = False) -> np.ndarray:
+        """A fresh kept iteration matrix for implicit.h (not valid yet); ``dense``: with
+        room for implicit_dense.h's LU."""
+        size = self._imp.mbd_implicit_dense_kept_size if dense else self._imp.mbd_implicit_kept_size
+        return np.zeros(size(self.address))
 
     def _load_state(self, qw, turns, qd, qdd, a, lam) -> None:
         n, y = self.n, self.imp_y

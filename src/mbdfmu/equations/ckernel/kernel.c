@@ -23,7 +23,8 @@
  *   mbd_prk_fast_step  an FMU's communication step of an embedded pair after inputs were
  *                    set (mbd_prk_set), landing on the communication point (adaptive.h)
  *   mbd_implicit_*   genalpha.py / ali3p.py steps with newton.py's iteration on the
- *                    banded Schur complement (implicit.h)
+ *                    banded Schur complement (implicit.h), or a dense LU where K couples
+ *                    bodies (implicit_dense.h)
  *
  * Where the numpy path has a minimum-norm fallback (a singular Schur complement) this
  * kernel returns ST_SINGULAR and the caller redoes the work on the numpy path; a spring of
