@@ -180,3 +180,15 @@ def test_summary_lists_silently_wrong_runs(tmp_path):
     assert bench_charts.silently_wrong(rows + [comm])[-1] is comm
     text = bench_charts.write_summary(rows + [comm], tmp_path / "summary.md").read_text()
     assert "P1 a rtol 1e-06 at communication step 0.001 s: error 0.0003" in text
+
+
+def test_cpu_budget_ends_a_run_inside_one_long_point():
+    """The budget is checked inside each ``advance`` too: one point that alone needs far more
+    CPU than the budget (10 s of the pendulum in rk4p steps of 10 us, a million steps) stops
+    with the bench's reason before it is reached, instead of running on to its end."""
+    from mbdfmu.bench.runs import simulate_outputs
+    scene = load_scene(bundled_scene("pendulum"))
+    out, stats, reached, reason = simulate_outputs(scene, np.array([10.0]), "rk4p", "step",
+                                                   1e-5, 0.2)
+    assert "CPU budget of 0.2 s per run used up" in reason
+    assert reached == 0.0 and stats["nsteps"] < 10 ** 6
