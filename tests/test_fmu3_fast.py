@@ -167,3 +167,34 @@ def test_fmi3_steps_beyond_the_work_limit_are_discarded_by_python(fmu3):
     assert h.get("slider.x") == x
     assert h.step(H)[0] == OK
     assert taken_by_wrapper(h) >= 3
+
+
+def test_every_other_fmi3_call_after_the_wrappers_steps_sees_the_slave_caught_up(fmu3):
+    """After steps the wrapper took: an Int32 get, fmi3EnterStepMode (no Event Mode: refused
+    by the slave, which then serves its values), Reset (then a run from the start) and
+    Terminate (then gets) answer as an instance whose steps went through Python."""
+    path = fmu3("n_four_bar_2")
+    fast, slow = Host3(path, "fast").init(), Host3(path, "slow").init()
+    names = names_of(fast)
+    first = [step_both(fast, slow, H, names) for _ in range(30)]
+    vr = [fast.vr["solver.max_steps_per_communication_step"]]
+    assert fast.fmu.getInt32(vr) == slow.fmu.getInt32(vr)
+    assert fast.get(*names) == slow.get(*names) == first[-1]
+    for _ in range(30):
+        step_both(fast, slow, H, names)
+    for h in (fast, slow):
+        assert h.status(lambda f: f.enterStepMode()) != OK
+        assert "fmi3EnterStepMode" in h.last()[2]
+    assert fast.get(*names) == slow.get(*names)
+    assert taken_by_wrapper(fast) >= 50
+    for h in (fast, slow):
+        h.fmu.reset()
+        h.t = 0.0
+        h.init()
+    assert [step_both(fast, slow, H, names) for _ in range(30)] == first
+    for _ in range(10):
+        step_both(fast, slow, H, names)
+    fast.fmu.terminate()
+    slow.fmu.terminate()
+    assert fast.get(*names) == slow.get(*names)
+    assert fast.get("time") == [pytest.approx(0.04)]
