@@ -54,7 +54,10 @@ def test_every_method_and_kernel_runs_the_new_joints(method, kernel):
     slot carries no horizontal force, so the rod's centre keeps its x under every method."""
     if kernel == "numba" and not numba_installed():
         pytest.skip("numba not installed")
-    options = dict(step=1e-2) if not mbdfmu.METHODS[method].adaptive else {}
+    # taylor at 10 ms is 0.017 rad off on P11 by 0.5 s, beyond its stated accuracy
+    # (0.0101), and its error estimate stops it there: a step it holds
+    options = {} if mbdfmu.METHODS[method].adaptive else dict(
+        step=1e-3 if method == "taylor" else 1e-2)
     for name in ("gear_pair", "rack_pinion", "rolling_disc"):
         res = mbdfmu.simulate(load(name), 0.2, method=method, kernel=kernel,
                               output_interval=0.05, **options)

@@ -127,22 +127,27 @@ class ALI3P(CompiledNewton, StepControl, ImplicitMethod):
         P = 0.25 * h * h * self.alpha(h)
         q_n, v_n, a_n = self.qw, self.qd, self.qdd
 
-        def rates(dq):
-            """q' and q'' of the trapezoidal rule for the step's position increment dq."""
-            return (2.0 / h) * dq - v_n, (4.0 / (h * h)) * dq - (4.0 / h) * v_n - a_n
+        # Newton's unknown is the step's increment (module ``newton``) as its Taylor
+        # predictor plus a correction c: the rates from c, not from dq (whose rounding,
+        # times 2 / h, would be a velocity error of every step)
+        predictor, v_pred = h * v_n + 0.5 * h * h * a_n, v_n + h * a_n
 
-        # Newton's unknown is the step's increment (module ``newton``); Taylor predictor
-        x = {"dq": h * v_n + 0.5 * h * h * a_n, "lam": self.lam.copy()}
+        def rates(c):
+            """q' and q'' of the trapezoidal rule for the correction c of the increment."""
+            return v_pred + (2.0 / h) * c, a_n + (4.0 / (h * h)) * c
+
+        x = {"c": np.zeros_like(q_n), "lam": self.lam.copy()}
 
         def evaluate():
+            x["dq"] = predictor + x["c"]
             x["q"] = q_n + x["dq"]
-            x["qd"], qdd = rates(x["dq"])
+            x["qd"], qdd = rates(x["c"])
             Psi, x["J"] = self.constraints(t1, x["q"])
             F = self.forces(t1, self._unwrapped(x["q"]), x["qd"])
             return (0.25 * h * h) * (eq.mass * qdd + x["J"].T @ x["lam"] - F), Psi
 
         def apply(dx):
-            x["dq"] = x["dq"] + dx[:n]
+            x["c"] = x["c"] + dx[:n]
             x["lam"] = x["lam"] + (4.0 / (h * h)) * dx[n:]
 
         tols = newton_tolerances(self.atol, h, eq.length_scale, q_n, 0.25 * h * h, a_n)
@@ -150,8 +155,9 @@ class ALI3P(CompiledNewton, StepControl, ImplicitMethod):
                                                                 x["lam"], h, P), x["J"]),
                        apply, self.matrix, h, tols, eq.mass, eq.length_scale, self.stats,
                        count_multipliers=False)
+        x["dq"] = predictor + x["c"]
         q = q_n + x["dq"]
-        qd, qdd = rates(x["dq"])
+        qd, qdd = rates(x["c"])
         # mass-orthogonal projections of q' and q'' (Bayo and Ledesma 1996)
         u = self.inputs(t1)
         _, J, nu, _ = eq.constraints(t1, q, qd, u)

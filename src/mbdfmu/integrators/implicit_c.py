@@ -44,6 +44,11 @@ from .newton import IterationMatrix, NewtonFailure
 
 # Off: every step on the Python path (the tests compare the two).
 ENABLED = True
+# A genalpha step through the Schur complement whose iteration matrix has a singularity
+# indicator below this runs a dense LU (the Python step): the Schur complement squares the
+# condition number (ali3p's is bounded by its penalty), and at P2's crossings its noise
+# left velocity errors that did not shrink with h.
+DENSE_BELOW = 1e-3
 # Fixed steps per C call: the work limits are checked between calls (ckernel.MAX_ROWS
 # rows of inputs).
 RUN_LENGTH = 64
@@ -98,7 +103,8 @@ class KernelNewton:
             atol_max=newton.NEWTON_ATOL_MAX, tol_floor=newton.NEWTON_TOL_FLOOR, t_ref=newton.T_REF,
             noise_max=newton.NOISE_MAX, near_indicator=newton.NEAR_SINGULAR_INDICATOR,
             t_near=newton.T_NEAR, slow_rate=newton.NEWTON_SLOW_RATE,
-            diverging_rate=newton.NEWTON_DIVERGING_RATE, singular_pivot=newton.SINGULAR_PIVOT)
+            diverging_rate=newton.NEWTON_DIVERGING_RATE, singular_pivot=newton.SINGULAR_PIVOT,
+            dense_below=DENSE_BELOW, h_fine=newton.H_FINE)
 
     def prepare(self, method):
         """The settings with the run's current values, counters cleared."""

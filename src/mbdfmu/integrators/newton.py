@@ -24,33 +24,26 @@ below NEAR_SINGULAR_INDICATOR) the iteration contracts slowly along the directio
 loses rank, and the noise grows like 1 / indicator^2: there the tolerance is a looser one
 that still shrinks like h^2 below T_NEAR (``near_singular``).
 
-The size of an increment, for all these tests, counts the multipliers too, as the
-displacement M^-1 Psi_q^T D dlam they cause (``IterationMatrix.increment_size``; genalpha's, not ali3p's: see below): near a
+The size of an increment counts the multipliers too, as the displacement
+M^-1 Psi_q^T D dlam they cause (``IterationMatrix.increment_size``; genalpha's): near a
 singular configuration a kept matrix corrects the positions at once but the multipliers
-slowly, so a test on the position increment alone accepted steps whose equations of motion
-were still off by up to ~10 m/s^2 there; each crossing then left a velocity error that did
-not shrink with h (P2's error levelled off near 1e-7). ali3p's multipliers along the
-direction where Psi_q loses rank are set by its penalty and do not act on the motion, but
-through a kept matrix's Psi_q they seemed to (increments of 1e7 at P2's crossings at
-h = 2 ms, then halvings and a 20 times larger error): ali3p counts its positions only.
+slowly. ali3p's multipliers along the direction where Psi_q loses rank are set by its
+penalty and do not act on the motion: ali3p counts its positions only.
 
-Small increments prove convergence only with a matrix evaluated in the step. A kept matrix
-(Psi_q and K from earlier steps) contracts the constraint error at once but the dynamic
-residual slowly, and its increments said converged while the equations of motion were
-still off, with the same sign step after step: energy was lost where the motion is fastest,
-an error that did not shrink with h (docs/accuracy.md). So with a kept matrix, once the
-increments have converged, the residual is evaluated and the iteration goes on until the
-dynamic residual (as a displacement) is within ``tolerances.residual``; a kept matrix that
-does not reduce it by NEWTON_SLOW_RATE per iteration is re-evaluated, and an increment with
-a fresh matrix ends the iteration. Increments that stop shrinking at the noise level with a
-fresh matrix end it only if the residual is within the near-singular tolerance too: ali3p's
-penalty iteration contracts slowly along the direction where Psi_q loses rank, and at a
-crossing its increments kept the same size while the equations of motion were far off
-(``_dynamics_hold``). The residual test measures ali3p's multipliers by what they do,
-Psi_q^T lam at the current iterate, which its increments (positions only) do not.
-``_converged`` (before an increment) still accepts a last increment within the tolerance
-from a kept matrix: requiring a fresh one there made ali3p halve its steps at P2's
-crossings at coarse steps (docs/accuracy.md, "tried and taken back").
+Small increments prove convergence only with a matrix evaluated in the step: with a kept
+matrix, once the increments have converged, the iteration goes on until the dynamic
+residual (as a displacement) is within ``tolerances.residual`` (a kept matrix that does not
+reduce it by NEWTON_SLOW_RATE is re-evaluated; an increment with a fresh one ends it).
+Increments that stop shrinking at the noise level with a fresh matrix end it only if the
+residual is within the near-singular tolerance too (``_dynamics_hold``). ``_converged``
+(before an increment) accepts a last increment within the tolerance from a kept matrix
+except at fine steps next to a singular configuration (``_at_rounding``), where the
+tolerance is the positions' rounding and says nothing of the dynamics.
+
+The residual tolerances, as accelerations, shrink like h^2 below H_FINE: a displacement
+floor (the positions' rounding) is an acceleration error ~ 1 / h^2 (P2's error over 10 s
+grew as h shrank, docs/accuracy.md). Next to a singular configuration at fine steps, a
+fresh matrix's increments of its noise level end the iteration instead of a halving.
 """
 
 from __future__ import annotations
@@ -84,6 +77,8 @@ NOISE_MAX = 1e-6
 NEAR_SINGULAR_INDICATOR = 0.1
 # Below this step the near-singular tolerance shrinks like h^2.
 T_NEAR = 2e-3
+# Below this step the residual tolerances, as accelerations, shrink like h^2.
+H_FINE = 1e-4
 # Iterations allowed per attempt (with a fresh matrix, Newton converges in 2-4).
 NEWTON_MAX_ITER = 12
 # Contraction rate ||dq_k|| / ||dq_k-1|| above which a kept matrix is re-evaluated, and
@@ -92,6 +87,8 @@ NEWTON_SLOW_RATE = 0.3
 NEWTON_DIVERGING_RATE = 2.0
 # Times a failed step is halved before the run stops.
 MAX_HALVINGS = 8
+# Grid steps within this (relative) of the method's step are it (``fixed_grid``).
+SAME_STEP = 1e-9
 # A pivot below this times the largest one: the iteration matrix is singular.
 SINGULAR_PIVOT = 1e-13
 
@@ -100,12 +97,14 @@ class NewtonTolerances(NamedTuple):
     """A step's tolerances (positions in m or rad; ``residual`` as a displacement):
     ``tol`` what a converged iterate is within, ``stagnation`` below which increments that
     stop shrinking with a fresh matrix are noise, ``near_singular`` the tolerance near a
-    singular configuration, ``size`` the coordinates' size (for the noise level)."""
+    singular configuration, ``near_residual`` the dynamic residual's there, ``size`` the
+    coordinates' size (for the noise level)."""
 
     tol: float
     residual: float
     stagnation: float
     near_singular: float
+    near_residual: float
     size: float
 
 
@@ -117,12 +116,16 @@ def newton_tolerances(atol: float, h: float, length_scale: float, q: np.ndarray,
     atol = min(atol, NEWTON_ATOL_MAX)
     size = max(length_scale, float(np.max(np.abs(q), initial=0.0)))
     stagnation = max(0.5 * h * atol, NEWTON_TOL_FLOOR * length_scale)
+    fine = min(1.0, h / H_FINE) ** 2     # module docstring
+    residual = D * max(atol / T_REF ** 2 * fine,
+                       ROUNDOFF * float(np.max(np.abs(accelerations), initial=1.0)))
+    near = stagnation * min(1.0, h / T_NEAR)
     return NewtonTolerances(
         tol=min(0.5 * atol * (h / T_REF) ** 2, 0.01 * ROUNDOFF * size),
-        residual=D * max(atol / T_REF ** 2,
-                         ROUNDOFF * float(np.max(np.abs(accelerations), initial=1.0))),
-        stagnation=stagnation,
-        near_singular=max(stagnation * min(1.0, h / T_NEAR), ROUNDOFF * size),
+        residual=residual, stagnation=stagnation,
+        near_singular=max(near, ROUNDOFF * size),
+        # without the positions' rounding floor (module docstring)
+        near_residual=max(0.5 * h * atol * min(1.0, h / T_NEAR) * fine, residual),
         size=size)
 
 
@@ -188,23 +191,33 @@ class NewtonFailure(Exception):
     """A step's Newton iteration that did not converge: retried with a smaller step."""
 
 
+def _at_rounding(tols: NewtonTolerances, h: float) -> bool:
+    """The near-singular tolerance is the positions' rounding (fine steps)."""
+    return tols.near_singular > tols.stagnation * min(1.0, h / T_NEAR)
+
+
 def _converged(tols: NewtonTolerances, matrix: IterationMatrix, size: float,
-               residual: np.ndarray, Psi: np.ndarray) -> bool:
+               residual: np.ndarray, Psi: np.ndarray, h: float) -> bool:
     """Before an increment: Psi within the tolerance, and the last increment or the dynamic
     residual (as a displacement) too; near a singular configuration the looser one."""
-    if matrix.near_singular():
-        tol = residual_tol = tols.near_singular
+    near = matrix.near_singular()
+    if near:
+        tol, residual_tol = tols.near_singular, tols.near_residual
     else:
         tol, residual_tol = tols.tol, tols.residual
     if Psi.size and float(np.max(np.abs(Psi))) > tol:
         return False
-    return size <= tol or float(np.max(np.abs(residual))) <= residual_tol
+    if float(np.max(np.abs(residual))) <= residual_tol:
+        return True
+    # near a singular configuration an increment at the positions' rounding says nothing
+    # of the dynamic residual
+    return size <= tol and not (near and _at_rounding(tols, h))
 
 
 def _dynamics_hold(tols: NewtonTolerances, residual: np.ndarray, noise: bool = False) -> bool:
     """The dynamic residual (as a displacement) within its tolerance; after increments of
     rounding noise, within what that noise allows near a singular configuration."""
-    tol = max(tols.residual, tols.near_singular) if noise else tols.residual
+    tol = max(tols.near_residual, tols.near_singular) if noise else tols.residual
     return float(np.max(np.abs(residual))) <= tol
 
 
@@ -224,15 +237,17 @@ def _increment_converged(tols, matrix, size, previous, length_scale) -> str | No
     return "estimate" if theta < 1.0 and theta / (1.0 - theta) * size <= tol else None
 
 
-def _check_rate(matrix, tols, size, previous):
+def _check_rate(matrix, tols, size, previous, length_scale):
     """Watch the contraction: re-evaluate a kept matrix that converges slowly (returns None
     to restart the rate), fail when a fresh one diverges (increments of rounding noise that
-    grow are not divergence). Returns the new 'previous'."""
+    grow are not divergence: near a singular configuration, the matrix's noise level).
+    Returns the new 'previous'."""
     if previous is not None and size > NEWTON_SLOW_RATE * previous:
         if not matrix.fresh:
             matrix.lu = None
             return None
-        if size > NEWTON_DIVERGING_RATE * previous and size > tols.stagnation:
+        noise = matrix.noise(tols, length_scale) if matrix.near_singular() else tols.stagnation
+        if size > NEWTON_DIVERGING_RATE * previous and size > noise:
             raise NewtonFailure(f"Newton diverges (increment {size:.3g} after {previous:.3g})")
     return size
 
@@ -260,7 +275,7 @@ def newton_iterate(evaluate, build_matrix, apply, matrix: IterationMatrix, h: fl
         dynamic, Psi = evaluate()
         if not np.all(np.isfinite(dynamic)):
             raise NewtonFailure("non-finite residual")
-        if _converged(tols, matrix, size, dynamic / mass, Psi):
+        if _converged(tols, matrix, size, dynamic / mass, Psi, h):
             return
         if unchecked:
             if _dynamics_hold(tols, dynamic / mass, unchecked == "noise"):
@@ -283,10 +298,15 @@ def newton_iterate(evaluate, build_matrix, apply, matrix: IterationMatrix, h: fl
         unchecked = _increment_converged(tols, matrix, size, previous, length_scale)
         if unchecked == "estimate" and matrix.fresh:
             return
-        previous = _check_rate(matrix, tols, size, previous)
+        previous = _check_rate(matrix, tols, size, previous, length_scale)
     residual = float(np.max(np.abs(Psi), initial=0.0))
     if size <= tols.stagnation and residual <= tols.stagnation:
         return      # rounding noise above the tolerance near a singular configuration
+    if matrix.fresh and matrix.near_singular() and residual <= tols.near_singular and \
+            size <= matrix.noise(tols, length_scale) and _at_rounding(tols, h):
+        # at fine steps (the near-singular tolerance at the positions' rounding), next to
+        # the singular configuration: increments of the noise that a halving cannot reduce
+        return
     raise NewtonFailure(f"Newton did not converge in {NEWTON_MAX_ITER} iterations (last "
                         f"increment {size:.3g}, constraint residual {residual:.3g}, "
                         f"tolerance {tols.tol:.3g})")
@@ -342,6 +362,14 @@ class ImplicitMethod(Integrator):
     def _unwrapped(self, qw: np.ndarray) -> np.ndarray:
         """Positions near qw with the angles of q (for forces, which may use the angles)."""
         return qw + 2.0 * math.pi * self.turns
+
+    def fixed_grid(self, t_target: float) -> tuple[float, int, float]:
+        """The method's own step where n of them land on t_target to rounding: the run must
+        not depend on its output points ((t_target - t0) / n differs in its last bits)."""
+        t0, n, h = super().fixed_grid(t_target)
+        if abs(n * self.h - (t_target - t0)) <= SAME_STEP * (t_target - t0):
+            h = self.h
+        return t0, n, h
 
     def _step_impl(self, h):
         self.stats.nrejected += advance_with_halving(self._try_step, self.t, h, self.name)

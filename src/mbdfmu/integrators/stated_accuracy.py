@@ -50,6 +50,9 @@ SPOT_CHECK_SHARE = 4
 SPOT_CHECK_MAX = 200
 SPOT_CHECK_CHANGE = 2.0
 SPOT_CHECK_DECAY = 0.5
+# Local errors below this fraction of what the stated accuracy allows are rounding (their
+# ratios are noise, and two kernels would sample differently): no rise is read from them.
+SPOT_CHECK_FLOOR = 1e-9
 # The orders of q's and q''s local errors of methods that state none: genalpha, ali3p.
 DEFAULT_ORDERS = (2, 2)
 
@@ -119,7 +122,9 @@ class ErrorEstimate(Plain):
         since the last check with what it adds; set the interval to the next check."""
         env_q = max(local, SPOT_CHECK_DECAY * self.local)
         env_v = max(local_v, SPOT_CHECK_DECAY * self.local_v)
-        rising = local > SPOT_CHECK_CHANGE * self.local or local_v > SPOT_CHECK_CHANGE * self.local_v
+        floor = SPOT_CHECK_FLOOR * allowed_error(integrator)
+        rising = (local > max(SPOT_CHECK_CHANGE * self.local, floor)
+                  or local_v > max(SPOT_CHECK_CHANGE * self.local_v, floor))
         self._add(integrator.t, h, self.since, max(0.0, env_q - self.local),
                   max(0.0, env_v - self.local_v))
         self.local, self.local_v = env_q, env_v

@@ -34,6 +34,8 @@ typedef struct {
     double atol, length_scale;
     double roundoff, atol_max, tol_floor, t_ref, noise_max, near_indicator, t_near;
     double slow_rate, diverging_rate, singular_pivot;
+    double dense_below;                /* a matrix's indicator below this: the numpy path */
+    double h_fine;
     const double *periodic;            /* 1.0 on the wrapped angles (n) */
     /* blocks: K has 3 x 3 blocks per body (forces of the state, each on one moving body),
      * by forward differences of fd_step as forces.py; Psi_q K^-1 Psi_q^T assembled from
@@ -55,7 +57,7 @@ I mbd_implicit_kept_size(const Model *M) {
 /* ---- the convergence test (newton.py: newton_tolerances, _converged, _increment_converged,
  * _check_rate, IterationMatrix.noise); kept together so it follows newton.py ------------- */
 
-typedef struct { double tol, residual, stagnation, near_singular, size; } Tolerances;
+typedef struct { double tol, residual, stagnation, near_singular, near_residual, size; int at_rounding; } Tolerances;
 
 static Tolerances newton_tolerances(const Implicit *p, double h, const double *q, double D,
                                     const double *acc, I n) {
@@ -65,8 +67,12 @@ static Tolerances newton_tolerances(const Implicit *p, double h, const double *q
     t.size = fmax(p->length_scale, qmax);
     t.stagnation = fmax(0.5 * h * atol, p->tol_floor * p->length_scale);
     t.tol = fmin(0.5 * atol * (h / p->t_ref) * (h / p->t_ref), 0.01 * p->roundoff * t.size);
-    t.residual = D * fmax(atol / (p->t_ref * p->t_ref), p->roundoff * amax);
+    double fine = fmin(1.0, h / p->h_fine);
+    fine *= fine;
+    t.residual = D * fmax(atol / (p->t_ref * p->t_ref) * fine, p->roundoff * amax);
     t.near_singular = fmax(t.stagnation * fmin(1.0, h / p->t_near), p->roundoff * t.size);
+    t.near_residual = fmax(0.5 * h * atol * fmin(1.0, h / p->t_near) * fine, t.residual);
+    t.at_rounding = t.near_singular > t.stagnation * fmin(1.0, h / p->t_near);
     return t;
 }
 
@@ -79,9 +85,17 @@ static int near_singular(const Implicit *p, const double *kept) {
 static int newton_converged(const Implicit *p, const Tolerances *t, const double *kept,
                             double size, double residual, double psi) {
     double tol = t->tol, residual_tol = t->residual;
-    if (near_singular(p, kept)) tol = residual_tol = t->near_singular;
+    int near = near_singular(p, kept);
+    if (near) { tol = t->near_singular; residual_tol = t->near_residual; }
     if (psi > tol) return 0;
-    return size <= tol || residual <= residual_tol;
+    if (residual <= residual_tol) return 1;
+    return size <= tol && !(near && t->at_rounding);
+}
+
+/* IterationMatrix.noise: the rounding noise of the kept matrix's increments */
+static double matrix_noise(const Implicit *p, const Tolerances *t, const double *kept) {
+    double noise = p->roundoff * t->size / fmax(kept[KEPT_INDICATOR] * kept[KEPT_INDICATOR], 1e-300);
+    return fmax(t->stagnation, fmin(noise, p->noise_max * p->length_scale));
 }
 
 /* After an increment of max-norm size (previous < 0: the first): CONV_ESTIMATE, CONV_NOISE
@@ -92,20 +106,20 @@ static int increment_converged(const Implicit *p, const Tolerances *t, const dou
     double tol = near_singular(p, kept) ? t->near_singular : t->tol;
     if (previous < 0.0) return size <= 0.1 * tol ? CONV_ESTIMATE : 0;
     double theta = previous > 0.0 ? size / previous : 0.0;
-    double noise = p->roundoff * t->size / fmax(kept[KEPT_INDICATOR] * kept[KEPT_INDICATOR], 1e-300);
-    noise = fmax(t->stagnation, fmin(noise, p->noise_max * p->length_scale));
-    if (kept[KEPT_FRESH] != 0.0 && size <= noise && p->slow_rate < theta && theta <= p->diverging_rate)
+    if (kept[KEPT_FRESH] != 0.0 && size <= matrix_noise(p, t, kept) && p->slow_rate < theta && theta <= p->diverging_rate)
         return CONV_NOISE;
     return theta < 1.0 && theta / (1.0 - theta) * size <= tol ? CONV_ESTIMATE : 0;
 }
 
 /* Watch the contraction: drop a kept matrix that converges slowly (returns -1: restart the
- * rate), fail (NF_DIVERGES in *reason) when a fresh one diverges. Returns the new previous. */
+ * rate), fail (NF_DIVERGES in *reason) when a fresh one diverges (not increments of the
+ * rounding noise). Returns the new previous. */
 static double check_rate(const Implicit *p, const Tolerances *t, double *kept, double size,
                          double previous, I *reason) {
     if (previous >= 0.0 && size > p->slow_rate * previous) {
         if (kept[KEPT_FRESH] == 0.0) { kept[KEPT_VALID] = 0.0; return -1.0; }
-        if (size > p->diverging_rate * previous && size > t->stagnation) *reason = NF_DIVERGES;
+        double noise = near_singular(p, kept) ? matrix_noise(p, t, kept) : t->stagnation;
+        if (size > p->diverging_rate * previous && size > noise) *reason = NF_DIVERGES;
     }
     return size;
 }
@@ -262,12 +276,14 @@ static int evaluate(const Model *M, Scratch *s, const double *qn, const double *
     return forces(M, qc, qd, uf, s->F);
 }
 
-/* The trapezoidal rule's q' and q'' for the increment dq (ali3p.py rates). */
-static void rates(I n, double h, const double *dq, const double *vn, const double *an,
-                  double *qd, double *qdd) {
+/* The trapezoidal rule's q' and q'' for the correction c of the increment (ali3p.py
+ * rates), and the increment dq = its Taylor predictor + c. */
+static void rates(I n, double h, const double *c, const double *vn, const double *an,
+                  double *dq, double *qd, double *qdd) {
     for (I k = 0; k < n; k++) {
-        qd[k] = (2.0 / h) * dq[k] - vn[k];
-        qdd[k] = (4.0 / (h * h)) * dq[k] - (4.0 / h) * vn[k] - an[k];
+        dq[k] = h * vn[k] + 0.5 * h * h * an[k] + c[k];
+        qd[k] = vn[k] + h * an[k] + (2.0 / h) * c[k];
+        qdd[k] = an[k] + (4.0 / (h * h)) * c[k];
     }
 }
 
@@ -322,7 +338,7 @@ static int attempt(const Model *M, Implicit *p, Scratch *s, double *kept, const 
         D = c_h = cq = 0.25 * h * h;
         cv = 0.5 * h;
         e = 1.0 / (0.25 * h * h * alpha);
-        for (I k = 0; k < n; k++) dq[k] = h * vn[k] + 0.5 * h * h * an[k];
+        memset(anew, 0, (size_t)n * sizeof(double));     /* c: the correction (rates) */
         t = newton_tolerances(p, h, qn, D, an, n);
     }
     if (!(kept[KEPT_VALID] != 0.0 && kept[KEPT_H] == h)) kept[KEPT_VALID] = 0.0;
@@ -332,7 +348,7 @@ static int attempt(const Model *M, Implicit *p, Scratch *s, double *kept, const 
     p->reason = NF_NONE;
     for (I it = 0; it < p->max_iter && !done; it++) {
         p->nnewton++;
-        if (!ga) rates(n, h, dq, vn, an, qd, qdd);
+        if (!ga) rates(n, h, anew, vn, an, dq, qd, qdd);
         int st = evaluate(M, s, qn, dq, qd, motion, uf, qc);
         if (st != ST_OK) return st;
         jac_t_mul(M, s->values, lam, tn);
@@ -346,7 +362,7 @@ static int attempt(const Model *M, Implicit *p, Scratch *s, double *kept, const 
         for (I r = 0; r < m; r++) psi = fmax(psi, fabs(s->psi[r]));
         if (newton_converged(p, &t, kept, size, residual, psi)) { done = 1; break; }
         if (unchecked) {            /* newton.py: _dynamics_hold */
-            double rtol = unchecked == CONV_NOISE ? fmax(t.residual, t.near_singular) : t.residual;
+            double rtol = unchecked == CONV_NOISE ? fmax(t.near_residual, t.near_singular) : t.residual;
             if (residual <= rtol) { done = 1; break; }
             if (last >= 0.0 && residual > p->slow_rate * last) kept[KEPT_VALID] = 0.0;
             last = residual;
@@ -358,6 +374,13 @@ static int attempt(const Model *M, Implicit *p, Scratch *s, double *kept, const 
                                s->F, tm + m);
             if (st == ST_NOT_FINITE) { p->reason = NF_MATRIX; return ST_NEWTON; }
             if (st != ST_OK) return st;
+            /* next to a singular configuration genalpha's Schur complement (ali3p's has
+             * its penalty's E) squares the condition number, and its solve's noise
+             * became velocity errors: the dense LU there */
+            if (e == 0.0 && !p->dense && kept[KEPT_INDICATOR] < p->dense_below) {
+                kept[KEPT_VALID] = 0.0;
+                return ST_SINGULAR;
+            }
         }
         for (I k = 0; k < n; k++) tn[k] = -dyn[k];
         for (I r = 0; r < m; r++) bm[r] = -s->psi[r];
@@ -377,7 +400,7 @@ static int attempt(const Model *M, Implicit *p, Scratch *s, double *kept, const 
             }
             for (I r = 0; r < m; r++) lam[r] += dl[r] / D;
         } else {
-            for (I k = 0; k < n; k++) dq[k] += dx[k];
+            for (I k = 0; k < n; k++) anew[k] += dx[k];
             for (I r = 0; r < m; r++) lam[r] += (4.0 / (h * h)) * dl[r];
         }
         if (unchecked) {
@@ -389,7 +412,9 @@ static int attempt(const Model *M, Implicit *p, Scratch *s, double *kept, const 
         previous = check_rate(p, &t, kept, size, previous, &p->reason);
         if (p->reason != NF_NONE) return ST_NEWTON;
     }
-    if (!done && !(size <= t.stagnation && psi <= t.stagnation)) {
+    if (!done && !(size <= t.stagnation && psi <= t.stagnation) &&
+        !(kept[KEPT_FRESH] != 0.0 && near_singular(p, kept) && psi <= t.near_singular &&
+          size <= matrix_noise(p, &t, kept) && t.at_rounding)) {
         p->reason = NF_ITERATIONS;
         p->last_size = size;
         p->last_residual = psi;
@@ -400,8 +425,8 @@ static int attempt(const Model *M, Implicit *p, Scratch *s, double *kept, const 
         for (I k = 0; k < n; k++) anew[k] = (af * qddn[k] - am * an[k] + (1.0 - af) * qdd[k]) / (1.0 - am);
         return ST_OK;
     }
+    rates(n, h, anew, vn, an, dq, qd, qdd);
     for (I k = 0; k < n; k++) qc[k] = qn[k] + dq[k];
-    rates(n, h, dq, vn, an, qd, qdd);
     int st = ali3p_projections(M, s, qc, qd, qdd, motion, bm);
     memcpy(anew, qdd, (size_t)n * sizeof(double));
     return st;
