@@ -45,6 +45,15 @@ class AdaptiveStepping:
         self.out = None
         rejections = 0
         while self.t < t_target:
+            taken = self._steps_in_c(t_target, dense, rejections)
+            if taken is not None:
+                rejections, python = taken
+                if self.limit is not None:
+                    self.limit.check(self.stats, self.t, t_target)
+                if not python:
+                    continue
+                if self.t >= t_target:
+                    break
             h_min = MIN_STEP_RELATIVE * max(1.0, abs(self.t))
             proposal = min(self.h, self.max_step)
             h, lands = (proposal, False) if dense else self._landing(proposal, t_target)
@@ -64,11 +73,19 @@ class AdaptiveStepping:
                 self.stats.nrejected += 1
                 self.h = h_next
                 if h_next < h_min or rejections > MAX_REJECTIONS_IN_A_ROW:
-                    raise SolverError(
-                        f"{self.name}: step size fell to {h_next:.3g} s without meeting "
-                        f"rtol={self.rtol:g}, atol={self.atol:g}" + self.singularity_hint(),
-                        self.t)
+                    self._step_size_failed()
             if self.limit is not None:
                 self.limit.check(self.stats, self.t, t_target)
         if self.t > t_target:
             self.out = self._output_at(t_target)   # from dense output
+
+    def _step_size_failed(self):
+        raise SolverError(f"{self.name}: step size fell to {self.h:.3g} s without meeting "
+                          f"rtol={self.rtol:g}, atol={self.atol:g}" + self.singularity_hint(),
+                          self.t)
+
+    def _steps_in_c(self, t_target: float, dense: bool, rejections: int):
+        """Steps of this loop taken in C (``c_steps.prk_run``) with the same decisions:
+        None when there are none to take, else (steps rejected in a row, whether Python
+        takes the next attempt)."""
+        return None

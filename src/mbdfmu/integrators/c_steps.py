@@ -3,7 +3,8 @@
 The arithmetic of a step (stages, error norm, projections, the next q'') runs in one C
 call (``equations.ckernel``); what a step decides stays here, line for line as in
 ``RK4P._advance_fixed`` / ``ProjectedRK._step_impl`` (acceptance, step factors, the energy
-audit, counters). Input signals are evaluated in Python at every time a step needs them
+audit, counters), except in runs of an embedded pair's steps (``prk_run``), which take
+them in C the same way. Input signals are evaluated in Python at every time a step needs them
 (once per run when they cannot change: no drivers, no force inputs). Whatever the kernel
 hands back (a singular Schur complement, a failed projection, a non-finite state, a
 spring of zero length) is redone by the Python step, which then does and says what it
@@ -15,11 +16,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..equations import ckernel
+from ..equations.ckernel.adaptive import RUN_ENERGY, RUN_FAILED, RUN_PYTHON  # noqa: F401
+from ..equations.ckernel.adaptive import prk_run as ckernel_prk_run
 from ..equations.projection import PROJECTION_MAX_ITER
 from . import singular_zone
 from .base import STEP_COUNT_SLACK, Integrator
 from .dense_output import DenseStep
-from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
+from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF, ENERGY_STEP_FACTOR
 from .stated_accuracy import allowed_error
 
 # The energy check's running state as kernel.c reads it (rk4p_compiled.AuditField's order).
@@ -140,19 +143,20 @@ def tableau(rk) -> tuple:
     return (*rk.equations.ckernel.tableau(cls, *arrays), fractions)
 
 
-def prk_attempt(rk, h: float, safety: float, min_factor: float, max_factor: float):
+def prk_attempt(rk, h: float, c0: float, safety: float, min_factor: float,
+                max_factor: float):
     """``ProjectedRK._attempt`` with the step's arithmetic in C: (accepted, next step,
-    state), or None when the Python step must do it: the kernel handed it back, or the
-    step ends near a singular configuration (there the Python step estimates the error
-    along the constraints and projects until the Newton increment is small, not Psi
-    alone). The factors are projected_rk.py's."""
+    state), or None when the Python step must do it (the kernel handed it back). Near a
+    singular configuration (c0, the indicator at the start, or the one at the step's end
+    below NEAR_ZONE) the kernel estimates the error along the constraints, as the Python
+    step does. The factors are projected_rk.py's."""
     t, n = rk.t, rk.q.size
     table = tableau(rk)
     stage_inputs(rk, t + h * table[-1])        # row s: stage s, then t + h
     local = rk.local_tolerance
-    status, err, y_new, f_new = rk.equations.ckernel.prk_trial(
+    status, err, y_new, f_new, c1 = rk.equations.ckernel.prk_trial_near(
         table[:-1], h, rk.q, rk.qd, rk.f, local * rk.rtol, local * rk.atol,
-        rk._projection_tol(), PROJECTION_MAX_ITER)
+        rk._projection_tol(), PROJECTION_MAX_ITER, c0)
     if status in (ckernel.SINGULAR, ckernel.SPRING, ckernel.PROJECTION):
         return None
     ns = rk.n_stages
@@ -160,13 +164,9 @@ def prk_attempt(rk, h: float, safety: float, min_factor: float, max_factor: floa
     K = rk.equations.ckernel.buf.K[:(ns + 1) * 2 * n].reshape(ns + 1, 2 * n).copy()
     y_end = y + h * (K[:-1].T @ rk.B)           # the step's end before the projection
     exponent = -1.0 / (rk.order + 1)
-    if status == ckernel.NOT_FINITE:
-        rk.stats.naccel += ns
-        return False, h * min_factor, None
-    c1 = singular_zone.indicator(rk, t + h, y_end[:n])
-    if c1 < singular_zone.NEAR_ZONE:
-        return None
     rk.stats.naccel += ns
+    if status == ckernel.NOT_FINITE:
+        return False, h * min_factor, None
     if status == ckernel.ERROR_NORM:
         return False, h * max(min_factor, safety * err ** exponent), None
     rk.stats.nprojections += 1
@@ -307,3 +307,65 @@ def adopt_prk_run(rk, state: dict) -> None:
         state["landing"]
     for name, count in state["counters"].items():
         setattr(rk.stats, name, getattr(rk.stats, name) + count)
+
+
+# Attempts per call of a run of an embedded pair's steps: the work limit is checked between.
+PRK_RUN_LENGTH = 64
+# Runs of an embedded pair's steps in C (``prk_run``); False: one C trial per Python step.
+PRK_RUNS = True
+
+
+def prk_runs(rk) -> bool:
+    """Whether ``prk_run`` can take rk's coming steps (the caller checks that rk steps as
+    ``ProjectedRK`` does): an embedded pair on a scene without drivers and force inputs, no
+    watch after each step (events, auto's), an energy audit only with constant forces."""
+    eq = rk.equations
+    return (PRK_RUNS and rk.name in ("rk45p", "dop853p") and eq.ckernel is not None and
+            eq.m > 0 and rk.watch is None and not eq.scene.drivers and eq.ckernel.nf == 0 and
+            (rk.audit is None or eq.applied.is_constant))
+
+
+def prk_run(rk, t_target: float, dense: bool, rejections: int, factors: tuple,
+            energy: tuple) -> tuple[int, int]:
+    """Steps of ``_advance_adaptive`` in C (``ckernel/adaptive.h`` ``mbd_prk_run``) until
+    the target, a step Python must take or PRK_RUN_LENGTH attempts (then the work limit):
+    the same decisions, counters, energy audit and dense output as the Python loop.
+    ``factors``: projected_rk.py's (safety, min, max) step factors; ``energy``: its
+    (ENERGY_MIN_GAIN, ENERGY_JUMP_LIMIT). Returns (the kernel's RUN_* status, steps
+    rejected in a row)."""
+    eq, n = rk.equations, rk.q.size
+    table = tableau(rk)
+    attempts = PRK_RUN_LENGTH
+    if rk.limit is not None and rk.limit.max_steps is not None:
+        used = rk.stats.nsteps + rk.stats.nrejected - rk.limit.first
+        attempts = max(1, min(attempts, rk.limit.max_steps - used))
+    run = dict(h=rk.h, max_step=rk.max_step, exponent=-1.0 / (rk.order + 1),
+               safety=factors[0], min_factor=factors[1], max_factor=factors[2],
+               rtol=rk.local_tolerance * rk.rtol, atol=rk.local_tolerance * rk.atol,
+               tol=rk._projection_tol(), max_iter=PROJECTION_MAX_ITER,
+               indicator=rk.zone.indicator, landing=int(rk.zone.landing), max_work=attempts)
+    last = rk.energy_rejected
+    settings = dict(run=run, t=rk.t, t_target=t_target, dense=int(dense), rejections=rejections,
+                    energy_rejected=np.nan if last is None else last,
+                    step_factor=ENERGY_STEP_FACTOR, min_gain=energy[0], jump_limit=energy[1],
+                    divergence=ENERGY_DIVERGENCE_FRACTION, roundoff=ENERGY_ROUNDOFF)
+    audit = audit_state(rk.audit) if rk.audit is not None else None
+    motion = np.concatenate(eq.motion_values(rk.t))
+    gaps = singular_zone.gaps(rk.C[:rk.n_stages])
+    status, p, b = ckernel_prk_run(eq.ckernel, table[:-1], gaps, settings, np.concatenate(
+        (rk.q, rk.qd)), rk.f, motion, audit)
+    r = p.r
+    for name in ("nsteps", "nrejected", "naccel", "nprojections"):
+        setattr(rk.stats, name, getattr(rk.stats, name) + int(getattr(r, name)))
+    if rk.audit is not None:
+        audit_back(rk.audit, b.audit)
+        if status == RUN_ENERGY:               # _after_step checks this state again
+            rk.audit.checks -= 1
+    rk.energy_rejected = None if np.isnan(p.energy_rejected) else float(p.energy_rejected)
+    rk.h, rk.zone.indicator = float(r.h), float(r.indicator)
+    rk.zone.crossing, rk.zone.landing = False, bool(r.landing)
+    if p.stepped:
+        rk.t = float(p.t)
+        rk.q, rk.qd, rk.f = b.y[:n].copy(), b.y[n:].copy(), b.f.copy()
+        rk.dense = DenseStep(p.t_old, p.h_old, b.y_old.copy(), b.y_end.copy(), b.K_old.copy())
+    return status, int(p.rejections)

@@ -165,6 +165,20 @@ class ProjectedRK(AdaptiveStepping, Integrator):
     def _plan_step(self, h, landing, proposal):
         return singular_zone.plan(self, self.zone, h, landing, proposal)
 
+    def _steps_in_c(self, t_target, dense, rejections):
+        cls = type(self)
+        if not (cls._step_impl is ProjectedRK._step_impl and
+                cls._plan_step is ProjectedRK._plan_step and c_steps.prk_runs(self)):
+            return None
+        status, rejections = c_steps.prk_run(self, t_target, dense, rejections,
+                                             (SAFETY, MIN_FACTOR, MAX_FACTOR),
+                                             (ENERGY_MIN_GAIN, ENERGY_JUMP_LIMIT))
+        if status == c_steps.RUN_FAILED:
+            self._step_size_failed()
+        if status == c_steps.RUN_ENERGY:
+            self._after_step()                 # says why
+        return rejections, status == c_steps.RUN_PYTHON
+
     def _step_impl(self, h):
         t0, c0 = self.t, self.zone.indicator
         ok, h_next, state = self._attempt(h, c0)
@@ -180,9 +194,9 @@ class ProjectedRK(AdaptiveStepping, Integrator):
 
     def _attempt(self, h, c0):
         """One step of size h from the current state: (accepted, h_next, state)."""
-        if self.equations.ckernel is not None and c0 >= singular_zone.NEAR_ZONE:
-            stepped = c_steps.prk_attempt(self, h, SAFETY, MIN_FACTOR, MAX_FACTOR)
-            if stepped is not None:      # else near a singular configuration: in Python
+        if self.equations.ckernel is not None:
+            stepped = c_steps.prk_attempt(self, h, c0, SAFETY, MIN_FACTOR, MAX_FACTOR)
+            if stepped is not None:      # else a case the kernel hands back: in Python
                 return stepped
         t, n = self.t, self.q.size
         y = np.concatenate((self.q, self.qd))

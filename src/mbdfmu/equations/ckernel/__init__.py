@@ -158,7 +158,7 @@ class Buffers:
 
     def __init__(self, n: int, m: int, nf: int, nout: int):
         sizes = dict(q=n, qd=n, motion=3 * m, uf=max(nf, 1), qdd=n, lam=max(m, 1),
-                     y=2 * n, f=2 * n, y_new=2 * n, f_new=2 * n, K=MAX_STAGES * 2 * n, err=1,
+                     y=2 * n, f=2 * n, y_new=2 * n, f_new=2 * n, K=MAX_STAGES * 2 * n, err=2,
                      audit=13, out=nout)
         for name, size in sizes.items():
             array = np.zeros(size)
@@ -225,7 +225,9 @@ class Kernel(DenseReads, FixedSteps, PrkSteps, ImplicitCalls):
                       "mbd_prk_trial": [_P, _I, _P, _P, _P, _P, d, _P, _P, _P, _P, d, d, d, _I,
                                         _P, _P, _P, _P],
                       "mbd_mc_trial": [_P, _P, _I, _P, _P, _P, _P, d, _P, _P, _P, _P, d, d, d,
-                                       _I, _P, _P, _P, _P]}
+                                       _I, _P, _P, _P, _P],
+                      "mbd_prk_trial_near": [_P, _I, _P, _P, _P, _P, d, _P, _P, _P, _P, d, d,
+                                             d, _I, _P, _P, _P, _P, d, _P]}
         for name, argtypes in signatures.items():
             function = getattr(lib, name)
             function.argtypes, function.restype = argtypes, ctypes.c_int
@@ -314,6 +316,19 @@ class Kernel(DenseReads, FixedSteps, PrkSteps, ImplicitCalls):
             self._tableaus[key] = (arrays[1].size, *(None if x is None else x.ctypes.data
                                                      for x in arrays))
         return self._tableaus[key]
+
+    def prk_trial_near(self, tableau, h, q, qd, f0, rtol, atol, tol, max_iter, c0):
+        """``prk_trial`` that also returns the singularity indicator at the step's end
+        (before the projection) and, near a singular configuration (c0, the indicator at
+        the start, or that one below ``singular_zone.NEAR_ZONE``), estimates the error
+        along the constraints (``mbd_prk_trial_near``): (status, err, y_new, f_new, c1)."""
+        b, n = self.buf, self.n
+        b.y[:n], b.y[n:] = q, qd
+        b.f[:] = f0
+        status = self._prk_trial_near(self.address, *tableau, h, b.p_y, b.p_f, b.p_motions,
+                                      b.p_ufs, rtol, atol, tol, max_iter, b.p_y_new, b.p_f_new,
+                                      b.p_err, b.p_K, c0, b.p_err + 8)
+        return status, float(b.err[0]), b.y_new.copy(), b.f_new.copy(), float(b.err[1])
 
     def prk_trial(self, tableau, h, q, qd, f0, rtol, atol, tol, max_iter):
         """The arithmetic of one step of an embedded pair (``mbd_prk_trial``) with the

@@ -171,3 +171,211 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
     r->nprojections += nproj;
     return ST_OK;
 }
+
+/* ---- runs of steps for Python's _advance_adaptive (c_steps.prk_run) ------------------------
+ *
+ * AdaptiveStepping._advance_adaptive's loop, ProjectedRK._step_impl and _energy_rejects and
+ * Integrator._after_step's energy check, in the same order and arithmetic, for steps that
+ * need nothing else: a scene without drivers and force inputs (the stage inputs are the same
+ * at every time), no watch, an energy audited with constant forces (energies
+ * 1/2 q'M q' - F.q, as energy_check) or not audited. The step decisions and prk_try are
+ * those of the wrapper's landing steps above; with `dense` the steps go past the target (the
+ * last accepted step is kept for the dense output). It stops with the state and counters of
+ * the decisions taken so far: RUN_DONE at the target; RUN_PYTHON before an attempt Python
+ * takes (singular_zone.plan's case, a trial the kernel hands back, an energy jump Python
+ * raises on); RUN_WORK after max_work attempts (Python checks its work limit); RUN_ENERGY
+ * after a step whose energy check failed (Python's check says why); RUN_FAILED when the
+ * step size fell below its minimum or too many steps were rejected in a row. */
+
+enum { RUN_DONE = 0, RUN_PYTHON = 1, RUN_WORK = 2, RUN_ENERGY = 3, RUN_FAILED = 4 };
+
+typedef struct {
+    PrkRun r;                    /* the pair, factors, tolerances, motion(s), y, f, K, h */
+    double t, t_target;
+    I dense, rejections;         /* steps rejected in a row, carried to and from Python */
+    double energy_rejected;      /* ProjectedRK.energy_rejected; NAN: None */
+    double *audit;               /* EnergyAudit's state (c_steps.AUDIT_FIELDS), or NULL */
+    double step_factor, min_gain, jump_limit, divergence, roundoff;
+    double t_old, h_old;         /* the last accepted step (DenseStep) ... */
+    double *y_old, *y_end, *K_old;
+    I stepped;                   /* ... kept when 1 */
+    I ngaps; const double *gap_mid, *gap_width;   /* singular_zone.gaps of the nodes */
+} PrkPy;
+
+/* singular_zone.py's constants */
+#define ZONE 1e-2
+#define ZONE_MARGIN 1.2
+#define REDUNDANT 1e-7
+#define MIN_CLEARANCE 1e-4
+#define INNER 1e-3
+#define PROBE 1e-4
+
+/* singular_zone.crossing_step; 0 when no step reaches the configuration. */
+static int crossing_step(const PrkPy *p, double d, double w, double k, double limit, double *H) {
+    double beyond = INFINITY, good_max = -INFINITY, fit = 0.0, clear_max = -INFINITY;
+    int any_beyond = 0, any_good = 0, any_fit = 0;
+    for (I g = 0; g < p->ngaps; g++) {
+        double h = d / p->gap_mid[g], clearance = 0.5 * k * p->gap_width[g] * h;
+        int fits = h <= limit;
+        int good = fits && k * (h - d) >= INNER && clearance >= MIN_CLEARANCE;
+        if (good && h >= d + w) { any_beyond = 1; beyond = fmin(beyond, h); }
+        if (good) { any_good = 1; good_max = fmax(good_max, h); }
+        if (fits && (!any_fit || clearance > clear_max)) { any_fit = 1; clear_max = clearance; fit = h; }
+    }
+    *H = any_beyond ? beyond : any_good ? good_max : fit;
+    return any_beyond || any_good || any_fit;
+}
+
+/* singular_zone.plan from the state y at p->t: the step to try (h, or one that ends before
+ * the zone, at its edge, or crosses it: *crossing). q + eps q' goes in r->y_new. */
+static double zone_plan(const Model *M, PrkPy *p, const double *y, double h, double proposal,
+                        int *crossing) {
+    PrkRun *r = &p->r;
+    I n = M->n;
+    double c0 = r->indicator, speed = 0.0, ahead = 0.0, H = 0.0;
+    *crossing = 0;
+    if (!(REDUNDANT <= c0 && c0 < NEAR_ZONE)) return h;
+    for (I k = 0; k < n; k++) speed = fmax(speed, fabs(y[n + k]));
+    if (speed == 0.0) return h;
+    double eps = PROBE * c0 / speed;
+    for (I k = 0; k < n; k++) r->y_new[k] = y[k] + eps * y[n + k];
+    mbd_singularity_indicator(M, r->y_new, r->motion, &ahead);
+    double k = (c0 - ahead) / eps;
+    if (!(k > 0.0)) return h;
+    double t0 = p->t, t_star = t0 + c0 / k, d = t_star - t0, w = ZONE_MARGIN * ZONE / k;
+    if (t0 + h <= t_star - w) return h;
+    if (d > 3.0 * w) return d - 2.0 * w;
+    if (d > 1.5 * w) return d - w;
+    if (!crossing_step(p, d, w, k, proposal, &H)) return h;
+    *crossing = 1;
+    return H;
+}
+
+/* prk_try with the trial that also works next to a singular configuration (the error
+ * estimate along the constraints there: c_steps.prk_attempt): 1 accepted, 0 rejected, -1
+ * a case the kernel hands back; *c1 the indicator at the step's end. */
+static int near_try(const Model *M, PrkRun *r, Scratch *s, const double *y, const double *f,
+                    double hh, double *h_next, double *c1, I *naccel, I *nproj) {
+    I n2 = 2 * M->n, ns = r->ns;
+    double err = 0.0;
+    int st = prk_trial(M, ns, r->A, r->B, r->E, r->E3, hh, y, f, r->motions, r->ufs, r->rtol,
+                       r->atol, r->tol, r->max_iter, r->y_new, r->f_new, &err, r->K,
+                       r->indicator, c1);
+    if (st == ST_SINGULAR || st == ST_SPRING || st == ST_PROJECTION) return -1;
+    *naccel += ns;
+    if (st == ST_NOT_FINITE) { *h_next = hh * r->min_factor; return 0; }
+    double *y_end = s->qv + 4 * n2;       /* the step's end before the projection */
+    for (I k = 0; k < n2; k++) {
+        double a = 0.0;
+        for (I j = 0; j < ns; j++) a += r->K[j * n2 + k] * r->B[j];
+        y_end[k] = y[k] + hh * a;
+    }
+    if (st == ST_ERROR_NORM) {
+        *h_next = hh * fmax(r->min_factor, r->safety * pow(err, r->exponent));
+        return 0;
+    }
+    *nproj += 1;
+    *naccel += 1;
+    *h_next = hh * (err == 0.0 ? r->max_factor : fmin(r->max_factor, r->safety * pow(err, r->exponent)));
+    return 1;
+}
+
+/* singular_zone.after_step: the step to retry with when a step not planned to cross ended
+ * inside the zone, else 0. */
+static double zone_retry(int crossing, int landing, double t0, double hh, double c0,
+                         double c1) {
+    if (crossing || landing) return 0.0;
+    if (c1 < ZONE && ZONE <= c0 && c0 >= REDUNDANT) {
+        double t_star = t0 + hh * c0 / (c0 - c1);
+        return fmax((t_star - t0) * (1.0 - ZONE_MARGIN * ZONE / c0), 0.1 * hh);
+    }
+    return 0.0;
+}
+
+/* EnergyAudit.step_error for constant forces. */
+static double energy_step_error(const Model *M, const PrkPy *p, const double *q, const double *qd) {
+    const double *a = p->audit;
+    double kinetic = 0.0, fq = 0.0, joules = 0.0;
+    for (I k = 0; k < M->n; k++) { kinetic += M->mass[k] * qd[k] * qd[k]; fq += M->f_const[k] * q[k]; }
+    double change = fabs(0.5 * kinetic - fq - a[A_LAST_ENERGY]);
+    if (change <= 10.0 * p->roundoff * a[A_MAGNITUDE]) return 0.0;
+    for (I k = 0; k < M->n; k++)
+        joules += fabs(M->f_const[k]) * (a[A_ATOL] + a[A_RTOL] * fabs(q[k]))
+                  + fabs(M->mass[k] * qd[k]) * (a[A_ATOL] + a[A_RTOL] * fabs(qd[k]));
+    double allowed = p->step_factor * joules;
+    return allowed > 0.0 ? change / allowed : INFINITY;
+}
+
+/* ProjectedRK._energy_rejects on an accepted trial: 1 accept, 0 reject (*h_next set),
+ * -1 Python's case (the jump it raises on; energy_rejected left as it was). */
+static int energy_decides(const Model *M, PrkPy *p, const double *y_new, double hh,
+                          double *h_next) {
+    if (!p->audit) return 1;
+    double err = energy_step_error(M, p, y_new, y_new + M->n), last = p->energy_rejected;
+    if (err <= 1.0) { p->energy_rejected = NAN; return 1; }
+    if (isnan(last) || err < p->min_gain * last) {
+        p->energy_rejected = err;
+        *h_next = hh * fmax(p->r.min_factor, p->r.safety * pow(err, p->r.exponent));
+        return 0;
+    }
+    if (err <= p->jump_limit) { p->energy_rejected = NAN; return 1; }
+    return -1;
+}
+
+int mbd_prk_run(const Model *M, PrkPy *p) {
+    PrkRun *r = &p->r;
+    I n = M->n, n2 = 2 * n, ns = r->ns, attempts = 0;
+    Scratch s = scratch(M, M->work);
+    double *y = r->y, *f = r->f;
+    while (p->t < p->t_target) {
+        if (attempts >= r->max_work) return RUN_WORK;
+        double h_min = MIN_STEP_RELATIVE * fmax(1.0, fabs(p->t));
+        double proposal = fmin(r->h, r->max_step), h_next = 0.0, c1 = 0.0, hh = proposal;
+        I lands = 0, naccel = 0, nproj = 0;
+        int crossing = 0;
+        if (!p->dense) hh = landing_step(proposal, p->t_target - p->t, &lands);
+        I zone_landing = lands;
+        double planned = zone_plan(M, p, y, hh, proposal, &crossing), c0 = r->indicator;
+        lands = lands && planned == hh;
+        hh = planned;
+        int ok = near_try(M, r, &s, y, f, hh, &h_next, &c1, &naccel, &nproj);
+        if (ok < 0) return RUN_PYTHON;
+        if (ok > 0) {
+            int e = energy_decides(M, p, r->y_new, hh, &h_next);
+            if (e < 0) return RUN_PYTHON;
+            if (e == 0) { ok = 0; naccel -= 1; }     /* the end's q'' is counted when kept */
+        }
+        if (ok > 0) {
+            double retry = zone_retry(crossing, (int)zone_landing, p->t, hh, c0, c1);
+            if (retry > 0.0) { ok = 0; h_next = retry; }
+        }
+        attempts++;
+        r->naccel += naccel;
+        r->nprojections += nproj;
+        r->landing = zone_landing;
+        if (!ok) {
+            p->rejections++;
+            r->nrejected++;
+            r->h = h_next;
+            if (h_next < h_min || p->rejections > MAX_REJECTIONS_IN_A_ROW) return RUN_FAILED;
+            continue;
+        }
+        p->rejections = 0;
+        r->nsteps++;
+        p->t_old = p->t;
+        p->h_old = hh;
+        p->stepped = 1;
+        memcpy(p->y_old, y, (size_t)n2 * sizeof(double));
+        memcpy(p->y_end, s.qv + 4 * n2, (size_t)n2 * sizeof(double));   /* prk_try's */
+        memcpy(p->K_old, r->K, (size_t)((ns + 1) * n2) * sizeof(double));
+        memcpy(y, r->y_new, (size_t)n2 * sizeof(double));
+        memcpy(f, r->f_new, (size_t)n2 * sizeof(double));
+        r->indicator = c1;
+        p->t = lands ? p->t_target : p->t + hh;
+        r->h = (hh < proposal && h_next >= hh) ? proposal : h_next;
+        if (p->audit && p->audit[A_ACTIVE] != 0.0 &&
+                !energy_check(M, y, y + n, p->audit, p->divergence, p->roundoff))
+            return RUN_ENERGY;
+    }
+    return RUN_DONE;
+}

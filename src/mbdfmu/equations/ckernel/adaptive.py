@@ -33,6 +33,8 @@ class PrkRun(ctypes.Structure):
                 ("nout", _I), ("npub", _I), ("pub_dst", _P), ("pub_src", _P), ("V", _P)]
 
 
+# How ``mbd_prk_run`` stopped (adaptive.h RUN_*).
+RUN_DONE, RUN_PYTHON, RUN_WORK, RUN_ENERGY, RUN_FAILED = range(5)
 # What the slave reads back: the counters, then the state's fields.
 COUNTERS = ("nsteps", "nrejected", "naccel", "nprojections")
 
@@ -100,3 +102,67 @@ class PrkSteps:
         steps = int(r.steps)
         r.steps = r.nsteps = r.nrejected = r.naccel = r.nprojections = 0
         return steps, state, pending
+
+
+class PrkPy(ctypes.Structure):
+    """adaptive.h's ``PrkPy``: a ``PrkRun`` and what Python's step loop adds to it."""
+
+    _fields_ = [("r", PrkRun), ("t", _D), ("t_target", _D), ("dense", _I), ("rejections", _I),
+                ("energy_rejected", _D), ("audit", _P), ("step_factor", _D),
+                ("min_gain", _D), ("jump_limit", _D), ("divergence", _D), ("roundoff", _D),
+                ("t_old", _D), ("h_old", _D), ("y_old", _P), ("y_end", _P), ("K_old", _P),
+                ("stepped", _I), ("ngaps", _I), ("gap_mid", _P), ("gap_width", _P)]
+
+
+class PrkRunBuffers:
+    """The arrays a ``PrkPy`` points at, for one tableau: y, f (the state, in place), the
+    stage inputs, the trial's stages and results, the last accepted step and the audit."""
+
+    def __init__(self, n: int, m: int, nf: int, ns: int):
+        n2 = 2 * n
+        self.y, self.f, self.y_new, self.f_new = (np.zeros(n2) for _ in range(4))
+        self.y_old, self.y_end = np.zeros(n2), np.zeros(n2)
+        self.K, self.K_old = np.zeros((ns + 1, n2)), np.zeros((ns + 1, n2))
+        self.motions, self.ufs = np.zeros((ns + 1, 3 * m)), np.zeros((ns + 1, max(nf, 1)))
+        self.audit = np.zeros(13)
+
+
+def prk_run(kernel, tableau, gaps, settings: dict, y, f, motion, audit):
+    """Steps of an embedded pair in one call of ``mbd_prk_run`` (adaptive.h) from (y, f) at
+    ``settings["t"]``: PrkPy's scalar fields (and PrkRun's, ``settings["run"]``), the
+    middles and widths of the gaps between the tableau's nodes (``singular_zone.gaps``), the
+    constant stage inputs ``motion`` ((c, c', c'')), the energy audit's state (13 values,
+    updated in place) or None. Returns (status, the PrkPy, its buffers): the state in
+    buffers.y / .f, the last accepted step in .y_old, .y_end, .K_old."""
+    key = tableau[0]
+    cache = kernel.__dict__.setdefault("_prk_run", {})
+    if key not in cache:
+        p = PrkPy()
+        b = PrkRunBuffers(kernel.n, kernel.m, kernel.nf, key)
+        r = p.r
+        r.ns, r.A, r.B, r.E, r.E3 = tableau[0], *(x or 0 for x in tableau[1:5])
+        for name in ("y", "f", "K", "y_new", "f_new", "motions", "ufs"):
+            setattr(r, name, getattr(b, name).ctypes.data)
+        r.motion = b.motions.ctypes.data
+        for name in ("y_old", "y_end", "K_old"):
+            setattr(p, name, getattr(b, name).ctypes.data)
+        b.gaps = [np.ascontiguousarray(a, dtype=float) for a in gaps]
+        p.ngaps, p.gap_mid, p.gap_width = b.gaps[0].size, *(a.ctypes.data for a in b.gaps)
+        function = kernel.library.mbd_prk_run
+        function.argtypes, function.restype = [_P, _P], ctypes.c_int
+        cache[key] = (p, b, function)
+    p, b, function = cache[key]
+    b.y[:], b.f[:], b.motions[:] = y, f, motion
+    for name, value in settings.pop("run").items():
+        setattr(p.r, name, value)
+    for name, value in settings.items():
+        setattr(p, name, value)
+    p.r.nsteps = p.r.nrejected = p.r.naccel = p.r.nprojections = 0
+    p.stepped = 0
+    if audit is None:
+        p.audit = None
+    else:
+        b.audit[:] = audit
+        p.audit = b.audit.ctypes.data
+    status = function(kernel.address, ctypes.addressof(p))
+    return status, p, b

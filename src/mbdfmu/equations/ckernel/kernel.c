@@ -12,7 +12,9 @@
  *   mbd_rk4p_steps   rk4p.py's step (rk4_step, _project, the next q'') for runs of steps,
  *                    with rk4p_compiled.py's energy check for constant forces
  *   mbd_prk_trial    projected_rk.py ProjectedRK._step_impl's arithmetic: stages, error
- *                    norm, projections, the next q'' (the decisions stay in Python)
+ *                    norm, projections, the next q'' (the decisions stay in Python);
+ *                    mbd_prk_trial_near also near singular configurations (stepping.h)
+ *   mbd_prk_run      runs of those steps with _advance_adaptive's decisions (adaptive.h)
  *   mbd_outputs      dynamics.py Equations.output_values (reactions eqs. 16-17, 28)
  *   mbd_singularity_indicator  singular.py singularity_indicator
  *   mbd_dense_state  ProjectedRK._output_at: the projected dense output inside a step
@@ -242,6 +244,7 @@ static I solve_size(const Model *M) {
 typedef struct {
     double *qe, *qde, *psi, *raw, *data, *values, *gamma, *rhs, *lam, *x, *band, *tmp, *F,
            *Fm, *nv, *cs, *qv;
+    int kept;     /* band holds the factor of S at the projected state (project_velocities) */
 } Scratch;
 
 static Scratch scratch(const Model *M, double *w) {
@@ -264,6 +267,7 @@ static Scratch scratch(const Model *M, double *w) {
     s.nv = w; w += n;
     s.cs = w; w += 2 * (M->nb + 1);
     s.qv = w;
+    s.kept = 0;
     return s;
 }
 
@@ -281,9 +285,10 @@ static void extend(const Model *M, const double *q, double *qe) {
 
 /* ---- eq. (14) ------------------------------------------------------------------------------ */
 
-static int accelerations(const Model *M, Scratch *s, const double *q, const double *qd,
-                         const double *cval, const double *cdd, const double *uf,
-                         double *qdd, double *lam) {
+/* again: S's factor is in s->band already (s->kept after a projection to this q). */
+static int accelerations_at(const Model *M, Scratch *s, const double *q, const double *qd,
+                            const double *cval, const double *cdd, const double *uf,
+                            double *qdd, double *lam, int again) {
     I n = M->n, m = M->m;
     int st = forces(M, q, qd, uf, s->F);
     if (st != ST_OK) return st;
@@ -298,11 +303,18 @@ static int accelerations(const Model *M, Scratch *s, const double *q, const doub
     for (I k = 0; k < n; k++) s->Fm[k] = M->minv[k] * s->F[k];
     jac_mul(M, s->values, s->Fm, s->rhs);
     for (I r = 0; r < m; r++) s->rhs[r] -= s->gamma[r] + cdd[r];
-    st = schur_solve(M, s->values, s->rhs, lam, s->band, s->tmp);
+    if (again) schur_again(M, s->rhs, lam, s->band, s->tmp);
+    else st = schur_solve(M, s->values, s->rhs, lam, s->band, s->tmp);
     if (st != ST_OK) return st;
     jac_t_mul(M, s->values, lam, s->nv);
     for (I k = 0; k < n; k++) qdd[k] = M->minv[k] * (s->F[k] - s->nv[k]);
     return ST_OK;
+}
+
+static int accelerations(const Model *M, Scratch *s, const double *q, const double *qd,
+                         const double *cval, const double *cdd, const double *uf,
+                         double *qdd, double *lam) {
+    return accelerations_at(M, s, q, qd, cval, cdd, uf, qdd, lam, 0);
 }
 
 /* ---- the last evaluation, kept: outputs read the q'' and lam of the step's end --------------- */
@@ -409,7 +421,7 @@ static int project_velocities(const Model *M, Scratch *s, double *qd, const doub
     I n = M->n, m = M->m;
     jac_mul(M, s->values, qd, s->rhs);
     for (I r = 0; r < m; r++) s->rhs[r] -= cd[r];
-    int st = schur_solve(M, s->values, s->rhs, s->x, s->band, s->tmp);
+    int st = schur_solve_keeping(M, s->values, s->rhs, s->x, s->band, s->tmp, &s->kept);
     if (st != ST_OK) return st;
     jac_t_mul(M, s->values, s->x, s->nv);
     for (I k = 0; k < n; k++) qd[k] -= M->minv[k] * s->nv[k];
@@ -419,6 +431,7 @@ static int project_velocities(const Model *M, Scratch *s, double *qd, const doub
 /* Both projections at motion (c, c', c'') = motion[0..2m): q, qd in place. */
 static int project(const Model *M, Scratch *s, double *q, double *qd, const double *motion,
                    double tol, I max_iter) {
+    s->kept = 0;
     if (M->m == 0) return ST_OK;
     int st = project_positions(M, s, q, motion, tol, max_iter);
     return st != ST_OK ? st : project_velocities(M, s, qd, motion + M->m);

@@ -26,7 +26,7 @@ static int band_cholesky(double *L, I m, I kd, double *dmin, double *dmax) {
         double s = L[j];
         for (I k = (j - kd > 0 ? j - kd : 0); k < j; k++) s -= L[(j - k) * m + k] * L[(j - k) * m + k];
         if (!(s > 0.0)) return 0;
-        double d = sqrt(s);
+        double d = sqrt(s), inv = 1.0 / d;   /* one division per column, not per entry */
         L[j] = d;
         *dmax = fmax(*dmax, d);
         *dmin = fmin(*dmin, d);
@@ -34,7 +34,7 @@ static int band_cholesky(double *L, I m, I kd, double *dmin, double *dmax) {
         for (I i = j + 1; i < end; i++) {
             double t = L[(i - j) * m + j];
             for (I k = (i - kd > 0 ? i - kd : 0); k < j; k++) t -= L[(i - k) * m + k] * L[(j - k) * m + k];
-            L[(i - j) * m + j] = t / d;
+            L[(i - j) * m + j] = t * inv;
         }
     }
     return 1;
@@ -62,18 +62,19 @@ static int dense_cholesky(double *U, I m, double *dmin, double *dmax) {
     return 1;
 }
 
-/* L L^T y = y in place for a band factor. */
+/* L L^T y = y in place for a band factor. The reciprocal of each pivot does not depend on
+ * y, so its division runs beside the substitution's chain instead of on it. */
 static void band_substitute(const double *L, I m, I kd, double *y) {
     for (I i = 0; i < m; i++) {
-        double s = y[i];
+        double s = y[i], inv = 1.0 / L[i];
         for (I k = (i - kd > 0 ? i - kd : 0); k < i; k++) s -= L[(i - k) * m + k] * y[k];
-        y[i] = s / L[i];
+        y[i] = s * inv;
     }
     for (I i = m - 1; i >= 0; i--) {
-        double s = y[i];
+        double s = y[i], inv = 1.0 / L[i];
         I end = i + kd + 1 < m ? i + kd + 1 : m;
         for (I k = i + 1; k < end; k++) s -= L[(k - i) * m + i] * y[k];
-        y[i] = s / L[i];
+        y[i] = s * inv;
     }
 }
 
@@ -161,7 +162,7 @@ static int dense_solve(const Model *M, const double *values, const double *b, do
 }
 
 static int banded_solve(const Model *M, const double *values, const double *b, double *x,
-                        double *work, double *tmp) {
+                        double *work, double *tmp, int *kept) {
     I m = M->m, kd = M->kd, size = (kd + 1) * m;
     double *band = work, *L = work + size, dmin, dmax;
     memset(band, 0, (size_t)size * sizeof(double));
@@ -172,6 +173,7 @@ static int banded_solve(const Model *M, const double *values, const double *b, d
         for (I i = 0; i < m; i++) tmp[i] = b[M->perm[i]];
         band_substitute(L, m, kd, tmp);
         for (I i = 0; i < m; i++) x[M->perm[i]] = tmp[i];
+        *kept = 1;
         return ST_OK;
     }
     if (!M->min_norm || !all_finite_values(band, size) || !all_finite_values(b, m)) return ST_SINGULAR;
@@ -202,9 +204,10 @@ static int banded_solve(const Model *M, const double *values, const double *b, d
 /* x with (J M^-1 J^T) x = b: ST_OK, or ST_SINGULAR where the numpy path must answer.
  * Below BANDED_MIN_ROWS the band (cheaper at any size) answers where its pivots are
  * well conditioned, and the dense form decides only where they are not. */
-static int schur_solve(const Model *M, const double *values, const double *b, double *x,
-                       double *work, double *tmp) {
-    if (M->banded) return banded_solve(M, values, b, x, work, tmp);
+static int schur_solve_keeping(const Model *M, const double *values, const double *b, double *x,
+                               double *work, double *tmp, int *kept) {
+    *kept = 0;
+    if (M->banded) return banded_solve(M, values, b, x, work, tmp, kept);
     I m = M->m, kd = M->kd, size = (kd + 1) * m;
     double *L = work, dmin, dmax;
     memset(L, 0, (size_t)size * sizeof(double));
@@ -214,7 +217,25 @@ static int schur_solve(const Model *M, const double *values, const double *b, do
         for (I i = 0; i < m; i++) tmp[i] = b[M->perm[i]];
         band_substitute(L, m, kd, tmp);
         for (I i = 0; i < m; i++) x[M->perm[i]] = tmp[i];
+        *kept = 1;
         return ST_OK;
     }
     return dense_solve(M, values, b, x, work);
+}
+
+static int schur_solve(const Model *M, const double *values, const double *b, double *x,
+                       double *work, double *tmp) {
+    int kept;
+    return schur_solve_keeping(M, values, b, x, work, tmp, &kept);
+}
+
+/* x with (J M^-1 J^T) x = b by the band factor the last schur_solve_keeping left in work
+ * (it said *kept): the same J, so the same factor, without factorising again. */
+static void schur_again(const Model *M, const double *b, double *x, const double *work,
+                        double *tmp) {
+    I m = M->m, kd = M->kd;
+    const double *L = M->banded ? work + (kd + 1) * m : work;
+    for (I i = 0; i < m; i++) tmp[i] = b[M->perm[i]];
+    band_substitute(L, m, kd, tmp);
+    for (I i = 0; i < m; i++) x[M->perm[i]] = tmp[i];
 }

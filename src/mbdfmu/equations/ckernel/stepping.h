@@ -14,6 +14,17 @@ static int rhs(const Model *M, Scratch *s, const double *y, const double *motion
     return accelerations(M, s, y, y + n, motion, motion + 2 * m, uf, f + n, lam);
 }
 
+/* rhs at the state project() just left (same q: S's factor kept from the velocity
+ * projection, not computed again). */
+static int rhs_projected(const Model *M, Scratch *s, const double *y, const double *motion,
+                         const double *uf, double *f, double *lam) {
+    I n = M->n, m = M->m;
+    memcpy(f, y + n, (size_t)n * sizeof(double));
+    return accelerations_at(M, s, y, y + n, motion, motion + 2 * m, uf, f + n, lam, s->kept);
+}
+
+#define NEAR_ZONE_C 0.1          /* singular_zone.NEAR_ZONE */
+
 static int all_finite(const double *x, I k) {
     for (I i = 0; i < k; i++) if (!isfinite(x[i])) return 0;
     return 1;
@@ -46,7 +57,7 @@ static int rk4p_step(const Model *M, Scratch *s, double *y, double *f, double h,
     if (!all_finite(ys, n2)) return ST_NOT_FINITE;
     int r = project(M, s, ys, ys + M->n, motions + 6 * m, tol, max_iter);
     if (r != ST_OK) return r;
-    r = rhs(M, s, ys, motions + 6 * m, ufs + 2 * nf, K, s->lam);
+    r = rhs_projected(M, s, ys, motions + 6 * m, ufs + 2 * nf, K, s->lam);
     if (r != ST_OK) return r;
     if (!all_finite(K + M->n, M->n)) return ST_NOT_FINITE;
     memo_store(M, ys, ys + M->n, motions + 6 * m, motions + 8 * m, ufs + 2 * nf, K + M->n, s->lam);
@@ -106,6 +117,55 @@ int mbd_rk4p_steps(const Model *M, double *y, double *f, double h, I nsteps,
     return ST_OK;
 }
 
+/* v (2n: the dq and dq' halves) -> its part along the constraints at q in the mass
+ * metric, v - M^-1 J^T (J M^-1 J^T)^-1 J v (ProjectedRK._tangent), J's values in s->values;
+ * `fresh`: S is factorised here, else its factor is kept from the last call. */
+static int tangent_part(const Model *M, Scratch *s, double *v, int fresh) {
+    I n = M->n;
+    for (int half = 0; half < 2; half++) {
+        double *w = v + half * n;
+        jac_mul(M, s->values, w, s->rhs);
+        if (fresh) {
+            int r = schur_solve_keeping(M, s->values, s->rhs, s->x, s->band, s->tmp, &s->kept);
+            if (r != ST_OK || !s->kept) return ST_SINGULAR;  /* the numpy path's solve */
+            fresh = 0;
+        } else schur_again(M, s->rhs, s->x, s->band, s->tmp);
+        jac_t_mul(M, s->values, s->x, s->nv);
+        for (I k = 0; k < n; k++) w[k] -= M->minv[k] * s->nv[k];
+    }
+    return ST_OK;
+}
+
+/* The error estimate of a trial (ProjectedRK._error_norm): DOP853's combined estimate with
+ * E3, else h E.K; with `tangent` only the estimate's part along the constraints at y_new
+ * (its Jacobian values in s->values). ev: 4n scratch. */
+static int error_norm(const Model *M, Scratch *s, I ns, const double *E, const double *E3,
+                      double h, const double *y, const double *y_new, const double *K,
+                      double rtol, double atol, int tangent, double *ev, double *err) {
+    I n2 = 2 * M->n;
+    double *e5 = ev, *e3 = ev + n2, s5 = 0.0, s3 = 0.0;
+    for (I k = 0; k < n2; k++) {
+        double a = 0.0, b = 0.0;
+        for (I j = 0; j <= ns; j++) { a += K[j * n2 + k] * E[j]; if (E3) b += K[j * n2 + k] * E3[j]; }
+        e5[k] = E3 ? a : h * a;
+        e3[k] = b;
+    }
+    if (tangent) {
+        int r = tangent_part(M, s, e5, 1);
+        if (r == ST_OK && E3) r = tangent_part(M, s, e3, 0);
+        if (r != ST_OK) return r;
+    }
+    for (I k = 0; k < n2; k++) {
+        double scale = atol + rtol * fmax(fabs(y[k]), fabs(y_new[k]));
+        s5 += (e5[k] / scale) * (e5[k] / scale);
+        s3 += (e3[k] / scale) * (e3[k] / scale);
+    }
+    if (!E3) *err = sqrt(s5 / (double)n2);
+    else if (s5 == 0.0) *err = 0.0;
+    else *err = fabs(h) * s5 / sqrt((s5 + 0.01 * s3) * (double)n2);
+    return ST_OK;
+}
+
 /* The arithmetic of one step of an embedded pair with projection (ProjectedRK._step_impl):
  * tableau A (ns x ns, row s uses its first s entries), B (ns), error weights E (ns + 1)
  * and, for DOP853's combined estimate, E3 (ns + 1; NULL for a single estimate). Stage s
@@ -113,11 +173,15 @@ int mbd_rk4p_steps(const Model *M, double *y, double *f, double h, I nsteps,
  * Returns ST_OK with y_new (2n, projected), f_new = y'(t + h, y_new) and *err; or
  * ST_NOT_FINITE (y_new or its derivative not finite), ST_ERROR_NORM (*err >= 1),
  * ST_PROJECTION (the position projection failed), ST_SINGULAR or ST_SPRING (the numpy path
- * redoes the step). K: (ns + 1) x 2n scratch. */
-int mbd_prk_trial(const Model *M, I ns, const double *A, const double *B, const double *E,
-                  const double *E3, double h, const double *y, const double *f0,
-                  const double *motions, const double *ufs, double rtol, double atol,
-                  double tol, I max_iter, double *y_new, double *f_new, double *err, double *K) {
+ * redoes the step). K: (ns + 1) x 2n scratch. With c1 (not NULL): *c1 the singularity
+ * indicator at the step's end before the projection, and the error estimate along the
+ * constraints there when it or c0 (the indicator at the start) is below NEAR_ZONE, as
+ * ProjectedRK._attempt's Python step does near a singular configuration. */
+static int prk_trial(const Model *M, I ns, const double *A, const double *B, const double *E,
+                     const double *E3, double h, const double *y, const double *f0,
+                     const double *motions, const double *ufs, double rtol, double atol,
+                     double tol, I max_iter, double *y_new, double *f_new, double *err,
+                     double *K, double c0, double *c1) {
     Scratch s = scratch(M, M->work);
     I n = M->n, n2 = 2 * n, m = M->m, nf = M->nf;
     double *ys = s.qv;
@@ -139,23 +203,42 @@ int mbd_prk_trial(const Model *M, I ns, const double *A, const double *B, const 
     int r = rhs(M, &s, y_new, motions + ns * 3 * m, ufs + ns * nf, K + ns * n2, s.lam);
     if (r == ST_SINGULAR || r == ST_SPRING) return r;
     if (r != ST_OK || !all_finite(y_new, n2) || !all_finite(K + ns * n2, n2)) return ST_NOT_FINITE;
-    double e5 = 0.0, e3 = 0.0;
-    for (I k = 0; k < n2; k++) {
-        double scale = atol + rtol * fmax(fabs(y[k]), fabs(y_new[k])), a = 0.0, b = 0.0;
-        for (I j = 0; j <= ns; j++) { a += K[j * n2 + k] * E[j]; if (E3) b += K[j * n2 + k] * E3[j]; }
-        if (E3) { e5 += (a / scale) * (a / scale); e3 += (b / scale) * (b / scale); }
-        else e5 += (h * a / scale) * (h * a / scale);
+    int tangent = 0;
+    if (c1) {
+        extend(M, y_new, s.qe);
+        terms(M, s.qe, NULL, motions + ns * 3 * m, s.psi, s.raw, NULL, s.cs);
+        merged(M, s.raw, s.data, s.values);
+        *c1 = m ? indicator_of(M, &s, s.values) : INFINITY;
+        tangent = m && !(fmin(c0, *c1) >= NEAR_ZONE_C);
     }
-    if (!E3) *err = sqrt(e5 / (double)n2);
-    else if (e5 == 0.0 && e3 == 0.0) *err = 0.0;
-    else *err = fabs(h) * e5 / sqrt((e5 + 0.01 * e3) * (double)n2);
+    r = error_norm(M, &s, ns, E, E3, h, y, y_new, K, rtol, atol, tangent, ys + n2, err);
+    if (r != ST_OK) return r;
     if (!(*err < 1.0)) return ST_ERROR_NORM;
     r = project(M, &s, y_new, y_new + n, motions + ns * 3 * m, tol, max_iter);
     if (r == ST_SINGULAR || r == ST_SPRING) return r;
     if (r != ST_OK) return ST_PROJECTION;
-    r = rhs(M, &s, y_new, motions + ns * 3 * m, ufs + ns * nf, f_new, s.lam);
+    r = rhs_projected(M, &s, y_new, motions + ns * 3 * m, ufs + ns * nf, f_new, s.lam);
     if (r == ST_OK) memo_store(M, y_new, y_new + n, motions + ns * 3 * m, motions + ns * 3 * m + 2 * m, ufs + ns * nf, f_new + n, s.lam);
     return r;
+}
+
+int mbd_prk_trial(const Model *M, I ns, const double *A, const double *B, const double *E,
+                  const double *E3, double h, const double *y, const double *f0,
+                  const double *motions, const double *ufs, double rtol, double atol,
+                  double tol, I max_iter, double *y_new, double *f_new, double *err, double *K) {
+    return prk_trial(M, ns, A, B, E, E3, h, y, f0, motions, ufs, rtol, atol, tol, max_iter,
+                     y_new, f_new, err, K, 0.0, NULL);
+}
+
+/* mbd_prk_trial with the indicator at the step's end in *c1 and, near a singular
+ * configuration (c0 or *c1 below NEAR_ZONE), the error estimate along the constraints. */
+int mbd_prk_trial_near(const Model *M, I ns, const double *A, const double *B, const double *E,
+                       const double *E3, double h, const double *y, const double *f0,
+                       const double *motions, const double *ufs, double rtol, double atol,
+                       double tol, I max_iter, double *y_new, double *f_new, double *err,
+                       double *K, double c0, double *c1) {
+    return prk_trial(M, ns, A, B, E, E3, h, y, f0, motions, ufs, rtol, atol, tol, max_iter,
+                     y_new, f_new, err, K, c0, c1);
 }
 
 /* One trial step of an embedded pair in minimal coordinates (integrators/minimal.py): the

@@ -1,0 +1,148 @@
+"""dop853p / rk45p steps taken in C: runs of steps in one call (``c_steps.prk_run``,
+ckernel/adaptive.h ``mbd_prk_run``) and trials next to singular configurations
+(``mbd_prk_trial_near``), held to the Python step loop and the numpy kernel (same accepted
+and rejected steps, values to round-off) and to P2 N = 2's exact reduction."""
+
+import math
+import tomllib
+
+import numpy as np
+import pytest
+
+import mbdfmu
+from mbdfmu.bench.closed_forms import n_four_bar_B0
+from mbdfmu.integrators import c_steps
+from mbdfmu.integrators.work import WorkLimit
+from mbdfmu.model.reader import resolve_scene_path, scene_from_dict
+
+COUNTERS = ("nsteps", "nrejected", "naccel", "nprojections")
+
+
+def _run(scene, method, t_end, monkeypatch, *, runs=True, kernel="c", **options):
+    """(Simulation after advance(t_end), calls of the C run, attempts decided in Python)."""
+    calls, attempts = [], []
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return prk_run(*args, **kwargs)
+
+    def attempt(*args, **kwargs):
+        attempts.append(1)
+        return prk_attempt(*args, **kwargs)
+    prk_run, prk_attempt = c_steps.ckernel_prk_run, c_steps.prk_attempt
+    monkeypatch.setattr(c_steps, "PRK_RUNS", runs)
+    monkeypatch.setattr(c_steps, "ckernel_prk_run", counted)
+    monkeypatch.setattr(c_steps, "prk_attempt", attempt)
+    sim = mbdfmu.Simulation(scene, method=method, kernel=kernel, **options)
+    sim.advance(t_end)
+    monkeypatch.setattr(c_steps, "ckernel_prk_run", prk_run)
+    monkeypatch.setattr(c_steps, "prk_attempt", prk_attempt)
+    return sim, len(calls), len(attempts)
+
+
+def _same_run(a, b, rel):
+    for name in COUNTERS:
+        assert getattr(a.integrator.stats, name) == getattr(b.integrator.stats, name), name
+    out_a, out_b = a.outputs(), b.outputs()
+    for name, value in out_a.items():
+        assert out_b[name] == pytest.approx(value, rel=rel, abs=rel), name
+
+
+def _b0_error(sim, t_end):
+    exact = n_four_bar_B0([t_end], 2)
+    out = sim.outputs()
+    phi = out["crank0.phi"]
+    return math.hypot(out["crank0.x"] + 0.5 * math.cos(phi) - float(exact["x"][-1]),
+                      out["crank0.y"] + 0.5 * math.sin(phi) - float(exact["y"][-1]))
+
+
+@pytest.mark.parametrize("method", ["dop853p", "rk45p"])
+def test_p2_runs_in_c_take_the_python_loops_steps(method, monkeypatch):
+    # 10 s of P2 N = 2 pass its singular configurations (cranks horizontal) 6 times, the
+    # steps planned across them (singular_zone.py), energy audited all along: every
+    # attempt in C, none left to Python
+    scene = mbdfmu.load_scene("n_four_bar_2")
+    options = dict(rtol=1e-6, atol=2e-8)
+    looped, none, in_python = _run(scene, method, 10.0, monkeypatch, runs=False, **options)
+    ran, calls, left = _run(scene, method, 10.0, monkeypatch, **options)
+    stats = looped.integrator.stats
+    assert none == 0 and in_python == stats.nsteps + stats.nrejected
+    assert calls >= 1 and left == 0
+    _same_run(looped, ran, 1e-8)
+    audit_a, audit_b = looped.integrator.audit, ran.integrator.audit
+    assert audit_b.checks == audit_a.checks == ran.integrator.stats.nsteps
+    assert audit_b.worst == pytest.approx(audit_a.worst, rel=1e-6)
+    assert _b0_error(ran, 10.0) < 1e-6
+
+
+def test_p2_trials_near_singular_configurations_match_the_numpy_kernel(monkeypatch):
+    # the numpy kernel takes every step in Python (stages, the error estimate along the
+    # constraints near the singular configurations, projections)
+    scene = mbdfmu.load_scene("n_four_bar_2")
+    options = dict(rtol=1e-6, atol=2e-8)
+    numpy_run, _, _ = _run(scene, "dop853p", 10.0, monkeypatch, kernel="numpy", **options)
+    c_run, _, _ = _run(scene, "dop853p", 10.0, monkeypatch, runs=False, **options)
+    _same_run(numpy_run, c_run, 1e-8)
+    assert _b0_error(numpy_run, 10.0) < 1e-6
+
+
+def test_runs_in_c_with_a_damped_spring(monkeypatch):
+    # Andrews' mechanism with a damper in its spring: forces that change with the state
+    # and no energy audit (not conservative)
+    data = tomllib.loads(resolve_scene_path("andrews").read_text())
+    for force in data["force"]:
+        if force["type"] == "spring_damper":
+            force["damping"] = 20.0
+    scene = scene_from_dict(data)
+    options = dict(rtol=1e-6, atol=1e-9)
+    looped, _, _ = _run(scene, "dop853p", 0.03, monkeypatch, runs=False, **options)
+    ran, calls, _ = _run(scene, "dop853p", 0.03, monkeypatch, **options)
+    assert ran.integrator.audit is None and calls >= 1
+    assert ran.integrator.stats.nsteps > 20
+    _same_run(looped, ran, 1e-8)
+    # the damper takes energy out: below the undamped run's crank speed at the end
+    undamped, _, _ = _run(mbdfmu.load_scene("andrews"), "dop853p", 0.03, monkeypatch, **options)
+    assert abs(ran.outputs()["crank.omega"]) < abs(undamped.outputs()["crank.omega"])
+
+
+def test_dense_outputs_inside_a_run_of_steps(monkeypatch):
+    # outputs every 10 ms, inside steps the run took (dense output of its last step)
+    scene = mbdfmu.load_scene("n_four_bar_2")
+    values = []
+    for runs in (False, True):
+        monkeypatch.setattr(c_steps, "PRK_RUNS", runs)
+        sim = mbdfmu.Simulation(scene, method="dop853p", kernel="c", rtol=1e-7, atol=2e-9)
+        phis = []
+        for t in np.arange(1, 101) * 0.01:
+            sim.advance(t, dense=True)
+            phis.append(sim.outputs()["crank0.phi"])
+        values.append(np.array(phis))
+    assert np.max(np.abs(values[0] - values[1])) < 1e-10
+
+
+def _failure(scene, monkeypatch, runs, prepare, **advance):
+    monkeypatch.setattr(c_steps, "PRK_RUNS", runs)
+    sim = mbdfmu.Simulation(scene, method="dop853p", kernel="c", rtol=1e-6, atol=2e-8)
+    prepare(sim)
+    with pytest.raises(mbdfmu.SolverError) as failure:
+        sim.advance(10.0, **advance)
+    stats = sim.integrator.stats
+    return str(failure.value), (stats.nsteps, stats.nrejected)
+
+
+def test_runs_in_c_stop_where_the_python_loop_stops(monkeypatch):
+    # a work limit of 50 steps (the runs stop at it, not at their 64 attempts) and an
+    # energy budget a million times tighter than the method's (the audit's check fails
+    # after some step): the same message at the same time, the state rolled back alike
+    scene = mbdfmu.load_scene("n_four_bar_2")
+
+    def nothing(sim):
+        pass
+
+    def tight(sim):
+        sim.integrator.audit.factor *= 1e-6
+    for prepare, advance in ((nothing, dict(limit=WorkLimit(max_steps=50))), (tight, {})):
+        looped = _failure(scene, monkeypatch, False, prepare, **advance)
+        ran = _failure(scene, monkeypatch, True, prepare, **advance)
+        assert ran == looped
+        assert "t = " in ran[0]
