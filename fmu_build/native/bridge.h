@@ -151,6 +151,9 @@ struct Instance {
     int64_t *fast_step;
     int fast_pending;
     int fast_set;
+    /* FMI 3.0: the independent variable's value reference (-1: none), whose value a step
+     * taken here sets to t + h as the slave's step sets it */
+    long fast_time;
 };
 
 /* runtime/real_cache.py FastSteps: 0 when it took the step and refreshed values. */
@@ -597,6 +600,13 @@ static void fast_real(Instance *in, PyObject *slave) {
     if (t) py.Py_DecRef(t);
     py.PyErr_Clear();
     if (!in->fast_valid) return;
+    PyObject *time = py.PyObject_GetAttrString(slave, "fast_time");
+    long vr = time ? py.PyLong_AsLong(time) : -1;
+    if (time) py.Py_DecRef(time);
+    if (py.PyErr_Occurred() || vr < 0 || (size_t)vr >= in->fast_count || !in->fast_mask[vr])
+        vr = -1;
+    py.PyErr_Clear();
+    in->fast_time = vr;
     PyObject *block = py.PyObject_GetAttrString(slave, "fast_step");
     void *address = block ? py.PyLong_AsVoidPtr(block) : NULL;
     if (!py.PyErr_Occurred() && address) in->fast_step = address;
@@ -604,8 +614,8 @@ static void fast_real(Instance *in, PyObject *slave) {
     py.PyErr_Clear();
 }
 
-/* fmi2DoStep taken by the slave's FastSteps function without Python (the Real values
- * valid: nothing called since the last step but gets); 1 when it did. */
+/* fmi2DoStep / fmi3DoStep taken by the slave's FastSteps function without Python (the
+ * Real values valid: nothing called since the last step but gets); 1 when it did. */
 static int fast_do_step(void *c, double t, double h) {
     Instance *in = as_instance(c);
     if (!in || in->fatal || !in->fast_step || !in->fast_valid || !*in->fast_valid
@@ -615,6 +625,7 @@ static int fast_do_step(void *c, double t, double h) {
     if (step((const void *)(intptr_t)in->fast_step[2], (void *)(intptr_t)in->fast_step[3], t, h,
              (double *)in->fast_values) != 0)
         return 0;
+    if (in->fast_time >= 0) ((double *)in->fast_values)[in->fast_time] = t + h;
     free_strings(in);
     in->fast_pending = 1;
     in->fast_set = 0;
@@ -622,11 +633,11 @@ static int fast_do_step(void *c, double t, double h) {
     return 1;
 }
 
-/* fmi2SetReal taken by the slave's FastSteps set function without Python (the fast
- * steps armed, nothing called since the last step but gets, sets and such steps); 1 when
- * it did. The slave learns the values when it catches up; gets go through Python until
- * the next step (the values that follow inputs are the slave's to compute). */
-__attribute__((unused))
+/* fmi2SetReal / fmi3SetFloat64 taken by the slave's FastSteps set function without
+ * Python (the fast steps armed, nothing called since the last step but gets, sets and
+ * such steps); 1 when it did. The slave learns the values when it catches up; gets go
+ * through Python until the next step (the values that follow inputs are the slave's to
+ * compute). */
 static int fast_set_real(void *c, const unsigned int vr[], size_t nvr, const double value[]) {
     Instance *in = as_instance(c);
     if (!in || in->fatal || !in->fast_step || !in->fast_valid || !*in->fast_valid
@@ -764,10 +775,11 @@ static int experiment(void *c, Method m, const char *function, int tolerance_def
 }
 
 /* DoStep's arguments checked (the wrapper's own refusal), then method m (FMI 2.0: no
- * payload; FMI 3.0: (terminate, lastSuccessfulTime)). */
+ * payload; FMI 3.0: (terminate, lastSuccessfulTime), whose fmi3DoStep tries
+ * fast_do_step itself to set its outputs). */
 static int do_step(void *c, Method m, const char *function, double t, double h,
                    int no_set_prior, PyObject **payload) {
-    if (!payload && fast_do_step(c, t, h)) return ST_OK;      /* FMI 2.0 only */
+    if (!payload && fast_do_step(c, t, h)) return ST_OK;
     ENTER(c);
     char reason[200];
     if (payload) *payload = NULL;

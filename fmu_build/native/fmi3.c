@@ -175,7 +175,15 @@ fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference valueR
     return get_values(instance, "fmi3GetFloat64", "Float64", K_REAL, valueReferences,
                       nValueReferences, values);
 }
-SETTER(Float64, fmi3Float64, "Float64", K_REAL)
+/* ... and takes the inputs the wrapper's own steps read without Python (fmi2SetReal's). */
+fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference valueReferences[],
+                          size_t nValueReferences, const fmi3Float64 values[], size_t nValues) {
+    if (nValues != nValueReferences)
+        return scalar_count(instance, "fmi3SetFloat64", nValueReferences, nValues);
+    if (fast_set_real(instance, valueReferences, nValueReferences, values)) return fmi3OK;
+    return set_values(instance, "fmi3SetFloat64", "Float64", K_REAL, valueReferences,
+                      nValueReferences, values);
+}
 TYPE(Int32, fmi3Int32, K_INT32)
 TYPE(Boolean, fmi3Boolean, K_C_BOOL)
 TYPE(String, fmi3String, K_STRING)
@@ -362,6 +370,12 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 currentCommunicationPoi
     if (!eventHandlingNeeded || !terminateSimulation || !earlyReturn || !lastSuccessfulTime)
         return unsupported(instance, "fmi3DoStep", "an output argument (eventHandlingNeeded, "
                            "terminateSimulation, earlyReturn, lastSuccessfulTime) is NULL");
+    if (fast_do_step(instance, currentCommunicationPoint, communicationStepSize)) {
+        /* the slave's step would end at t + h, OK, asking for nothing (as its payload) */
+        *eventHandlingNeeded = *terminateSimulation = *earlyReturn = fmi3False;
+        *lastSuccessfulTime = currentCommunicationPoint + communicationStepSize;
+        return fmi3OK;
+    }
     int status = do_step(instance, M_DO_STEP3, "fmi3DoStep", currentCommunicationPoint,
                          communicationStepSize, noSetFMUStatePriorToCurrentPoint, &payload);
     *eventHandlingNeeded = fmi3False;

@@ -54,7 +54,19 @@ class Fmi3Protocol:
 
     def fmi3_do_step(self, time: float, step_size: float, no_set_prior: bool):
         code, _ = self.fmi2_do_step(time, step_size, no_set_prior)
+        if self._fmi_terminate or any(self.values[name] != 0.0
+                                      for name, _, _ in self.variables.input_derivatives):
+            # the wrapper's own steps return terminateSimulation false and push no
+            # derivative inputs: such steps are Python's
+            self.disarm_fast_steps()
         return code, (bool(self._fmi_terminate), float(self._fmi_time))
+
+    @property
+    def fast_time(self) -> int:
+        """The independent variable's value reference, or -1 (FMI 2.0): the wrapper sets
+        its value to t + h after each step it takes by itself, as ``_fmi_at`` does."""
+        name = self.variables.independent
+        return self.variables.by_name[name].value_reference if name else -1
 
     def _fmi_push_input_derivatives(self) -> None:
         """Derivative inputs (FMI 3.0) to the model, before a step (module docstring)."""

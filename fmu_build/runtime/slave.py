@@ -30,7 +30,7 @@ The model reads ``self.time`` (s), ``self.start_time``, ``self.stop_time``,
 ``self.resources`` (the FMU's resources folder) and logs with ``self.log(text)``. Names
 the base uses, which a model must not assign: ``values``, ``set_since_step``,
 ``variables``, ``time``, ``start_time``, ``stop_time``, ``tolerance``, ``resources``,
-``instance_name``, ``guid``, ``log_queue``, ``fast_real``, ``fast_step``,
+``instance_name``, ``guid``, ``log_queue``, ``fast_real``, ``fast_step``, ``fast_time``,
 ``take_log``, ``fmi_sync`` and everything starting with ``_fmi`` or ``fmi2_``.
 
 The ``fmi2_*`` methods form the protocol with the C wrapper (one per FMI function, see
