@@ -54,10 +54,14 @@ from .implicit_control import STEP_CONTROL, StepControl
 from .newton import ImplicitMethod, IterationMatrix, newton_iterate, newton_tolerances
 
 # How much the penalty outweighs the largest mass (per unit of constraint gradient): large,
-# so that the iteration converges fast where the Jacobian nearly loses rank (1e8: a singular
-# value 1e-4 still gives a contraction of 1/2 per iteration). The augmented form keeps this
-# harmless for round-off.
-PENALTY_RATIO = 1e8
+# so that the iteration converges fast where the Jacobian nearly loses rank (1e10: a singular
+# value 1e-5 still gives a contraction of 1/2 per iteration). In the few steps nearest a
+# singular configuration Psi is at the positions' rounding while the rank-loss coordinate
+# is still off by about eps / s, and only the penalty holds that coordinate on its branch:
+# a weaker one left it where the predictor put it, and every crossing left an energy error
+# that did not shrink like h^2 (docs/accuracy.md). The augmented form keeps this harmless
+# for round-off.
+PENALTY_RATIO = 1e10
 
 
 def mass_projector(equations, J: np.ndarray):
