@@ -91,6 +91,7 @@ class ErrorEstimate(Plain):
 
     def spot_check(self, integrator, h: float) -> None:
         """The local error of a step of size h from the current state (which is kept)."""
+        t = integrator.t                  # where the steps since the last check end
         saved = integrator.rollback_point()
         del saved["accuracy"]             # this object: it goes on counting
         try:
@@ -107,7 +108,7 @@ class ErrorEstimate(Plain):
             local_v = richardson_factor(p_v) * float(np.max(np.abs(one_v - integrator.qd),
                                                             initial=0.0)) \
                 if getattr(integrator, "carry_velocity_error", False) else 0.0
-            self._resample(integrator, h, local, local_v)
+            self._resample(integrator, t, h, local, local_v)
         except SolverError:
             pass                          # the run itself will say why
         finally:
@@ -117,7 +118,8 @@ class ErrorEstimate(Plain):
                 setattr(integrator.stats, name, getattr(work, name))
         self.unchecked = self.since = 0
 
-    def _resample(self, integrator, h: float, local: float, local_v: float) -> None:
+    def _resample(self, integrator, t: float, h: float, local: float,
+                  local_v: float) -> None:
         """Take a check's local errors into the envelope charged per step; charge the steps
         since the last check with what it adds; set the interval to the next check."""
         env_q = max(local, SPOT_CHECK_DECAY * self.local)
@@ -125,7 +127,7 @@ class ErrorEstimate(Plain):
         floor = SPOT_CHECK_FLOOR * allowed_error(integrator)
         rising = (local > max(SPOT_CHECK_CHANGE * self.local, floor)
                   or local_v > max(SPOT_CHECK_CHANGE * self.local_v, floor))
-        self._add(integrator.t, h, self.since, max(0.0, env_q - self.local),
+        self._add(t, h, self.since, max(0.0, env_q - self.local),
                   max(0.0, env_v - self.local_v))
         self.local, self.local_v = env_q, env_v
         grow = min(SPOT_CHECK_MAX, max(SPOT_CHECK_EVERY,
