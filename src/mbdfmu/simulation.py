@@ -58,8 +58,9 @@ class Simulation(SimulationInputs):
         self.equations = Equations(scene, kernel=kernel)
         layout = self.equations.layout
         self.input_names = [v.name for v in inputs(scene)]
-        self.output_names = [v.name for v in outputs(scene)]
-        self.units = {v.name: v.unit for v in outputs(scene)}
+        variables = outputs(scene)
+        self.output_names = [v.name for v in variables]
+        self.units = {v.name: v.unit for v in variables}
         self._drivers = {name: SampledDriver(x0) for name, x0 in
                          zip(layout.drivers, layout.driver_initial)}
         self._forces = {name: Held(np.zeros(len(f))) for name, f in layout.fields.items()}

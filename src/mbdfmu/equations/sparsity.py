@@ -169,14 +169,15 @@ class JacobianPattern:
         order = np.argsort(self.cols, kind="stable")
         cols_sorted = self.cols[order]
         starts = np.flatnonzero(np.r_[True, cols_sorted[1:] != cols_sorted[:-1]])
-        ends = np.r_[starts[1:], cols_sorted.size]
-        pa, pb = [], []
-        for s, e in zip(starts, ends):
-            a, b = np.meshgrid(order[s:e], order[s:e], indexing="ij")
-            pa.append(a.ravel()), pb.append(b.ravel())
-        if not pa:
-            return np.zeros(0, np.intp), np.zeros(0, np.intp)
-        return np.concatenate(pa), np.concatenate(pb)
+        sizes = np.diff(np.r_[starts, cols_sorted.size])
+        # each entry of a column pairs with every entry of it, in the order a per-column
+        # meshgrid (i outer, j inner) would give, without a Python loop over columns
+        group = np.repeat(np.arange(starts.size), sizes)          # column of each sorted entry
+        count = sizes[group]                                       # pairs of each sorted entry
+        first = np.repeat(np.cumsum(count) - count, count)         # where its pairs begin
+        a = np.repeat(np.arange(cols_sorted.size), count)
+        b = starts[group[a]] + np.arange(a.size) - first
+        return order[a], order[b]
 
     def _plan_schur_band(self, minv: np.ndarray) -> None:
         """Index maps that put S = J M^-1 J^T straight into lower band storage
@@ -185,7 +186,11 @@ class JacobianPattern:
         m = self.m
         pa, pb = self._column_pairs()
         ra, rb = self.rows[pa], self.rows[pb]
-        graph = scipy.sparse.coo_matrix((np.ones(ra.size), (ra, rb)), shape=(m, m)).tocsr()
+        # S's pattern straight in canonical CSR (sorted, no repeats): what coo's tocsr
+        # gives, without its checks and conversions
+        flat = np.unique(ra * m + rb)
+        indptr = np.searchsorted(flat, np.arange(m + 1) * m)
+        graph = scipy.sparse.csr_matrix((np.ones(flat.size), flat % m, indptr), shape=(m, m))
         perm = (reverse_cuthill_mckee(graph, symmetric_mode=True).astype(np.intp) if m
                 else np.zeros(0, np.intp))            # no constraints: nothing to order
         position = np.empty(m, dtype=np.intp)

@@ -315,6 +315,9 @@ def adopt_prk_run(rk, state: dict) -> None:
 
 # Attempts per call of a run of an embedded pair's steps: the work limit is checked between.
 PRK_RUN_LENGTH = 64
+# ... and without a work limit: nothing to check between calls, so one call per output
+# time on most runs; still bounded so that an interrupt is seen between calls.
+PRK_RUN_LENGTH_FREE = 4096
 # Runs of an embedded pair's steps in C (``prk_run``); False: one C trial per Python step.
 PRK_RUNS = True
 
@@ -339,7 +342,7 @@ def prk_run(rk, t_target: float, dense: bool, rejections: int, factors: tuple,
     rejected in a row)."""
     eq, n = rk.equations, rk.q.size
     table = tableau(rk)
-    attempts = PRK_RUN_LENGTH
+    attempts = PRK_RUN_LENGTH if rk.limit is not None else PRK_RUN_LENGTH_FREE
     if rk.limit is not None and rk.limit.max_steps is not None:
         used = rk.stats.nsteps + rk.stats.nrejected - rk.limit.first
         attempts = max(1, min(attempts, rk.limit.max_steps - used))
