@@ -9,11 +9,12 @@ mechanism can be: what is left between it and mbdfmu is the cost of the full (ab
 coordinates, the constraints and their projections.
 
 Every method runs with the C kernel (what FMUs run) from t = 0 to ``--t-end``; fixed-step
-methods over a sweep of steps, adaptive ones over a sweep of rtol (decades, and 5e-6 and 2e-6; atol = rtol x 1e-2 x
-the mechanism's size, as ``mbdfmu bench``); error: B0's position at t_end against the
-DOP853 reduction at 1e-13 (m). CPU time (process), the median of ``--repeat`` for runs
-under 0.5 s (``advance`` alone: the median of each run's time after ``Simulation()``). Target: the cheapest run reaching 1e-6 within 20 times the compiled
-reduction's cheapest run reaching 1e-6.
+methods over a sweep of steps, adaptive ones over a sweep of rtol (decades, and 5e-6 and
+2e-6; atol = rtol x 1e-2 x the mechanism's size, as ``mbdfmu bench``); error: B0's
+position at t_end against the DOP853 reduction at 1e-13 (m). CPU time (process), the
+median of ``--repeat`` for runs under 0.5 s (``advance`` alone: the median of each run's
+time after ``Simulation()``). Target: the cheapest run reaching 1e-6 within 20 times the
+compiled reduction's cheapest run reaching 1e-6.
 
     python benchmarks/p2_limit.py [--t-end 10] [--repeat 3] [--quick] [-o DIR]
 
