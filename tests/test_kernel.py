@@ -108,6 +108,27 @@ def test_banded_products_equal_dense_products():
     np.testing.assert_allclose(Js.T @ y, Jd.T @ y, rtol=1e-14)
 
 
+@pytest.mark.parametrize("name", SCENES + ["P2 N = 20"])
+def test_band_plan_assembles_the_schur_complement_of_the_dense_jacobian(name):
+    # S = J M^-1 J^T from the plan's pairs of entries (what the C kernel factorises) against
+    # numpy's product of the dense Jacobian, in the plan's row order, and nothing outside
+    # the band it claims
+    system = Equations(n_four_bar(20) if name == "P2 N = 20" else scene(name))
+    q, _ = assemble(system)
+    _, J = system.constraints(0.0, q)
+    S_ref = (J * system.minv) @ J.T
+    p = system.pattern
+    band = p.schur_band(system.constraint_values(0.0, q)[1][p.keep])
+    perm = p.perm
+    assert sorted(perm.tolist()) == list(range(system.m))
+    S = np.zeros((system.m, system.m))
+    for d in range(p.kd + 1):
+        j = np.arange(system.m - d)
+        S[j + d, j] = S[j, j + d] = band[d, : system.m - d]
+    np.testing.assert_allclose(S, S_ref[np.ix_(perm, perm)], rtol=1e-13,
+                               atol=1e-13 * np.abs(S_ref).max())
+
+
 def test_banded_min_norm_at_the_singular_crossing_equals_the_pseudo_inverse():
     # P2 with the cranks horizontal: Psi_q loses rank N; lam is the minimum-norm solution
     N = 40

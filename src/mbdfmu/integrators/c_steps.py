@@ -335,7 +335,8 @@ def prk_runs(rk) -> bool:
 def prk_run(rk, t_target: float, dense: bool, rejections: int, factors: tuple,
             energy: tuple) -> tuple[int, int]:
     """Steps of ``_advance_adaptive`` in C (``ckernel/adaptive.h`` ``mbd_prk_run``) until
-    the target, a step Python must take or PRK_RUN_LENGTH attempts (then the work limit):
+    the target, a step Python must take or PRK_RUN_LENGTH attempts (then the work limit;
+    PRK_RUN_LENGTH_FREE without one):
     the same decisions, counters, energy audit and dense output as the Python loop.
     ``factors``: projected_rk.py's (safety, min, max) step factors; ``energy``: its
     (ENERGY_MIN_GAIN, ENERGY_JUMP_LIMIT). Returns (the kernel's RUN_* status, steps
