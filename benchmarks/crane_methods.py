@@ -133,10 +133,9 @@ def markdown(rows: list[dict], travel: float, header: str) -> str:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("-o", "--output", default=str(fs.ROOT / "docs" / "figures" / "performance"))
+    parser.add_argument("--repeat", type=int, default=3, help="timed runs, the best kept")
     parser.add_argument("--t-end", type=float, default=1.0, help="simulated s per run")
-    parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("-o", "--output", default=str(Path(__file__).resolve().parents[1] /
-                                                      "docs" / "figures" / "performance"))
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         rows, travel = measure(args.t_end, args.repeat, Path(tmp))
@@ -144,11 +143,10 @@ def main(argv=None) -> int:
               f"the crane's mechanism, its cylinder force set before every 1 ms step; CPU time "
               f"per 1 ms step, best of {args.repeat}; errors against dop853p at rtol 1e-13 "
               "driven by the same force sequence.")
-    text = markdown(rows, travel, header)
-    print(text)
-    out = Path(args.output)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "crane_methods.md").write_text(text)
+    Path(args.output).mkdir(parents=True, exist_ok=True)
+    table = Path(args.output) / "crane_methods.md"
+    table.write_text(markdown(rows, travel, header))
+    print(table.read_text())
     return 0
 
 
