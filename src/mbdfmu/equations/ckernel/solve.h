@@ -40,51 +40,45 @@ static int band_cholesky(double *L, I m, I kd, double *dmin, double *dmax) {
     return 1;
 }
 
-/* S = L D L^T of the band L[d * m + j] = S[j + d, j] in place, without square roots on
- * the columns' dependency chain: L unit lower below the diagonal, the diagonal holding
- * 1 / D at the end (so that substitutions multiply); w: kd scratch; D's range in *dmin, *dmax
- * (the squares of band_cholesky's pivots); 0 when S is not positive definite. */
-static int band_ldlt(double *L, I m, I kd, double *dmin, double *dmax, double *w) {
-    double lo = INFINITY, hi = 0.0;     /* locals and plain comparisons, no fmax calls:
-                                         * the division runs beside the next loop */
+/* band_cholesky with the pivots' reciprocals on the diagonal instead of the pivots (the
+ * same 1 / d it divides by, so the same factor bit for bit), for band_substitute_inv, and
+ * the pivots' range kept in locals: fmax's calls (not inlined without fast math) made the
+ * pivot's division wait on the stack instead of running beside the next column's sums. */
+static int band_cholesky_inv(double *L, I m, I kd, double *dmin, double *dmax) {
+    double lo = INFINITY, hi = 0.0;
     for (I j = 0; j < m; j++) {
-        I k0 = j - kd > 0 ? j - kd : 0;
-        double d = L[j];
-        for (I k = k0; k < j; k++) {             /* w = L_jk D_k, shared by the column */
-            double l = L[(j - k) * m + k];
-            w[k - k0] = l * L[k];                /* L[k] is D_k until the end */
-            d -= l * w[k - k0];
-        }
-        if (!(d > 0.0)) return 0;
-        double inv = 1.0 / d;
-        L[j] = d;
+        double s = L[j];
+        for (I k = (j - kd > 0 ? j - kd : 0); k < j; k++) s -= L[(j - k) * m + k] * L[(j - k) * m + k];
+        if (!(s > 0.0)) return 0;
+        double d = sqrt(s), inv = 1.0 / d;
+        L[j] = inv;
         hi = d > hi ? d : hi;
         lo = d < lo ? d : lo;
         I end = j + kd + 1 < m ? j + kd + 1 : m;
         for (I i = j + 1; i < end; i++) {
             double t = L[(i - j) * m + j];
-            for (I k = (i - kd > k0 ? i - kd : k0); k < j; k++) t -= L[(i - k) * m + k] * w[k - k0];
+            for (I k = (i - kd > 0 ? i - kd : 0); k < j; k++) t -= L[(i - k) * m + k] * L[(j - k) * m + k];
             L[(i - j) * m + j] = t * inv;
         }
     }
-    for (I j = 0; j < m; j++) L[j] = 1.0 / L[j];   /* off the chain: independent divisions */
     *dmin = lo;
     *dmax = hi;
     return 1;
 }
 
-/* L D L^T y = y in place for band_ldlt's factor: multiplications only. */
-static void ldlt_substitute(const double *L, I m, I kd, double *y) {
+/* band_substitute for band_cholesky_inv's factor: multiplications by the stored
+ * reciprocals, the same numbers as band_substitute's. */
+static void band_substitute_inv(const double *L, I m, I kd, double *y) {
     for (I i = 0; i < m; i++) {
         double s = y[i];
         for (I k = (i - kd > 0 ? i - kd : 0); k < i; k++) s -= L[(i - k) * m + k] * y[k];
-        y[i] = s;
+        y[i] = s * L[i];
     }
     for (I i = m - 1; i >= 0; i--) {
-        double s = y[i] * L[i];
+        double s = y[i];
         I end = i + kd + 1 < m ? i + kd + 1 : m;
         for (I k = i + 1; k < end; k++) s -= L[(k - i) * m + i] * y[k];
-        y[i] = s;
+        y[i] = s * L[i];
     }
 }
 
@@ -217,9 +211,9 @@ static int banded_solve(const Model *M, const double *values, const double *b, d
     for (I p = 0; p < M->npairs; p++)
         band[M->band_index[p]] += values[M->pair_a[p]] * values[M->pair_b[p]] * M->pair_minv[p];
     memcpy(L, band, (size_t)size * sizeof(double));
-    if (band_ldlt(L, m, kd, &dmin, &dmax, tmp) && dmin > M->rank_tol * dmax) {
+    if (band_cholesky_inv(L, m, kd, &dmin, &dmax) && dmin > sqrt(M->rank_tol) * dmax) {
         for (I i = 0; i < m; i++) tmp[i] = b[M->perm[i]];
-        ldlt_substitute(L, m, kd, tmp);
+        band_substitute_inv(L, m, kd, tmp);
         for (I i = 0; i < m; i++) x[M->perm[i]] = tmp[i];
         *kept = 1;
         return ST_OK;
@@ -261,9 +255,9 @@ static int schur_solve_keeping(const Model *M, const double *values, const doubl
     memset(L, 0, (size_t)size * sizeof(double));
     for (I p = 0; p < M->npairs; p++)
         L[M->band_index[p]] += values[M->pair_a[p]] * values[M->pair_b[p]] * M->pair_minv[p];
-    if (band_ldlt(L, m, kd, &dmin, &dmax, tmp) && dmin > M->rank_tol * dmax) {
+    if (band_cholesky_inv(L, m, kd, &dmin, &dmax) && dmin > sqrt(M->rank_tol) * dmax) {
         for (I i = 0; i < m; i++) tmp[i] = b[M->perm[i]];
-        ldlt_substitute(L, m, kd, tmp);
+        band_substitute_inv(L, m, kd, tmp);
         for (I i = 0; i < m; i++) x[M->perm[i]] = tmp[i];
         *kept = 1;
         return ST_OK;
@@ -284,6 +278,6 @@ static void schur_again(const Model *M, const double *b, double *x, const double
     I m = M->m, kd = M->kd;
     const double *L = M->banded ? work + (kd + 1) * m : work;
     for (I i = 0; i < m; i++) tmp[i] = b[M->perm[i]];
-    ldlt_substitute(L, m, kd, tmp);
+    band_substitute_inv(L, m, kd, tmp);
     for (I i = 0; i < m; i++) x[M->perm[i]] = tmp[i];
 }
