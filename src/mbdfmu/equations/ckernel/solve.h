@@ -18,40 +18,18 @@
 #define JACOBI_OFF 1e-17
 
 /* Cholesky of the band L[d * m + j] = S[j + d, j] in place; pivots' range in *dmin, *dmax;
- * 0 when S is not positive definite. */
-static int band_cholesky(double *L, I m, I kd, double *dmin, double *dmax) {
-    *dmax = 0.0;
-    *dmin = INFINITY;
-    for (I j = 0; j < m; j++) {
-        double s = L[j];
-        for (I k = (j - kd > 0 ? j - kd : 0); k < j; k++) s -= L[(j - k) * m + k] * L[(j - k) * m + k];
-        if (!(s > 0.0)) return 0;
-        double d = sqrt(s), inv = 1.0 / d;   /* one division per column, not per entry */
-        L[j] = d;
-        if (d > *dmax) *dmax = d;        /* d > 0: fmax's answer without its call */
-        if (d < *dmin) *dmin = d;
-        I end = j + kd + 1 < m ? j + kd + 1 : m;
-        for (I i = j + 1; i < end; i++) {
-            double t = L[(i - j) * m + j];
-            for (I k = (i - kd > 0 ? i - kd : 0); k < j; k++) t -= L[(i - k) * m + k] * L[(j - k) * m + k];
-            L[(i - j) * m + j] = t * inv;
-        }
-    }
-    return 1;
-}
-
-/* band_cholesky with the pivots' reciprocals on the diagonal instead of the pivots (the
- * same 1 / d it divides by, so the same factor bit for bit), for band_substitute_inv, and
- * the pivots' range kept in locals: fmax's calls (not inlined without fast math) made the
- * pivot's division wait on the stack instead of running beside the next column's sums. */
-static int band_cholesky_inv(double *L, I m, I kd, double *dmin, double *dmax) {
+ * 0 when S is not positive definite. `reciprocal`: the diagonal holds the pivots'
+ * reciprocals (the same 1 / d the column divides by, for band_substitute_inv) instead of
+ * the pivots. The range is kept in locals: fmax's calls (not inlined without fast math)
+ * made the pivot's division wait on the stack instead of beside the next column's sums. */
+static int band_factor(double *L, I m, I kd, double *dmin, double *dmax, int reciprocal) {
     double lo = INFINITY, hi = 0.0;
     for (I j = 0; j < m; j++) {
         double s = L[j];
         for (I k = (j - kd > 0 ? j - kd : 0); k < j; k++) s -= L[(j - k) * m + k] * L[(j - k) * m + k];
         if (!(s > 0.0)) return 0;
-        double d = sqrt(s), inv = 1.0 / d;
-        L[j] = inv;
+        double d = sqrt(s), inv = 1.0 / d;   /* one division per column, not per entry */
+        L[j] = reciprocal ? inv : d;
         hi = d > hi ? d : hi;
         lo = d < lo ? d : lo;
         I end = j + kd + 1 < m ? j + kd + 1 : m;
@@ -64,6 +42,14 @@ static int band_cholesky_inv(double *L, I m, I kd, double *dmin, double *dmax) {
     *dmin = lo;
     *dmax = hi;
     return 1;
+}
+
+static int band_cholesky(double *L, I m, I kd, double *dmin, double *dmax) {
+    return band_factor(L, m, kd, dmin, dmax, 0);
+}
+
+static int band_cholesky_inv(double *L, I m, I kd, double *dmin, double *dmax) {
+    return band_factor(L, m, kd, dmin, dmax, 1);
 }
 
 /* band_substitute for band_cholesky_inv's factor: multiplications by the stored
