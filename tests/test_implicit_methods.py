@@ -91,12 +91,12 @@ def test_order_two_through_the_singular_crossing_at_fine_steps(method):
     assert all(3.3 < r < 5.0 for r in ratios), (errors, ratios)
 
 
-def crossing_energy_change(h: float, t0: float, T: float = 0.06) -> float:
-    """Change of ali3p's system energy (J) from the exact state at t0 over T, through the
-    crossing at 1.228 s; the exact motion keeps it constant."""
+def crossing_energy_change(h: float, t0: float, T: float = 0.06, method: str = "ali3p") -> float:
+    """Change of the method's system energy (J) from the exact state at t0 over T, through
+    the crossing at 1.228 s; the exact motion keeps it constant."""
     start = ref.n_four_bar(np.array([t0]), 2)
     res = mbdfmu.simulate(p2_scene_at(float(start["theta"][0]), float(start["theta_dot"][0])),
-                          T, method="ali3p", step=h, output_interval=T)
+                          T, method=method, step=h, output_interval=T)
     energy = res["energy.kinetic"] + res["energy.potential"]
     return float(energy[-1] - energy[0])
 
@@ -114,6 +114,20 @@ def test_ali3p_crossing_leaves_no_energy_jump_beyond_order_two():
         coarse, fine = (crossing_energy_change(h, t0) for h in (2e-5, 1e-5))
         parts.append(abs(4.0 * fine - coarse) / 3.0)
     assert np.median(parts) < 1e-10 and max(parts) < 1e-9, parts
+
+
+def test_no_step_ends_next_to_the_singular_configuration():
+    # A step that ended within |sin theta| of about 3e-6 of the crossing left the rank-loss
+    # coordinate off by the positions' rounding over |sin theta| and an energy jump that did
+    # not shrink with h (crossing_step.py). The energy change through the crossing at
+    # h = 5e-6 must be a quarter of that at 1e-5 (order 2) at every grid offset. Before
+    # the steps across it: genalpha +4.08e-9 ... +3.65e-9 J against 1.63e-8 / 4 = 4.07e-9
+    # (|dev| up to 4.2e-10 J); measured now: 4.04e-9 ... 4.07e-9 (|dev| <= 3e-11 J).
+    # (ali3p's jumps at these offsets were already below 1e-10 J.)
+    coarse = crossing_energy_change(1e-5, 1.2, method="genalpha")
+    devs = [crossing_energy_change(5e-6, 1.2 + j * 1.25e-6, method="genalpha") - coarse / 4.0
+            for j in range(4)]
+    assert max(abs(d) for d in devs) < 1e-10, (coarse, devs)
 
 
 @pytest.mark.parametrize("method", ["genalpha", "ali3p"])
