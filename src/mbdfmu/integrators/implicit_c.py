@@ -103,6 +103,7 @@ class KernelNewton:
             beta=beta, gamma=gamma, length_scale=eq.length_scale, roundoff=newton.ROUNDOFF,
             atol_max=newton.NEWTON_ATOL_MAX, tol_floor=newton.NEWTON_TOL_FLOOR, t_ref=newton.T_REF,
             noise_max=newton.NOISE_MAX, near_indicator=newton.NEAR_SINGULAR_INDICATOR,
+            near_floor=newton.NEAR_SINGULAR_FLOOR,
             t_near=newton.T_NEAR, slow_rate=newton.NEWTON_SLOW_RATE,
             diverging_rate=newton.NEWTON_DIVERGING_RATE, singular_pivot=newton.SINGULAR_PIVOT,
             dense_below=DENSE_BELOW, h_fine=newton.H_FINE)
