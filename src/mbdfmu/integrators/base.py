@@ -279,12 +279,16 @@ class Integrator:
             accepted, _ = self._step_impl(h)
             if not accepted:
                 raise SolverError(f"{self.name}: a fixed step of {h:.3g} s failed", self.t)
-            self.t = t0 + j * h if j < n else t_target
-            self.stats.nsteps += 1
-            self._after_step()
-            if self.limit is not None:
-                self.limit.check(self.stats, self.t, t_target)
+            self._grid_step_taken(t0 + j * h if j < n else t_target, t_target)
         return stop
+
+    def _grid_step_taken(self, t: float, t_target: float) -> None:
+        """A fixed step taken to the grid time t: counted, checked, within the work limit."""
+        self.t = t
+        self.stats.nsteps += 1
+        self._after_step()
+        if self.limit is not None:
+            self.limit.check(self.stats, self.t, t_target)
 
     def get_state(self) -> dict:
         """Everything needed to continue bit for bit, as plain data (``plain.py``)."""

@@ -102,9 +102,5 @@ def fixed_run_across(method, t0: float, h: float, k: int, stop: int, n: int,
                                                            method.name)   # as always
             done = 1
         k += done
-        method.t = t0 + k * h if k < n else t_target
-        method.stats.nsteps += 1
-        method._after_step()
-        if method.limit is not None:
-            method.limit.check(method.stats, method.t, t_target)
+        method._grid_step_taken(t0 + k * h if k < n else t_target, t_target)
     return k
