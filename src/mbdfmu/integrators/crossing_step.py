@@ -14,7 +14,8 @@ It applies below H_FINE only (coarse steps are as before), where the step can be
 with the next one within the current run of steps (an output or communication point, or
 the stated accuracy's spot check, is never stepped over), and while the mechanism
 approaches a singular configuration: the indicator at the current state is below
-APPROACH_STEPS times its change over the last checked step, or ZONE times SAFETY.
+APPROACH_STEPS times its change over the last checked step, or ZONE times SAFETY (not with
+redundant constraints, whose indicator stays zero).
 """
 
 from __future__ import annotations
@@ -31,6 +32,9 @@ ZONE = 1e-5
 # current rate of the indicator, or below ZONE * SAFETY when the rate is not known yet.
 APPROACH_STEPS = 80
 SAFETY = 10.0
+# An indicator below this at two checks in a row: Psi_q stays rank-deficient (redundant
+# constraints), there is nothing to step across.
+RANK_DEFICIENT = 1e-9
 
 
 class CrossingWatch:
@@ -46,7 +50,9 @@ class CrossingWatch:
             return False
         now = end_indicator(method, method.t, method.qw)
         near = now < ZONE * SAFETY
-        if self.t is not None and method.t > self.t:
+        if self.t is not None and max(now, self.indicator) < RANK_DEFICIENT:
+            near = False        # redundant constraints: no configuration to step across
+        elif self.t is not None and method.t > self.t:
             rate = abs(now - self.indicator) / (method.t - self.t)
             near = near or now < ZONE + APPROACH_STEPS * h * rate
         else:
