@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 
 from ..equations.singular import singularity_indicator
+from .base import grid_step_taken
 from .newton import H_FINE, NewtonFailure, advance_with_halving
 
 # A step must not end where the singularity indicator is below this: P2's steps ending
@@ -108,5 +109,5 @@ def fixed_run_across(method, t0: float, h: float, k: int, stop: int, n: int,
                                                            method.name)   # as always
             done = 1
         k += done
-        method._grid_step_taken(t0 + k * h if k < n else t_target, t_target)
+        grid_step_taken(method, t0 + k * h if k < n else t_target, t_target)
     return k
