@@ -24,6 +24,11 @@ by three checks that together leave no silently wrong run:
   error O(h^2) against q's O(h^3)), and summed dq stayed far below the error of runs that
   were wrong by order one (docs/accuracy.md); counting dq' bounds such runs. The estimate
   (``Counters.error_estimate``) must stay within ENERGY_TOL_FACTOR (atol + rtol L).
+
+This module is the reference of the estimate's rule. rk4p's runs (``rk4p_c.py``) and an
+FMU's rk4p doSteps take the checks, charges and intervals in the C kernel
+(``ckernel/fixed.h``), which follows it to the same decisions and estimate
+(tests/test_fixed_estimate_c.py runs both side by side).
 """
 
 from __future__ import annotations
