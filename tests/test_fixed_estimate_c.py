@@ -6,6 +6,8 @@ of ``stated_accuracy.py``, the reference, which these tests run side by side."""
 from __future__ import annotations
 
 import ctypes
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,6 +18,10 @@ from mbdfmu import fast_steps
 from mbdfmu.equations import ckernel
 from mbdfmu.integrators import rk4p_c
 from mbdfmu.model.reader import bundled_scene
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from fmu_models.harness import ERROR, OK  # noqa: E402
+from fmu_models.scenes import scene_host  # noqa: E402,F401
 
 pytestmark = pytest.mark.skipif(not ckernel.available(), reason="no C compiler for the kernel")
 ADVANCE_IN_C, C_TURNS = rk4p_c.advance_fixed, rk4p_c._turns
@@ -123,3 +129,41 @@ def test_the_wrappers_rk4p_steps_keep_pythons_estimate():
     moved, _, _ = fast_steps.catch_up(wrapper, (none, none))
     assert moved and wrapper.integrator.accuracy.every > 4      # checks were taken
     assert state(wrapper) == state(python)
+
+
+CRANE = Path(__file__).resolve().parents[1] / "scenarios" / "hydraulic_crane" / "crane.toml"
+
+
+def test_the_wrapper_hands_back_the_step_that_passes_the_allowance(scene_host, tmp_path):
+    """The crane's mechanism with rk4p at 20 ms steps (its scene's rtol 1e-9) and the
+    cylinder force set before every 20 ms doStep: the wrapper takes the doSteps and their
+    checks, and the one in which the estimate passes the allowance goes to Python, which
+    stops there (fmi2Error) with the message an instance sent through Python at every step
+    gives, at the same time (after 1 s: the stop comes at t = 1.3 s in a Simulation run
+    with the force set at each step's end instead)."""
+    from mbdfmu.fmu_build.scene_fmu import build_fmu
+    scene = tmp_path / "crane.toml"
+    scene.write_text(CRANE.read_text().replace('method = "dop853p"', 'method = "rk4p"'))
+    path = build_fmu(scene, tmp_path / "crane.fmu")
+    hosts = [scene_host(path, name) for name in ("fast", "slow")]
+    for h in hosts:
+        assert h.status("fmi2SetReal", (ctypes.c_uint * 1)(h.vr["solver.step"]), 1,
+                        (ctypes.c_double * 1)(0.02)) == OK
+        h.init()
+    fast, slow = hosts
+    force = [fast.vr["cylinder.actuator"]]
+    codes = [OK, OK]
+    while codes == [OK, OK] and fast.t < 2.0:
+        for h in hosts:
+            assert h.set_real(force, [8420.0 * (1.0 + 0.05 * np.sin(2.0 * np.pi * h.t))]) == OK
+        codes = [h.step(0.02) for h in hosts]
+        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+        if codes == [OK, OK]:
+            assert fast.real("boom.phi") == slow.real("boom.phi")
+    assert codes == [ERROR, ERROR] and fast.t == slow.t
+    stop = [h.messages[-1][2] for h in hosts]
+    assert stop[0] == stop[1]
+    assert f"t = {fast.t + 0.02:g} s: rk4p: estimated error" in stop[0] and 1.0 < fast.t < 2.0
+    taken = sum(int(m.split(": ")[1].split()[0]) for _, _, m in fast.messages
+                if "taken by the wrapper" in m)
+    assert taken >= 60
