@@ -20,7 +20,8 @@ and with rk4p in place of its scene's dop853p (``VARIANTS``), and P1 (the pendul
   (the FMU's) and "numpy" (what FMUs ran before).
 - Exudyn (every case, ``exudyn_compare.exudyn_model``): CPU time per 1 ms step of
   ``SolveDynamic`` at h = 1 ms, best of ``--repeat``, against the FMU's CPU time per 1 ms
-  step in fmpy (doStep + getReal + setReal), best of ``--repeat``. The crane's cylinder
+  step in fmpy (doStep + getReal + setReal), best of ``--repeat``, and by a minimal master
+  calling the same FMI functions through ctypes (``ctypes_run``). The crane's cylinder
   force in Exudyn: held constant (its favourable case), and set before every step by a
   pre-step user function (Python), as the master sets the FMU's input.
 
@@ -41,6 +42,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import csv  # noqa: E402
+import ctypes  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
 import statistics  # noqa: E402
@@ -188,6 +190,34 @@ class FmpyRun:
         self.slave.freeInstance()
 
 
+def ctypes_run(fmu: Path, case: str, h: float, n: int) -> float:
+    """CPU s per communication step of a minimal master: the same setReal (where the case
+    has an input), doStep and getReal of every output as ``FmpyRun.steps``, called through
+    ctypes with their arguments made once, so that what remains is the FMU's own cost plus
+    about a microsecond per call (fmpy's Python around each call left out)."""
+    run = FmpyRun(fmu, case, h)
+    dll, component = run.slave.dll, ctypes.c_void_p(run.slave.component)
+    count = len(run.outputs)
+    vrs, values = (ctypes.c_uint * count)(*run.outputs), (ctypes.c_double * count)()
+    vin, new = (ctypes.c_uint * 1)(run.input or 0), (ctypes.c_double * 1)()
+    set_real, do_step, get_real = dll.fmi2SetReal, dll.fmi2DoStep, dll.fmi2GetReal
+    do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int]
+    t, failed, one, size = run.t, 0, ctypes.c_size_t(1), ctypes.c_size_t(count)
+    start = time.process_time()
+    for _ in range(n):
+        if run.input is not None:
+            new[0] = actuator(t)
+            failed |= set_real(component, vin, one, new)
+        failed |= do_step(component, t, h, 1)
+        t += h
+        failed |= get_real(component, vrs, size, values)
+    cpu = (time.process_time() - start) / n
+    run.free()
+    if failed:
+        raise RuntimeError(f"{case}: an FMI call failed in the ctypes master")
+    return cpu
+
+
 def cosim_run(fmu: Path, case: str, h: float, n: int) -> tuple[float, float]:
     """(wall s, CPU s) per communication step of libcosim's ``execution.step``."""
     from libcosimpy.CosimEnums import CosimVariableType
@@ -292,14 +322,18 @@ def measure(case: str, scene_path: Path, fmu: Path, h: float, args) -> dict:
         samples.setdefault("doStep", []).append(run.timed(n, get=False))
         samples.setdefault("getReal", []).append(run.timed(n, step=False))
         run.free()
+        samples.setdefault("ctypes", []).append(ctypes_run(fmu, case, h, n))
         samples.setdefault("cosim", []).append(cosim_run(fmu, case, h, n))
         for kernel in ("c", "numpy"):
             samples.setdefault(f"direct_{kernel}", []).append(
                 direct_run(scene_path, case, h, n if kernel == "c" else max(1, n // 5), kernel))
     for key, values in samples.items():
+        if key == "ctypes":
+            continue
         row[f"{key}_wall_us"] = statistics.median(v[0] for v in values) * 1e6
         row[f"{key}_cpu_us"] = statistics.median(v[1] for v in values) * 1e6
     row["fmpy_cpu_best_us"] = min(v[1] for v in samples["fmpy"]) * 1e6
+    row["ctypes_cpu_best_us"] = min(samples["ctypes"]) * 1e6
     row["rtf_fmpy"] = h / (row["fmpy_wall_us"] * 1e-6)
     row["rtf_cosim"] = h / (row["cosim_wall_us"] * 1e-6)
     sim = mbdfmu.Simulation(mbdfmu.load_scene(scene_path))
@@ -314,8 +348,8 @@ def markdown(rows: list[dict], header: str) -> str:
              "| case | method | h (ms) | cold fmpy: instantiate + 1st doStep (s) | cold libcosim (s) "
              "| fmpy µs/step (RTF) | doStep µs | getReal µs (outputs) | libcosim µs/step (RTF) "
              "| direct, kernel c µs | direct, numpy µs | fmpy CPU µs per 1 ms, best "
-             "| Exudyn CPU µs per 1 ms, best |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| ctypes master CPU µs per 1 ms, best | Exudyn CPU µs per 1 ms, best |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
     def cold_text(prefix, r):
         if f"{prefix}_error" in r:
@@ -326,12 +360,13 @@ def markdown(rows: list[dict], header: str) -> str:
         if r.get("exudyn_set_cpu_us", "") != "":
             exu += f" (force set per step: {r['exudyn_set_cpu_us']:.1f})"
         best = f"{r['fmpy_cpu_best_us']:.1f}" if r["step_ms"] == 1.0 else ""
+        bare = f"{r['ctypes_cpu_best_us']:.1f}" if r["step_ms"] == 1.0 else ""
         lines.append(
             f"| {r['case']} | {r['method']} | {r['step_ms']:g} | {cold_text('cold_fmpy', r)} | "
             f"{cold_text('cold_cosim', r)} | {r['fmpy_wall_us']:.1f} ({r['rtf_fmpy']:.1f}) | "
             f"{r['doStep_wall_us']:.1f} | {r['getReal_wall_us']:.1f} ({r['outputs']}) | "
             f"{r['cosim_wall_us']:.1f} ({r['rtf_cosim']:.1f}) | {r['direct_c_wall_us']:.1f} | "
-            f"{r['direct_numpy_wall_us']:.1f} | {best} | {exu} |")
+            f"{r['direct_numpy_wall_us']:.1f} | {best} | {bare} | {exu} |")
     return "\n".join(lines) + "\n"
 
 

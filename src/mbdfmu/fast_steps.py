@@ -87,8 +87,7 @@ def fast_steps_ahead(sim, limit, time_tol: float, inputs=None):
         fast_prk_run(current, limit, time_tol, (SAFETY, MIN_FACTOR, MAX_FACTOR), stiff_limit)
     if run is None:
         return None
-    run.update(motion=np.concatenate(eq.motion_values(sim.t, u)), uf=u.forces,
-               reinit_tol=reinit_tol)
+    run.update(motion=np.concatenate(eq.motion_values(sim.t, u)), uf=u.forces)
     return "prk", kernel, (run, tableau(current)[:5]), {}
 
 

@@ -22,6 +22,7 @@ from .integrators import make_integrator
 from .integrators.auto_watch import method_chain, switches_of
 from .integrators.base import WorkLimit
 from .integrators.events import EventRunner, check_method, event_kernel
+from .integrators.projected_rk import ProjectedRK
 from .integrators.settings import SolverSettings, settings_from_scene
 from .model.reader import load_scene
 from .model.scene import Scene, has_events
@@ -64,6 +65,7 @@ class Simulation(SimulationInputs):
                          zip(layout.drivers, layout.driver_initial)}
         self._forces = {name: Held(np.zeros(len(f))) for name, f in layout.fields.items()}
         self._inputs_changed = False
+        self._motion_changed = False     # a driver's input among them (the constraints move)
         self._held = None                # the inputs while all are held (inputs_at)
         q0, qd0 = assemble(self.equations, t0, self.inputs_at(t0))
         # what assembly changed of the scene's initial values, for the user to see
@@ -105,7 +107,18 @@ class Simulation(SimulationInputs):
     # ------------------------------------------------------------------ inputs
 
     def _reinitialize(self) -> None:
-        """After inputs change: the state is made consistent with the new driver positions."""
+        """After inputs change: the state is made consistent with the new driver positions.
+
+        When only force inputs changed, an embedded pair restarts from its state as it is:
+        the constraints do not depend on forces and its last step (or dense read) ended
+        projected, so a projection there would only move q' by round-off (the FMU wrapper's
+        restart, ``ckernel/adaptive.h``, does the same)."""
+        current = getattr(self.integrator, "current", self.integrator)  # auto's of the moment
+        if self.events is None and not self._motion_changed and current.adaptive and \
+                isinstance(current, ProjectedRK):
+            self.integrator.reset_state(self.q, self.qd, self.t)
+            self._inputs_changed = False
+            return
         eq = self.equations if self.events is None else self.events.equations
         tol = ASSEMBLY_TOL * eq.length_scale * REINITIALIZE_TOL_FACTOR
         u, kernel = self.inputs_at(self.t), eq.ckernel
@@ -115,7 +128,7 @@ class Simulation(SimulationInputs):
             q, _ = project_positions(eq, self.t, self.q, tol=tol, u=u)
             done = q, project_velocities(eq, self.t, q, self.qd, u)
         self.integrator.reset_state(*done, self.t)
-        self._inputs_changed = False
+        self._inputs_changed = self._motion_changed = False
 
     # ------------------------------------------------------------------ stepping
 
@@ -140,6 +153,7 @@ class Simulation(SimulationInputs):
         # Only the integrator and the flag change while stepping (inputs do not), so that
         # is all the rollback keeps.
         snapshot, inputs_changed = self.integrator.rollback_point(), self._inputs_changed
+        motion_changed = self._motion_changed
         saved = self.events.get_state() if self.events is not None else None
         try:
             if self._inputs_changed:
@@ -152,7 +166,7 @@ class Simulation(SimulationInputs):
             if self.events is not None:
                 self.events.restore(self.integrator, saved)
             self.integrator.set_state(snapshot)
-            self._inputs_changed = inputs_changed
+            self._inputs_changed, self._motion_changed = inputs_changed, motion_changed
             raise
         finally:
             self._cache = None
@@ -218,6 +232,7 @@ class Simulation(SimulationInputs):
         self.integrator.set_state(state["integrator"])
         self._drivers, self._forces = decode(state["drivers"]), decode(state["forces"])
         self._inputs_changed = bool(state["inputs_changed"])
+        self._motion_changed = self._inputs_changed   # not kept in the state: project to be safe
         if self.events is not None and state.get("modes") is not None:
             self.events.restore(self.integrator, state["modes"])
         self._cache = self._held = None

@@ -4,8 +4,9 @@ input derivatives, sampled driver positions and signals (``signals.py``), by nam
 A mixin of ``Simulation`` (like ``integrators.adaptive.AdaptiveStepping`` of the adaptive
 methods): it reads and sets the simulation's ``equations``, ``input_names``, ``t``,
 ``_drivers``, ``_forces`` (the signal of each input item), ``_held`` (the inputs while all
-are held), ``_cache`` and ``_inputs_changed`` (the state is re-projected before the next
-step: ``Simulation._reinitialize``).
+are held), ``_cache``, ``_inputs_changed`` (the method restarts before the next step:
+``Simulation._reinitialize``) and ``_motion_changed`` (a driver's input among them: the state
+is re-projected first).
 """
 
 from __future__ import annotations
@@ -57,6 +58,7 @@ class SimulationInputs:
             if not isinstance(driver, SampledDriver):
                 driver = self._drivers[item] = SampledDriver(driver(self.t)[0])
             driver.set(self.t, **{field: value})
+            self._motion_changed = True
         else:
             fields = self.equations.layout.fields[item]
             values = np.array(self._forces[item](self.t), dtype=float)
@@ -86,6 +88,7 @@ class SimulationInputs:
             if not isinstance(driver, SampledDriver):
                 driver = self._drivers[item] = SampledDriver(driver(self.t)[0])
             driver.set(self.t, **{slot: value})
+            self._motion_changed = True
         else:
             signal = self._forces[item]
             if not (isinstance(signal, TaylorInput) and signal.t0 == self.t):
@@ -98,6 +101,7 @@ class SimulationInputs:
         """Drive a force item or a driver with a function of time (see ``signals``)."""
         if item in self._drivers:
             self._drivers[item] = signal
+            self._motion_changed = True
         elif item in self._forces:
             self._forces[item] = signal
         else:

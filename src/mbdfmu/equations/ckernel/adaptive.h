@@ -5,8 +5,8 @@
  * FastSteps: fmi2SetReal of those inputs lands in PrkRun.uf without Python either).
  *
  * The decisions are Python's, in the same order and arithmetic: Simulation._reinitialize
- * and ProjectedRK.restart after an input was set (projection, q'' and the singularity
- * indicator), AdaptiveStepping._advance_adaptive without dense output (landing, the
+ * and ProjectedRK.restart after a force input was set (q'' and the singularity indicator;
+ * no projection: the constraints do not depend on forces), AdaptiveStepping._advance_adaptive without dense output (landing, the
  * controller's proposal kept after a step cut short, rejections), c_steps.prk_attempt's
  * step factors. Anything else (a step near a singular configuration, where
  * singular_zone.py plans, a case the kernel hands back, too many rejections, the work
@@ -29,7 +29,6 @@ typedef struct {
     double exponent, safety, min_factor, max_factor;
     double rtol, atol;             /* local_tolerance times the method's */
     double tol; I max_iter;        /* the projection after a step */
-    double reinit_tol;             /* Simulation._reinitialize's projection */
     double indicator;              /* zone.indicator at t_now */
     I landing;                     /* zone.landing of the last step */
     I max_work;                    /* steps (accepted or not) one doStep may take */
@@ -126,8 +125,8 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
     Scratch s = scratch(M, M->work);
     for (I row = 0; row <= r->ns; row++)
         if (nf) memcpy(r->ufs + row * nf, r->uf, (size_t)nf * sizeof(double));
-    if (r->changed) {      /* _reinitialize, then reset_state's restart (h kept) */
-        if (project(M, &s, y, y + n, r->motion, r->reinit_tol, r->max_iter) != ST_OK) return ST_PROJECTION;
+    if (r->changed) {      /* reset_state's restart (h kept): no projection for a force
+                            * input (Simulation._reinitialize), the state ended projected */
         memcpy(f, y + n, (size_t)n * sizeof(double));
         if (mbd_accelerations(M, y, y + n, r->motion, r->motion + 2 * m, r->uf, f + n, s.lam) != ST_OK)
             return ST_SINGULAR;

@@ -24,7 +24,7 @@ class PrkRun(ctypes.Structure):
     _fields_ = [("t_now", _D), ("time_tol", _D), ("h", _D), ("max_step", _D), ("ns", _I),
                 ("A", _P), ("B", _P), ("E", _P), ("E3", _P), ("exponent", _D), ("safety", _D),
                 ("min_factor", _D), ("max_factor", _D), ("rtol", _D), ("atol", _D),
-                ("tol", _D), ("max_iter", _I), ("reinit_tol", _D), ("indicator", _D),
+                ("tol", _D), ("max_iter", _I), ("indicator", _D),
                 ("landing", _I), ("max_work", _I), ("motion", _P), ("motions", _P),
                 ("ufs", _P), ("uf", _P), ("nvr", _I), ("vrs", _P), ("slots", _P), ("set", _P),
                 ("changed", _I), ("uf_step", _P), ("y", _P), ("f", _P), ("y1", _P),
