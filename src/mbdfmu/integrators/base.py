@@ -279,11 +279,7 @@ class Integrator:
             accepted, _ = self._step_impl(h)
             if not accepted:
                 raise SolverError(f"{self.name}: a fixed step of {h:.3g} s failed", self.t)
-            self.t = t0 + j * h if j < n else t_target
-            self.stats.nsteps += 1
-            self._after_step()
-            if self.limit is not None:
-                self.limit.check(self.stats, self.t, t_target)
+            grid_step_taken(self, t0 + j * h if j < n else t_target, t_target)
         return stop
 
     def get_state(self) -> dict:
@@ -327,3 +323,13 @@ class Integrator:
         self.audit = self._start_audit()
         if self.adaptive and h is not None:
             self.h = h
+
+
+def grid_step_taken(method: Integrator, t: float, t_target: float) -> None:
+    """A fixed step of ``method`` taken to the grid time t: counted, checked, within the
+    work limit."""
+    method.t = t
+    method.stats.nsteps += 1
+    method._after_step()
+    if method.limit is not None:
+        method.limit.check(method.stats, method.t, t_target)

@@ -93,6 +93,18 @@ class GeneralizedAlpha(CompiledNewton, StepControl, ImplicitMethod):
         super().restart()
         self.a = self.qdd.copy()
 
+    def step_change(self, ratio: float):
+        """The next step is ``ratio`` times the last one: a approximates q'' at
+        t_n + (alpha_m - alpha_f) h (``_local_error``), so its offset from q''_n scales with h
+        (else the step change leaves an O(h) error in a). Returns what ``restore_history``
+        takes back."""
+        kept = self.a
+        self.a = self.qdd + ratio * (self.a - self.qdd)
+        return kept
+
+    def restore_history(self, kept) -> None:
+        self.a = kept
+
     def _iteration_matrix(self, t, q, qd, J, lam, D, G):
         eq = self.equations
         K = np.diag(eq.mass)

@@ -40,6 +40,7 @@ from ..model.scene import RotationalSpringDamper, SpringDamper
 from . import newton
 from .c_steps import NO_AUDIT, audit_back, audit_state, stage_inputs
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
+from .crossing_step import CrossingWatch, fixed_run_across
 from .newton import IterationMatrix, NewtonFailure
 
 # Off: every step on the Python path (the tests compare the two).
@@ -102,6 +103,7 @@ class KernelNewton:
             beta=beta, gamma=gamma, length_scale=eq.length_scale, roundoff=newton.ROUNDOFF,
             atol_max=newton.NEWTON_ATOL_MAX, tol_floor=newton.NEWTON_TOL_FLOOR, t_ref=newton.T_REF,
             noise_max=newton.NOISE_MAX, near_indicator=newton.NEAR_SINGULAR_INDICATOR,
+            near_floor=newton.NEAR_SINGULAR_FLOOR,
             t_near=newton.T_NEAR, slow_rate=newton.NEWTON_SLOW_RATE,
             diverging_rate=newton.NEWTON_DIVERGING_RATE, singular_pivot=newton.SINGULAR_PIVOT,
             dense_below=DENSE_BELOW, h_fine=newton.H_FINE)
@@ -210,9 +212,18 @@ class CompiledNewton:
         if "c_newton" not in self.__dict__:
             self.c_newton = kernel_newton(self)
         self._failed = None
+        self._crossing = CrossingWatch()
         if self.c_newton is not None:
             self.matrix = KernelMatrix(self.c_newton.kernel.kept_matrix(self.c_newton.dense),
                                        self.c_newton)
+
+    def step_change(self, ratio: float):
+        """The next step is ``ratio`` times the last (crossing_step.py): the history a
+        method carries rescaled (genalpha's a; ali3p carries none)."""
+        return None
+
+    def restore_history(self, kept) -> None:
+        pass
 
     def set_state(self, state):
         super().set_state(state)
@@ -240,6 +251,14 @@ class CompiledNewton:
         return super()._step_impl(h)
 
     def _fixed_run(self, t0, h, k, stop, n, t_target):
+        # no step ends next to a singular configuration (crossing_step.py)
+        while k < stop:
+            k = fixed_run_across(self, t0, h, k, stop, n, t_target, self._crossing)
+            if k < stop:
+                k = self._run_steps(t0, h, k, min(stop, k + RUN_LENGTH), n, t_target)
+        return stop
+
+    def _run_steps(self, t0, h, k, stop, n, t_target):
         eq = self.equations
         if self.c_newton is None or self.watch is not None or \
                 (self.audit is not None and not eq.applied.is_constant):

@@ -68,13 +68,13 @@ ROUNDOFF = 4.0 * np.finfo(float).eps
 # mechanism's size.
 NEWTON_ATOL_MAX = 1e-8
 NEWTON_TOL_FLOOR = 1e-13
-# Time scale of a run (s) over which the errors left by Newton add up (module docstring).
-T_REF = 1.0
-# Increments of rounding noise: the noise level grows near a singular configuration like
-# 1 / indicator^2, but is never taken above NOISE_MAX times the mechanism's size.
+T_REF = 1.0     # time scale (s) over which Newton's errors add up (module docstring)
+# Rounding noise grows near a singular configuration like 1 / indicator^2, up to NOISE_MAX.
 NOISE_MAX = 1e-6
-# Below this singularity indicator of the matrix's Psi_q, the near-singular tolerance.
-NEAR_SINGULAR_INDICATOR = 0.1
+# Below this singularity indicator of the matrix's Psi_q, the near-singular tolerance; below
+# H_FINE, this times (h / H_FINE)^2 down to the floor (fine steps converge there with the
+# ordinary one, and on P2 the looser one cost ali3p 5e-8 J per crossing at h = 2.5e-5).
+NEAR_SINGULAR_INDICATOR, NEAR_SINGULAR_FLOOR = 0.1, 1e-3
 # Below this step the near-singular tolerance shrinks like h^2.
 T_NEAR = 2e-3
 # Below this step the residual tolerances, as accelerations, shrink like h^2.
@@ -173,7 +173,8 @@ class IterationMatrix(Plain):
         return size
 
     def near_singular(self) -> bool:
-        return self.indicator < NEAR_SINGULAR_INDICATOR
+        fine = min(1.0, self.h / H_FINE) ** 2 if self.h else 1.0
+        return self.indicator < max(NEAR_SINGULAR_INDICATOR * fine, NEAR_SINGULAR_FLOOR)
 
     def noise(self, tolerances: NewtonTolerances, length_scale: float) -> float:
         """The rounding noise of the increments this matrix gives, within the stagnation
@@ -246,8 +247,7 @@ def _check_rate(matrix, tols, size, previous, length_scale):
         if not matrix.fresh:
             matrix.lu = None
             return None
-        noise = matrix.noise(tols, length_scale) if matrix.near_singular() else tols.stagnation
-        if size > NEWTON_DIVERGING_RATE * previous and size > noise:
+        if size > NEWTON_DIVERGING_RATE * previous and size > matrix.noise(tols, length_scale):
             raise NewtonFailure(f"Newton diverges (increment {size:.3g} after {previous:.3g})")
     return size
 

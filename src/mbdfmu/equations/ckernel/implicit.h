@@ -32,7 +32,7 @@ typedef struct {
     double am, af, beta, gamma;        /* genalpha's coefficients */
     double penalty_base, alpha;        /* ali3p: P = penalty_base, or alpha h^2 / 4 if alpha > 0 */
     double atol, length_scale;
-    double roundoff, atol_max, tol_floor, t_ref, noise_max, near_indicator, t_near;
+    double roundoff, atol_max, tol_floor, t_ref, noise_max, near_indicator, near_floor, t_near;
     double slow_rate, diverging_rate, singular_pivot;
     double dense_below;                /* a matrix's indicator below this: the numpy path */
     double h_fine;
@@ -77,7 +77,8 @@ static Tolerances newton_tolerances(const Implicit *p, double h, const double *q
 }
 
 static int near_singular(const Implicit *p, const double *kept) {
-    return kept[KEPT_INDICATOR] < p->near_indicator;
+    double fine = fmin(1.0, kept[KEPT_H] / p->h_fine);     /* newton.py: near_singular */
+    return kept[KEPT_INDICATOR] < fmax(p->near_indicator * fine * fine, p->near_floor);
 }
 
 /* Before an increment: Psi within the tolerance, and the last increment or the dynamic
@@ -118,7 +119,7 @@ static double check_rate(const Implicit *p, const Tolerances *t, double *kept, d
                          double previous, I *reason) {
     if (previous >= 0.0 && size > p->slow_rate * previous) {
         if (kept[KEPT_FRESH] == 0.0) { kept[KEPT_VALID] = 0.0; return -1.0; }
-        double noise = near_singular(p, kept) ? matrix_noise(p, t, kept) : t->stagnation;
+        double noise = matrix_noise(p, t, kept);
         if (size > p->diverging_rate * previous && size > noise) *reason = NF_DIVERGES;
     }
     return size;

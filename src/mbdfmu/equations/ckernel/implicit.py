@@ -26,7 +26,7 @@ class Implicit(ctypes.Structure):
                                         "max_iter")] + \
         [(name, _D) for name in ("am", "af", "beta", "gamma", "penalty_base", "alpha", "atol",
                                  "length_scale", "roundoff", "atol_max", "tol_floor", "t_ref",
-                                 "noise_max", "near_indicator", "t_near", "slow_rate",
+                                 "noise_max", "near_indicator", "near_floor", "t_near", "slow_rate",
                                  "diverging_rate", "singular_pivot", "dense_below", "h_fine")] + \
         [("periodic", _P), ("blocks", _I), ("nbp", _I), ("fd_step", _D), ("bp_a", _P),
          ("bp_b", _P), ("bp_band", _P), ("bp_w", _P)] + \
