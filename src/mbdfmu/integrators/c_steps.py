@@ -23,7 +23,7 @@ from . import singular_zone
 from .base import STEP_COUNT_SLACK, Integrator
 from .dense_output import DenseStep
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF, ENERGY_STEP_FACTOR
-from .stated_accuracy import allowed_error
+from .stated_accuracy import adopt_c_estimate, c_estimate
 
 # The energy check's running state as kernel.c reads it (rk4p_compiled.AuditField's order).
 AUDIT_FIELDS = ("active", "e0", "v0", "kinetic_max", "potential_swing", "magnitude", "checks",
@@ -240,9 +240,9 @@ def wrapper_steps(limit) -> int | None:
 
 def fast_run(rk, limit, time_tol: float) -> dict | None:
     """What ``ckernel/fixed.h`` needs to take rk4p's coming communication steps as
-    ``_advance_fixed`` would (its grid, its step-doubling checks left to Python, its work
-    limit), or None when they must go through Python: another method, an energy audit
-    (checked in Python after each step), no constraints, a short CPU limit."""
+    ``_advance_fixed`` would (its grid, its step-doubling checks, its work limit), or None
+    when they must go through Python: another method, an energy audit (checked in Python
+    after each step), no constraints, a short CPU limit."""
     eq = rk.equations
     if rk.name != "rk4p" or rk.audit is not None or eq.m == 0 or eq.ckernel is None or \
             rk.out is not None:
@@ -250,26 +250,22 @@ def fast_run(rk, limit, time_tol: float) -> dict | None:
     max_steps = wrapper_steps(limit)
     if max_steps is None:
         return None
-    accuracy = rk.accuracy
     return dict(t_now=rk.t, time_tol=time_tol, h_max=rk.h, slack=STEP_COUNT_SLACK,
-                max_steps=max_steps, unchecked=accuracy.unchecked, check_every=accuracy.every,
-                tol=rk._projection_tol(), max_iter=PROJECTION_MAX_ITER,
-                local=accuracy.growth_bound(rk.h),
-                estimate=rk.stats.error_estimate, allowed=allowed_error(rk),
-                y=np.concatenate((rk.q, rk.qd)), f=rk.f)
+                max_steps=max_steps, tol=rk._projection_tol(), max_iter=PROJECTION_MAX_ITER,
+                estimate=c_estimate(rk), y=np.concatenate((rk.q, rk.qd)), f=rk.f)
 
 
-def adopt_fast_run(rk, steps: int, t: float, y, f, estimate: float) -> None:
-    """The state and counters after ``steps`` rk4p steps the FMU's wrapper took in C
-    (``fast_run``), as ``_advance_fixed`` with ``rk4p_run`` leaves them."""
+def adopt_fast_run(rk, steps: int, t: float, y, f, estimate: dict) -> None:
+    """The state, counters and error estimate after ``steps`` rk4p steps and the checks
+    among them the FMU's wrapper took in C (``fast_run``), as ``_advance_fixed`` with
+    ``rk4p_run`` leaves them (a check: three steps' work)."""
     n = rk.q.size
-    h = (t - rk.t) / steps if steps else rk.h
     rk.q, rk.qd, rk.f, rk.t = y[:n].copy(), y[n:].copy(), f, t
-    stats = rk.stats
+    stats, checks = rk.stats, estimate["checks"]
     stats.nsteps += steps
-    stats.naccel += 4 * steps
-    stats.nprojections += steps
-    rk.accuracy.charge(rk, h)     # within ``estimate``, the bound the wrapper kept
+    stats.naccel += 4 * (steps + 3 * checks)
+    stats.nprojections += steps + 3 * checks
+    adopt_c_estimate(rk, estimate)
 
 
 def fast_prk_run(rk, limit, time_tol: float, factors: tuple,

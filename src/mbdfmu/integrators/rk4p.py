@@ -16,7 +16,7 @@ import numpy as np
 from ..equations.projection import PROJECTION_MAX_ITER, ROUNDOFF_RESIDUAL
 from ..equations.sparsity import RANK_TOLERANCE
 from ..errors import SolverError
-from . import c_steps
+from . import c_steps, rk4p_c
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
 from .projected_rk import ProjectedRK, projection_tol, rk_stages
 
@@ -64,6 +64,11 @@ class RK4P(ProjectedRK):
         self.check_finite(t_new, f)
         self.q, self.qd, self.f = q, qd, f
         return True, h
+
+    def _advance_fixed(self, t_target):
+        """The base class's loop, in the C kernel with its checks when it can take it."""
+        if not rk4p_c.advance_fixed(self, t_target):
+            super()._advance_fixed(t_target)
 
     def check_step(self, h):
         """A step of the step-doubling check, compiled when the run's steps are (a Python

@@ -24,6 +24,11 @@ by three checks that together leave no silently wrong run:
   error O(h^2) against q's O(h^3)), and summed dq stayed far below the error of runs that
   were wrong by order one (docs/accuracy.md); counting dq' bounds such runs. The estimate
   (``Counters.error_estimate``) must stay within ENERGY_TOL_FACTOR (atol + rtol L).
+
+This module is the reference of the estimate's rule. rk4p's runs (``rk4p_c.py``) and an
+FMU's rk4p doSteps take the checks, charges and intervals in the C kernel
+(``ckernel/fixed.h``), which follows it to the same decisions and estimate
+(tests/test_fixed_estimate_c.py runs both side by side).
 """
 
 from __future__ import annotations
@@ -98,7 +103,7 @@ class ErrorEstimate(Plain):
             step = getattr(integrator, "check_step", integrator._step_impl)  # a faster path
             step(h)
             one, one_v = integrator.q.copy(), integrator.qd.copy()
-            _restore(integrator, saved)
+            _restore(integrator, saved, keep_work=True)
             step(0.5 * h)
             integrator.t += 0.5 * h
             step(0.5 * h)
@@ -112,10 +117,7 @@ class ErrorEstimate(Plain):
         except SolverError:
             pass                          # the run itself will say why
         finally:
-            work = integrator.stats
-            _restore(integrator, saved)
-            for name in WORK_FIELDS:      # the check's evaluations are work done
-                setattr(integrator.stats, name, getattr(work, name))
+            _restore(integrator, saved, keep_work=True)
         self.unchecked = self.since = 0
 
     def _resample(self, integrator, t: float, h: float, local: float,
@@ -140,12 +142,6 @@ class ErrorEstimate(Plain):
         self.sum_v += dv * steps
         self.sum_vt += dv * steps * (t - 0.5 * steps * h)   # at the steps' middle
 
-    def growth_bound(self, h: float) -> float:
-        """An upper bound of the estimate's growth per step of at most h until the next
-        check (the FMU wrapper's steps in C add it up): dq, plus h times the velocity
-        errors charged so far and those of the coming steps."""
-        return self.local + h * (self.sum_v + 0.5 * self.local_v * self.every)
-
     def charge(self, integrator, h: float) -> None:
         """Charge the steps of size h taken since the last call with the last local errors;
         stop when the estimated global error exceeds what the stated accuracy allows."""
@@ -166,9 +162,34 @@ class ErrorEstimate(Plain):
                 integrator.t)
 
 
-def _restore(integrator, point: dict) -> None:
+def c_estimate(integrator) -> dict:
+    """The running estimate, the run's step count and the rule's constants as the C
+    kernel's ``Estimate`` takes them (``ckernel/fixed.h`` applies this module's rule to
+    rk4p's runs and an FMU's steps without leaving C; this module stays the reference)."""
+    accuracy, stats, allowed = integrator.accuracy, integrator.stats, allowed_error(integrator)
+    p_q, p_v = getattr(integrator, "orders", DEFAULT_ORDERS)
+    return dict({name: getattr(accuracy, name) for name in ErrorEstimate.plain_fields},
+                nsteps=stats.nsteps, checks=0, estimate=stats.error_estimate,
+                allowed=allowed, floor=SPOT_CHECK_FLOOR * allowed,
+                factor_q=richardson_factor(p_q), factor_v=richardson_factor(p_v),
+                carry=int(getattr(integrator, "carry_velocity_error", False)),
+                first=SPOT_CHECK_EVERY, share=SPOT_CHECK_SHARE, most=SPOT_CHECK_MAX,
+                change=SPOT_CHECK_CHANGE, decay=SPOT_CHECK_DECAY)
+
+
+def adopt_c_estimate(integrator, values: dict) -> None:
+    """The estimate as the C kernel left it (``c_estimate``'s fields): the running sums
+    and the error estimate; the caller counts the steps and the checks' work."""
+    for name in ErrorEstimate.plain_fields:
+        setattr(integrator.accuracy, name, values[name])
+    integrator.stats.error_estimate = values["estimate"]
+
+
+def _restore(integrator, point: dict, keep_work: bool = False) -> None:
     """``set_state`` from a rollback point that stays usable: its flat objects copied
-    again (set_state takes them as they are, and the steps change them)."""
+    again (set_state takes them as they are, and the steps change them). ``keep_work``:
+    the evaluations counted since (WORK_FIELDS) stay counted, a check's work being done."""
+    work = integrator.stats
     fresh = {}
     for name, value in point.items():
         if isinstance(value, Plain):
@@ -176,3 +197,6 @@ def _restore(integrator, point: dict) -> None:
             value.__dict__.update(point[name].__dict__)
         fresh[name] = value
     integrator.set_state(fresh)
+    if keep_work:
+        for name in WORK_FIELDS:
+            setattr(integrator.stats, name, getattr(work, name))

@@ -10,6 +10,11 @@
  * each stage time (c_steps.stage_inputs), rk4p_step, then the output vector at t + h
  * (Simulation.output_vector). The slave takes the state the steps reached when it catches
  * up (ckernel/fixed.py), so every value served is the one Python would have computed.
+ *
+ * The stated accuracy's step-doubling checks (stated_accuracy.py ErrorEstimate, the
+ * reference: its checks, envelope, charges and interval) are taken here too, in the loop
+ * of Integrator._advance_fixed (fixed_loop), for the wrapper's steps and for rk4p's runs
+ * (mbd_fixed_advance), so neither leaves C for them.
  */
 
 enum { MOTION_CONSTANT = 0, MOTION_LINEAR = 1, MOTION_HARMONIC = 2 };
@@ -18,7 +23,6 @@ typedef struct {
     double t_now, time_tol;  /* the FMU's time (the integrator's: rk4p has no dense output) */
     double h_max, slack;     /* Integrator.fixed_grid: the method's step, STEP_COUNT_SLACK */
     I max_steps;             /* the work limit's steps per doStep (or a huge number) */
-    I unchecked, check_every; /* steps since the last step-doubling check, and how often */
     double tol; I max_iter;  /* the position projection */
     I nmotion;               /* driver rows: row, kind (MOTION_*), four coefficients each */
     const I *mrow, *mkind; const double *mcoef;
@@ -27,7 +31,6 @@ typedef struct {
     double *y, *f, *save;    /* the state (2n each) and f = y'; a copy to roll back */
     double *motions;         /* (3, 3m): one step's stage inputs; then (3m) at t + h */
     I steps;                 /* steps taken since the slave armed this */
-    double local, estimate, allowed;  /* stated_accuracy.ErrorEstimate.charge's sum */
     I nout, npub;            /* values[pub_dst[k]] = V[pub_src[k]] after a step ... */
     const I *pub_dst, *pub_src;
     double *V;               /* ... V = (outputs, q, q', q''): nout + 3n; then lam (m) */
@@ -38,7 +41,66 @@ typedef struct {
     I *set;                  /* nvr: 1 where set since the last step */
     I changed;               /* an input was set since the last step */
     I restarts;              /* steps since armed that began with a restart */
+    struct Estimate *est;    /* the step-doubling estimate (ErrorEstimate) */
+    double *check;           /* a check's room: y and f saved (4n), then its one step (2n) */
+    double *audit;           /* the energy check's state (rk4p runs with constant forces) */
+    double divergence, roundoff;  /* ... its ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF */
 } FixedRun;
+
+/* stated_accuracy.ErrorEstimate: its fields, the run's step count (Counters.nsteps) and
+ * the rule's constants as Python gives them (SPOT_CHECK_*, Richardson's factors, the
+ * allowance), so that the rule is written once here and once, the reference, there. */
+typedef struct Estimate {
+    double local, local_v, sum_q, sum_v, sum_vt;
+    I charged, unchecked, every, since;
+    I nsteps, checks;        /* stats.nsteps; checks done (three steps' work each) */
+    double estimate;         /* stats.error_estimate */
+    double allowed, floor;   /* allowed_error; SPOT_CHECK_FLOOR times it */
+    double factor_q, factor_v; I carry;  /* richardson_factor of orders; carry_velocity_error */
+    I first, share, most;    /* SPOT_CHECK_EVERY, _SHARE, _MAX */
+    double change, decay;    /* SPOT_CHECK_CHANGE, _DECAY */
+} Estimate;
+
+/* ErrorEstimate._add: steps steps of h ending at t charged with dq and dv. */
+static void est_add(Estimate *E, double t, double h, I steps, double dq, double dv) {
+    double k = (double)steps;
+    E->sum_q += dq * k;
+    E->sum_v += dv * k;
+    E->sum_vt += dv * k * (t - 0.5 * k * h);
+}
+
+static I est_imin(I a, I b) { return a < b ? a : b; }
+static I est_imax(I a, I b) { return a > b ? a : b; }
+
+/* ErrorEstimate._resample: a check's local errors at t into the envelope, the steps since
+ * the last check charged with what it adds, the interval to the next check. */
+static void est_resample(Estimate *E, double t, double h, double local, double local_v) {
+    double env_q = fmax(local, E->decay * E->local);
+    double env_v = fmax(local_v, E->decay * E->local_v);
+    int rising = local > fmax(E->change * E->local, E->floor)
+                 || local_v > fmax(E->change * E->local_v, E->floor);
+    est_add(E, t, h, E->since, fmax(0.0, env_q - E->local), fmax(0.0, env_v - E->local_v));
+    E->local = env_q;
+    E->local_v = env_v;
+    I grow = est_imin(E->most, est_imax(E->first, E->nsteps / E->share));
+    E->every = rising ? est_imax(1, E->every / 2) : est_imin(grow, 2 * E->every);
+}
+
+/* ErrorEstimate.charge at t: 0 (nothing changed) when the estimate would exceed the
+ * allowance, for Python's charge to stop the run with its message. */
+static int est_charge(Estimate *E, double t, double h) {
+    Estimate c = *E;
+    I done = c.nsteps - c.charged;
+    c.charged = c.nsteps;
+    c.unchecked += done;
+    c.since += done;
+    est_add(&c, t, h, done, c.local, c.local_v);
+    double estimate = c.sum_q + fmax(0.0, t * c.sum_v - c.sum_vt);
+    if (estimate > c.allowed) return 0;
+    c.estimate = estimate;
+    *E = c;
+    return 1;
+}
 
 /* fmi2SetReal of force inputs a fast step holds (mbd_fixed_set, adaptive.h's
  * mbd_prk_set): 0 when every value reference is one of the nknown settable ones and every
@@ -107,63 +169,126 @@ static int fixed_restart(const Model *M, FixedRun *r, Scratch *s, double t0) {
     return ST_OK;
 }
 
-/* The wrapper's doStep from t over h: the steps of the grid, V and values filled, t_now
- * moved; non-zero (nothing changed) when Python must take it: another time, more steps
- * than allowed, an estimated error beyond the stated accuracy, or whatever the kernel
- * hands back (Python then redoes the step and says why). */
+/* One rk4p step of h from start on the run's state (motions evaluated here). */
+static int fixed_one(const Model *M, FixedRun *r, Scratch *s, double start, double h,
+                     double *K, double *ys) {
+    I m = M->m;
+    motion_at(M, r, start, r->motions);
+    motion_at(M, r, start + 0.5 * h, r->motions + 3 * m);
+    motion_at(M, r, start + h, r->motions + 6 * m);
+    return rk4p_step(M, s, r->y, r->f, h, r->motions, r->ufs, r->tol, r->max_iter, K, ys);
+}
+
+/* ErrorEstimate.spot_check at t: a step of h and two of h/2 from the state (kept), their
+ * differences times Richardson's factors resampled. Not ST_OK: a step failed, nothing
+ * changed (Python's check then takes it on its own path). */
+static int est_check(const Model *M, FixedRun *r, Scratch *s, Estimate *E, double t,
+                     double h, double *K, double *ys) {
+    I n = M->n, n2 = 2 * n;
+    double *saved = r->check, *one = saved + 2 * n2;
+    memcpy(saved, r->y, (size_t)n2 * sizeof(double));
+    memcpy(saved + n2, r->f, (size_t)n2 * sizeof(double));
+    int st = fixed_one(M, r, s, t, h, K, ys);
+    if (st == ST_OK) {
+        memcpy(one, r->y, (size_t)n2 * sizeof(double));
+        memcpy(r->y, saved, (size_t)n2 * sizeof(double));
+        memcpy(r->f, saved + n2, (size_t)n2 * sizeof(double));
+        st = fixed_one(M, r, s, t, 0.5 * h, K, ys);
+        if (st == ST_OK) st = fixed_one(M, r, s, t + 0.5 * h, 0.5 * h, K, ys);
+    }
+    if (st == ST_OK) {
+        double dq = 0.0, dv = 0.0;
+        for (I i = 0; i < n; i++) {
+            dq = fmax(dq, fabs(one[i] - r->y[i]));
+            dv = fmax(dv, fabs(one[n + i] - r->y[n + i]));
+        }
+        est_resample(E, t, h, E->factor_q * dq, E->carry ? E->factor_v * dv : 0.0);
+        E->unchecked = E->since = 0;
+        E->checks += 1;
+    }
+    memcpy(r->y, saved, (size_t)n2 * sizeof(double));
+    memcpy(r->f, saved + n2, (size_t)n2 * sizeof(double));
+    return st;
+}
+
+#define ST_CHECK 16      /* a check's step failed: Python takes this turn of the loop */
+#define ST_ESTIMATE 17   /* the next charge exceeds the allowance: Python's stops the run */
+
+/* Integrator._advance_fixed's loop over the grid t0 + j step (n steps, the last ending at
+ * end) from step *k, until a turn of it ends at or past step `pause`: a check when due,
+ * the steps to the next (the energy check after each with r->audit), their charge. ST_OK
+ * at the end of a turn; ST_CHECK at its start; ST_ESTIMATE with the turn's steps taken
+ * (up to *stop) and not charged; ST_ENERGY after step *k, a step's failure at it, both
+ * with the turn's steps before it taken and not charged (Python takes the rest). */
+static int fixed_loop(const Model *M, FixedRun *r, Scratch *s, Estimate *E, double t0,
+                      double step, I n, double end, I pause, I *k, I *stop) {
+    I n2 = 2 * M->n;
+    double *K = s->qv, *ys = K + 4 * n2;
+    while (*k < n && *k < pause) {
+        if (E->unchecked >= E->every &&
+                est_check(M, r, s, E, t0 + step * (double)*k, step, K, ys) != ST_OK)
+            return ST_CHECK;
+        *stop = *k + est_imin(n - *k, est_imax(1, E->every - E->unchecked));
+        while (*k < *stop) {
+            int st = fixed_one(M, r, s, t0 + step * (double)*k, step, K, ys);
+            if (st != ST_OK) return st;
+            *k += 1;
+            E->nsteps += 1;
+            if (r->audit != NULL && r->audit[A_ACTIVE] != 0.0 &&
+                    !energy_check(M, r->y, r->y + M->n, r->audit, r->divergence, r->roundoff))
+                return ST_ENERGY;
+        }
+        if (!est_charge(E, *k < n ? t0 + step * (double)*k : end, step)) return ST_ESTIMATE;
+    }
+    return ST_OK;
+}
+
+/* RK4P._advance_fixed's loop in C for a Simulation's run (integrators/rk4p_c.py): r's
+ * state, E and r->audit updated; the status and *k, *stop as fixed_loop's. */
+int mbd_fixed_advance(const Model *M, FixedRun *r, double t0, double step, I n, double end,
+                      I pause, I *k, I *stop) {
+    Scratch s = scratch(M, M->work);
+    return fixed_loop(M, r, &s, r->est, t0, step, n, end, pause, k, stop);
+}
+
+/* The wrapper's doStep from t over h: the steps of the grid with the checks due among
+ * them, V and values filled, t_now moved; non-zero (nothing changed) when Python must
+ * take it: another time, more steps than allowed, an estimated error beyond the stated
+ * accuracy, a check's step failing, or whatever the kernel hands back (Python then
+ * redoes the step and says why). */
 int mbd_fixed_step(const Model *M, FixedRun *r, double t, double h, double *values) {
-    I n = M->n, n2 = 2 * n, m = M->m;
+    I n = M->n, n2 = 2 * n;
     if (!(fabs(t - r->t_now) <= r->time_tol * fmax(fabs(t), fabs(r->t_now)))) return ST_ERROR_NORM;
     double t0 = r->t_now, end = t + h;
     if (!(end > t0)) return ST_ERROR_NORM;
     double count = ceil((end - t0) / r->h_max - r->slack);
     if (!(count <= (double)r->max_steps)) return ST_ERROR_NORM;
     I steps = count < 1.0 ? 1 : (I)count;
-    /* a step-doubling check due before or within these steps (stated_accuracy.py) */
-    if (r->unchecked + steps > r->check_every) return ST_ERROR_NORM;
-    double estimate = r->estimate + r->local * (double)steps;
-    if (estimate > r->allowed) return ST_ERROR_NORM;
     double step = (end - t0) / (double)steps;
     Scratch s = scratch(M, M->work);
-    double *K = s.qv, *ys = K + 4 * n2;
     memcpy(r->save, r->y, (size_t)n2 * sizeof(double));
     memcpy(r->save + n2, r->f, (size_t)n2 * sizeof(double));
-    if (r->changed) {
-        int st = fixed_restart(M, r, &s, t0);
-        if (st != ST_OK) {
-            memcpy(r->y, r->save, (size_t)n2 * sizeof(double));
-            memcpy(r->f, r->save + n2, (size_t)n2 * sizeof(double));
-            return st;
-        }
-    }
-    for (I j = 0; j < steps; j++) {
-        double start = t0 + step * (double)j;
-        motion_at(M, r, start, r->motions);
-        motion_at(M, r, start + 0.5 * step, r->motions + 3 * m);
-        motion_at(M, r, start + step, r->motions + 6 * m);
-        int st = rk4p_step(M, &s, r->y, r->f, step, r->motions, r->ufs, r->tol, r->max_iter, K, ys);
-        if (st != ST_OK) {
-            memcpy(r->y, r->save, (size_t)n2 * sizeof(double));
-            memcpy(r->f, r->save + n2, (size_t)n2 * sizeof(double));
-            return st;
-        }
-    }
+    Estimate E = *r->est;     /* kept only when the whole step is */
+    int st = r->changed ? fixed_restart(M, r, &s, t0) : ST_OK;
+    I k = 0, stop = 0;
+    if (st == ST_OK) st = fixed_loop(M, r, &s, &E, t0, step, steps, end, steps, &k, &stop);
     double *out = r->V, *q = out + r->nout, *qd = q + n, *qdd = qd + n, *lam = qdd + n;
-    motion_at(M, r, end, r->motions);
-    memcpy(q, r->y, (size_t)n2 * sizeof(double));
-    int st = mbd_state_outputs(M, q, qd, r->motions, r->ufs, qdd, lam, out);
+    if (st == ST_OK) {
+        motion_at(M, r, end, r->motions);
+        memcpy(q, r->y, (size_t)n2 * sizeof(double));
+        st = mbd_state_outputs(M, q, qd, r->motions, r->ufs, qdd, lam, out);
+    }
     if (st != ST_OK) {
         memcpy(r->y, r->save, (size_t)n2 * sizeof(double));
         memcpy(r->f, r->save + n2, (size_t)n2 * sizeof(double));
         return st;
     }
-    for (I k = 0; k < r->npub; k++) values[r->pub_dst[k]] = r->V[r->pub_src[k]];
+    for (I j = 0; j < r->npub; j++) values[r->pub_dst[j]] = r->V[r->pub_src[j]];
     r->t_now = end;
     r->restarts += r->changed;
     r->changed = 0;
-    for (I k = 0; k < r->nvr; k++) r->set[k] = 0;
+    for (I j = 0; j < r->nvr; j++) r->set[j] = 0;
     r->steps += steps;
-    r->unchecked += steps;
-    r->estimate = estimate;
+    *r->est = E;
     return ST_OK;
 }

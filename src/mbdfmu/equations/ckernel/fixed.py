@@ -26,13 +26,29 @@ class FixedRun(ctypes.Structure):
     """fixed.h's ``FixedRun``."""
 
     _fields_ = [("t_now", _D), ("time_tol", _D), ("h_max", _D), ("slack", _D),
-                ("max_steps", _I), ("unchecked", _I), ("check_every", _I), ("tol", _D),
+                ("max_steps", _I), ("tol", _D),
                 ("max_iter", _I), ("nmotion", _I), ("mrow", _P), ("mkind", _P), ("mcoef", _P),
                 ("offsets", _P), ("ufs", _P), ("y", _P), ("f", _P), ("save", _P),
-                ("motions", _P), ("steps", _I), ("local", _D), ("estimate", _D),
-                ("allowed", _D), ("nout", _I), ("npub", _I), ("pub_dst", _P), ("pub_src", _P),
-                ("V", _P), ("reinit_tol", _D), ("uf", _P), ("nvr", _I), ("vrs", _P),
-                ("slots", _P), ("set", _P), ("changed", _I), ("restarts", _I)]
+                ("motions", _P), ("steps", _I), ("nout", _I), ("npub", _I), ("pub_dst", _P),
+                ("pub_src", _P), ("V", _P), ("reinit_tol", _D), ("uf", _P), ("nvr", _I),
+                ("vrs", _P), ("slots", _P), ("set", _P), ("changed", _I), ("restarts", _I),
+                ("est", _P), ("check", _P), ("audit", _P), ("divergence", _D), ("roundoff", _D)]
+
+
+class Estimate(ctypes.Structure):
+    """fixed.h's ``Estimate``: the fields of ``stated_accuracy.ErrorEstimate``, the run's
+    step count, and the rule's constants (filled by the integrators' layer)."""
+
+    _fields_ = [("local", _D), ("local_v", _D), ("sum_q", _D), ("sum_v", _D), ("sum_vt", _D),
+                ("charged", _I), ("unchecked", _I), ("every", _I), ("since", _I),
+                ("nsteps", _I), ("checks", _I), ("estimate", _D), ("allowed", _D),
+                ("floor", _D), ("factor_q", _D), ("factor_v", _D), ("carry", _I),
+                ("first", _I), ("share", _I), ("most", _I), ("change", _D), ("decay", _D)]
+
+
+def estimate_values(e: Estimate) -> dict:
+    """An ``Estimate``'s fields as a dict (Python numbers)."""
+    return {name: getattr(e, name) for name, _ in Estimate._fields_}
 
 
 def motion_coefficients(motion) -> list[float] | None:
@@ -70,38 +86,47 @@ class FixedSteps:
 
     fixed: FixedRun | None = None
 
-    def arm_fixed_steps(self, run: dict, table, offsets, uf, pub_dst, pub_src,
-                        inputs=None, reinit_tol: float = 0.0) -> tuple:
-        """Let an FMU's wrapper take rk4p's communication steps (``mbd_fixed_step``) from
-        the state in ``run`` (t_now, time_tol, h_max, slack, max_steps, unchecked,
-        check_every, tol, max_iter, local, estimate, allowed, y, f), the drivers' motion
-        ``table`` (``motion_table``), the constraints' ``offsets`` and the held force
-        inputs ``uf``, publishing as ``DenseReads.arm_dense_steps`` does. With ``inputs``
-        (value references and places in uf of the inputs fmi2SetReal may set here) the
-        wrapper takes those sets too (``mbd_fixed_set``; ``reinit_tol``: the projection
-        after one). Returns (the address of ``mbd_fixed_step``, of the model, of the
-        FixedRun), then that of ``mbd_fixed_set`` with ``inputs``."""
-        r = self.fixed = FixedRun()
+    def _fixed_struct(self, run: dict, table, offsets, uf, extra=()) -> tuple:
+        """A ``FixedRun`` from ``run`` (its fields by name, with y, f and ``estimate``, a
+        dict of ``Estimate``'s fields), the drivers' motion ``table`` (``motion_table``),
+        the constraints' ``offsets`` and the held force inputs ``uf``; and the arrays it
+        points at (``extra`` appended)."""
+        r, estimate = FixedRun(), Estimate(**run.pop("estimate"))    # {}: zeros
         n2, m, nf = 2 * self.n, self.m, max(self.nf, 1)
-        y = np.zeros(4 * n2)                            # y, f, and their saved copy
+        y = np.zeros(7 * n2)                    # y, f, their saved copy, a check's room
         y[:n2], y[n2:2 * n2] = run.pop("y"), run.pop("f")
         held = np.asarray(uf if self.nf else [0.0], dtype=float)
         forces = np.concatenate((np.tile(held, 3), held))   # three stages' copies, then uf
-        vrs, slots = (np.ascontiguousarray(a, dtype=np.int64) for a in
-                      (inputs if inputs is not None else ([], [])))
-        dst, src = (np.ascontiguousarray(a, dtype=np.int64) for a in (pub_dst, pub_src))
         arrays = (*table[1:], np.ascontiguousarray(offsets, dtype=float), forces, y,
-                  np.zeros(9 * max(m, 1)), dst, src, vrs, slots,
-                  np.zeros(max(vrs.size, 1), dtype=np.int64))
-        self._fixed_arrays = arrays                     # what r points at
+                  np.zeros(9 * max(m, 1)), *extra)
         for name, value in run.items():
             setattr(r, name, value)
         r.nmotion = table[0]
         r.mrow, r.mkind, r.mcoef, r.offsets, r.ufs = (a.ctypes.data for a in arrays[:5])
         r.uf = forces.ctypes.data + 8 * 3 * nf
         r.y, r.f, r.save = y.ctypes.data, y.ctypes.data + 8 * n2, y.ctypes.data + 16 * n2
-        r.motions, r.pub_dst, r.pub_src, r.vrs, r.slots, r.set = \
-            (a.ctypes.data for a in arrays[6:])
+        r.check, r.motions = y.ctypes.data + 32 * n2, arrays[6].ctypes.data
+        r.est = ctypes.addressof(estimate)
+        return r, estimate, arrays
+
+    def arm_fixed_steps(self, run: dict, table, offsets, uf, pub_dst, pub_src,
+                        inputs=None, reinit_tol: float = 0.0) -> tuple:
+        """Let an FMU's wrapper take rk4p's communication steps (``mbd_fixed_step``) from
+        the state in ``run`` (t_now, time_tol, h_max, slack, max_steps, tol, max_iter, y,
+        f and ``estimate``: ``Estimate``'s fields), the drivers' motion ``table``
+        (``motion_table``), the constraints' ``offsets`` and the held force inputs ``uf``,
+        publishing as ``DenseReads.arm_dense_steps`` does. With ``inputs`` (value
+        references and places in uf of the inputs fmi2SetReal may set here) the wrapper
+        takes those sets too (``mbd_fixed_set``; ``reinit_tol``: the projection after
+        one). Returns (the address of ``mbd_fixed_step``, of the model, of the FixedRun),
+        then that of ``mbd_fixed_set`` with ``inputs``."""
+        vrs, slots = (np.ascontiguousarray(a, dtype=np.int64) for a in
+                      (inputs if inputs is not None else ([], [])))
+        dst, src = (np.ascontiguousarray(a, dtype=np.int64) for a in (pub_dst, pub_src))
+        r, estimate, arrays = self._fixed_struct(run, table, offsets, uf, (
+            dst, src, vrs, slots, np.zeros(max(vrs.size, 1), dtype=np.int64)))
+        self.fixed, self._fixed_arrays = r, (*arrays, estimate)    # what r points at
+        r.pub_dst, r.pub_src, r.vrs, r.slots, r.set = (a.ctypes.data for a in arrays[7:])
         r.npub, r.nout, r.V = dst.size, self.nout, self._dense_scratch.ctypes.data
         r.nvr, r.reinit_tol = vrs.size, reinit_tol
         function = ctypes.cast(self.library.mbd_fixed_step, ctypes.c_void_p).value
@@ -110,11 +135,60 @@ class FixedSteps:
             return armed
         return (*armed, ctypes.cast(self.library.mbd_fixed_set, ctypes.c_void_p).value)
 
+    def motion_table(self, constraint_set):
+        """``motion_table(constraint_set)``, kept while the set and its motions are the
+        same objects (``fixed_advance`` keeps its arrays for the same table)."""
+        key = (constraint_set, constraint_set.motion_rows)
+        kept = getattr(self, "_table", None)
+        if kept is None or kept[0][0] is not key[0] or kept[0][1] is not key[1]:
+            kept = self._table = (key, motion_table(constraint_set))
+        return kept[1]
+
+    def fixed_advance(self, run: dict, table, offsets, uf, audit, grid: tuple, k: int,
+                      pause: int) -> tuple:
+        """Turns of ``Integrator._advance_fixed``'s loop in C (``mbd_fixed_advance``) from
+        grid step k (``grid``: t0, step, steps, end) until one ends at or past ``pause``:
+        ``run`` with tol, max_iter, divergence and roundoff (the energy check's), q, qd, f
+        and ``estimate`` (``Estimate``'s fields); the drivers' motion ``table``, the
+        constraints' ``offsets`` and the held force inputs ``uf`` as ``arm_fixed_steps``
+        takes them; ``audit`` the energy check's 13 values, or None. The run's arrays are
+        kept from call to call for the same table. Returns (status, k, the turn's last
+        step, q, q', f, ``Estimate``'s fields, the audit's values)."""
+        kept = getattr(self, "_advance", None)
+        if kept is None or kept[0] is not table:
+            state = np.zeros(13)
+            r, _, arrays = self._fixed_struct(dict(y=np.zeros(2 * self.n),
+                                                   f=np.zeros(2 * self.n),
+                                                   estimate={}), table, offsets, uf,
+                                              (state, np.zeros(2, dtype=np.int64)))
+            r.audit = state.ctypes.data
+            function = self.library.mbd_fixed_advance
+            function.argtypes = [_P, _P, _D, _D, _I, _D, _I, _P, _P]
+            kept = self._advance = (table, r, arrays, function, ctypes.addressof(r))
+        _, r, arrays, function, address = kept
+        n, nf = self.n, self.nf
+        arrays[3][:] = offsets
+        if nf:
+            arrays[4][:] = np.tile(uf, 4)
+        y, state, counts = arrays[5], arrays[7], arrays[8]
+        y[:n], y[n:2 * n], y[2 * n:4 * n] = run["q"], run["qd"], run["f"]
+        state[:] = audit if audit is not None else 0.0
+        estimate = Estimate(**run["estimate"])
+        r.est, r.tol, r.max_iter = ctypes.addressof(estimate), run["tol"], run["max_iter"]
+        r.divergence, r.roundoff = run["divergence"], run["roundoff"]
+        counts[:] = k
+        t0, step, steps, end = grid
+        status = function(self.address, address, t0, step, steps, end, pause,
+                          counts.ctypes.data, counts.ctypes.data + 8)
+        return (status, int(counts[0]), int(counts[1]), y[:n].copy(), y[n:2 * n].copy(),
+                y[2 * n:4 * n].copy(), estimate_values(estimate), state)
+
     def fixed_taken(self):
         """What the wrapper did since arming or the last call: ((steps taken, t reached, y,
-        f, estimate, restarts after a set, the force inputs the last step held) or None
-        without steps, and [(value reference, value)] of the inputs set since its last
-        step). The run stays where the wrapper points until armed anew."""
+        f, ``Estimate``'s fields, restarts after a set, the force inputs the last step
+        held) or None without steps, and [(value reference, value)] of the inputs set
+        since its last step). The run stays where the wrapper points until armed anew;
+        the estimate's count of checks starts again."""
         r = self.fixed
         if r is None:
             return None, []
@@ -125,7 +199,9 @@ class FixedSteps:
         flags[:] = 0
         if r.steps == 0:
             return None, pending
-        n2, y = 2 * self.n, a[5]
+        n2, y, estimate = 2 * self.n, a[5], a[-1]
         steps, restarts, r.steps, r.restarts = int(r.steps), int(r.restarts), 0, 0
-        return (steps, float(r.t_now), y[:n2].copy(), y[n2:2 * n2].copy(), float(r.estimate),
+        values = estimate_values(estimate)
+        estimate.checks = 0
+        return (steps, float(r.t_now), y[:n2].copy(), y[n2:2 * n2].copy(), values,
                 restarts, forces[:self.nf].copy()), pending

@@ -1,0 +1,95 @@
+"""rk4p's runs with the loop of ``Integrator._advance_fixed`` in the C kernel: its steps,
+the energy check after each, and the stated accuracy's step-doubling checks with their
+charges (``ckernel/fixed.h`` ``mbd_fixed_advance``; ``stated_accuracy.py`` is the
+reference of the rule, which the kernel follows to round-off, taking the same decisions).
+
+The kernel evaluates the drivers' motions (``ckernel/fixed.py`` ``motion_table``) and holds
+the force inputs, so a run goes there when its inputs cannot change over it. It hands
+back, with nothing of the turn lost, what Python must do: a check whose step fails, a step
+that fails (both then on rk4p's usual path), an energy check or a charge that stops the
+run (Python's check and charge then say why).
+"""
+
+from __future__ import annotations
+
+from ..equations import ckernel
+from ..equations.projection import PROJECTION_MAX_ITER
+from .c_steps import RUN_LENGTH, audit_back, audit_state
+from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
+from .stated_accuracy import adopt_c_estimate, c_estimate
+
+# fixed.h's statuses beyond kernel.c's: a check's step failed; the next charge stops the run.
+CHECK, ESTIMATE = 16, 17
+
+
+def inputs_held(rk, t_target: float):
+    """(the drivers' motion table, the force inputs) when the kernel can take rk's run to
+    t_target (motions it evaluates, force inputs held over the run), else None."""
+    eq = rk.equations
+    table = eq.ckernel.motion_table(eq.constraint_set)
+    if table is None:
+        return None
+    if not eq.ckernel.nf:
+        return table, None
+    first = rk.inputs(rk.t)
+    # the same object at both ends: the held inputs' cache (c_steps.stage_inputs)
+    return (table, first.forces) if first is rk.inputs(t_target) else None
+
+
+def advance_fixed(rk, t_target: float) -> bool:
+    """``_advance_fixed`` to t_target in C; False (nothing done) when Python's loop takes
+    it: at most RUN_LENGTH steps and no check due on the way (one call of
+    ``c_steps.rk4p_run``, which costs less to make), no C kernel or constraints, an energy
+    check of non-constant forces, inputs the kernel does not hold."""
+    eq, accuracy = rk.equations, rk.accuracy
+    if eq.ckernel is None or eq.m == 0 or (rk.audit is not None and not eq.applied.is_constant):
+        return False
+    t0, n, h = rk.fixed_grid(t_target)
+    if not accuracy.due() and n <= min(RUN_LENGTH, accuracy.every - accuracy.unchecked):
+        return False
+    held = inputs_held(rk, t_target)
+    if held is None:
+        return False
+    k = 0
+    while k < n:
+        timed = rk.limit is not None and rk.limit.max_cpu is not None
+        status, k, stop = _turns(rk, held, (t0, h, n, t_target), k,
+                                 k + RUN_LENGTH if timed else n)
+        if status == CHECK:                     # this turn on Python's path
+            rk.accuracy.spot_check(rk, h)
+            stop = min(n, k + max(1, rk.accuracy.every - rk.accuracy.unchecked))
+        elif status == ckernel.ENERGY:
+            rk._after_step()                    # says why
+        if status == ESTIMATE:
+            rk.accuracy.charge(rk, h)           # says why
+        elif status != ckernel.OK:              # the turn's rest on rk4p's path
+            k = rk._fixed_run(t0, h, k, stop, n, t_target)
+            rk.accuracy.charge(rk, h)
+        if rk.limit is not None:
+            rk.limit.check(rk.stats, rk.t, t_target)
+    return True
+
+
+def _turns(rk, held, grid, k: int, pause: int) -> tuple[int, int, int]:
+    """Turns of the loop in C from grid step k until one ends at or past ``pause``; rk
+    where the kernel left it. Returns (status, k, the turn's last step)."""
+    eq = rk.equations
+    audit = audit_state(rk.audit) if rk.audit is not None else None
+    run = dict(tol=rk._projection_tol(), max_iter=PROJECTION_MAX_ITER, estimate=c_estimate(rk),
+               q=rk.q, qd=rk.qd, f=rk.f, divergence=ENERGY_DIVERGENCE_FRACTION,
+               roundoff=ENERGY_ROUNDOFF)
+    steps_before = rk.stats.nsteps
+    status, k, stop, rk.q, rk.qd, rk.f, estimate, state = eq.ckernel.fixed_advance(
+        run, held[0], eq.constraint_set.offsets, held[1], audit, grid, k, pause)
+    t0, h, steps, t_target = grid
+    rk.t = t0 + k * h if k < steps else t_target
+    stats, done, checks = rk.stats, estimate["nsteps"] - steps_before, estimate["checks"]
+    stats.nsteps += done
+    stats.naccel += 4 * (done + 3 * checks)
+    stats.nprojections += done + 3 * checks
+    adopt_c_estimate(rk, estimate)
+    if audit is not None:
+        audit_back(rk.audit, state)
+        if status == ckernel.ENERGY:      # _after_step checks this state again: count it once
+            rk.audit.checks -= 1
+    return status, k, stop
