@@ -1,7 +1,7 @@
 """A force input set before every communication step, as a co-simulation master sets the
-crane's cylinder force: an embedded pair restarts from its state without re-projecting it
-(``Simulation._reinitialize``; the FMU wrapper's ``ckernel/adaptive.h`` likewise, held bit
-for bit to Python by tests/test_fmu_fast.py). Checked here against the crane's two-degree-of-
+crane's cylinder force: an embedded pair or rk4p restarts from its state without
+re-projecting it (``Simulation._reinitialize``; the FMU wrapper's ``ckernel/adaptive.h`` and
+``fixed.h`` likewise, held bit for bit to Python by tests/test_fmu_fast.py). Checked here against the crane's two-degree-of-
 freedom equations of motion written out independently (a boom on a ground pivot, a pendulum
 load at its tip) and integrated by scipy with the same piecewise-constant force."""
 
@@ -48,10 +48,11 @@ def crane_rhs(force_n: float):
     return rhs
 
 
-def test_crane_force_set_every_step_follows_its_equations_of_motion():
+@pytest.mark.parametrize("method", ["dop853p", "rk4p"])
+def test_crane_force_set_every_step_follows_its_equations_of_motion(method):
     steps, h = 300, 1e-3
-    sim = mbdfmu.Simulation(mbdfmu.load_scene(CRANE))        # dop853p, rtol 1e-9
-    assert sim.method_name == "dop853p"
+    sim = mbdfmu.Simulation(mbdfmu.load_scene(CRANE), method=method)   # rtol 1e-9
+    assert sim.method_name == method
     y = np.array([0.2, -math.pi / 2, 0.0, 0.0])
     for k in range(steps):
         sim.set_input("cylinder.actuator", force(k))

@@ -25,12 +25,10 @@ from __future__ import annotations
 import numpy as np
 
 from .equations.ckernel.fixed import motion_table
-from .equations.projection import ASSEMBLY_TOL
 from .integrators.c_steps import adopt_fast_run, adopt_prk_run, fast_prk_run, fast_run, tableau
 from .integrators.auto_watch import STIFF_HLAMBDA
 from .integrators.projected_rk import DOP853P, MAX_FACTOR, MIN_FACTOR, SAFETY
 from .signals import Held
-from .simulation import REINITIALIZE_TOL_FACTOR
 
 
 def settable_inputs(sim, table) -> tuple[np.ndarray, np.ndarray]:
@@ -75,12 +73,11 @@ def fast_steps_ahead(sim, limit, time_tol: float, inputs=None):
         return None
     current = getattr(integrator, "current", integrator)     # auto's integrator of the moment
     u = sim.inputs_at(sim.t)
-    reinit_tol = ASSEMBLY_TOL * eq.length_scale * REINITIALIZE_TOL_FACTOR
     table = motion_table(eq.constraint_set)
     run = None if table is None else fast_run(current, limit, time_tol)
     if run is not None:
         sets = {} if inputs is None or not len(inputs[0]) or eq.nonconservative_reason() is None \
-            else dict(inputs=inputs, reinit_tol=reinit_tol)
+            else dict(inputs=inputs)
         return "fixed", kernel, (run, table, eq.constraint_set.offsets, u.forces), sets
     stiff_limit = auto_stiff_limit(current, watcher)
     run = None if sim.scene.drivers or sim.inputs_known_ahead() or stiff_limit is None else \

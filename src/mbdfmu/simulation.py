@@ -110,12 +110,13 @@ class Simulation(SimulationInputs):
     def _reinitialize(self) -> None:
         """After inputs change: the state is made consistent with the new driver positions.
 
-        When only force inputs changed, an embedded pair restarts from its state as it is:
-        the constraints do not depend on forces and its last step (or dense read) ended
-        projected, so a projection there would only move q' by round-off (the FMU wrapper's
-        restart, ``ckernel/adaptive.h``, does the same)."""
+        When only force inputs changed, a projected Runge-Kutta method (an embedded pair or
+        rk4p) restarts from its state as it is: the constraints do not depend on forces and
+        its last step (or dense read) ended projected, so a projection there would only move
+        q' by round-off (the FMU wrapper's restarts, ``ckernel/adaptive.h`` and
+        ``fixed.h``, do the same)."""
         current = getattr(self.integrator, "current", self.integrator)  # auto's of the moment
-        if self.events is None and not self._motion_changed and current.adaptive and \
+        if self.events is None and not self._motion_changed and \
                 isinstance(current, ProjectedRK):
             self.integrator.reset_state(self.q, self.qd, self.t)
             self._inputs_changed = False

@@ -3,7 +3,8 @@
  * without Python (fmu_build/runtime real_cache.py FastSteps), for scenes whose drivers
  * follow motions the kernel evaluates (constant, linear, harmonic) and whose force inputs
  * are held or set by the master before a step (mbd_fixed_set: fmi2SetReal of a force input
- * taken by the wrapper, then Simulation._reinitialize and the restart as Python does them).
+ * taken by the wrapper, then the restart as Simulation._reinitialize does it: no projection,
+ * the constraints do not depend on forces and the last step ended projected).
  *
  * The arithmetic is Python's, in the same order: the grid of Integrator.fixed_grid (equal
  * steps no longer than h_max up to t + h, times t0 + j step), motion.py's evaluate() at
@@ -35,7 +36,6 @@ typedef struct {
     const I *pub_dst, *pub_src;
     double *V;               /* ... V = (outputs, q, q', q''): nout + 3n; then lam (m) */
     /* force inputs set by fmi2SetReal (mbd_fixed_set; nvr = 0: none may be set here) */
-    double reinit_tol;       /* Simulation._reinitialize's projection */
     double *uf;              /* the force inputs as set (nf) */
     I nvr; const I *vrs, *slots;   /* value reference of each settable input, its place in uf */
     I *set;                  /* nvr: 1 where set since the last step */
@@ -153,16 +153,14 @@ static void motion_at(const Model *M, const FixedRun *r, double t, double *out) 
     }
 }
 
-/* After an input was set: Simulation._reinitialize's projection at t0 and the restart's
- * f = (q', q'') with the new inputs; the inputs then held over the step's stages. */
+/* After a force input was set: the restart's f = (q', q'') at t0 with the new inputs (the
+ * state as it is, Simulation._reinitialize); the inputs then held over the step's stages. */
 static int fixed_restart(const Model *M, FixedRun *r, Scratch *s, double t0) {
     I n = M->n, m = M->m, nf = M->nf;
     motion_at(M, r, t0, r->motions);
-    int st = project(M, s, r->y, r->y + n, r->motions, r->reinit_tol, r->max_iter);
-    if (st != ST_OK) return st;
     memcpy(r->f, r->y + n, (size_t)n * sizeof(double));
-    st = mbd_accelerations(M, r->y, r->y + n, r->motions, r->motions + 2 * m, r->uf, r->f + n,
-                           s->lam);
+    int st = mbd_accelerations(M, r->y, r->y + n, r->motions, r->motions + 2 * m, r->uf,
+                               r->f + n, s->lam);
     if (st != ST_OK) return st;
     for (I row = 0; row < 3; row++)
         if (nf) memcpy(r->ufs + row * nf, r->uf, (size_t)nf * sizeof(double));

@@ -30,7 +30,7 @@ class FixedRun(ctypes.Structure):
                 ("max_iter", _I), ("nmotion", _I), ("mrow", _P), ("mkind", _P), ("mcoef", _P),
                 ("offsets", _P), ("ufs", _P), ("y", _P), ("f", _P), ("save", _P),
                 ("motions", _P), ("steps", _I), ("nout", _I), ("npub", _I), ("pub_dst", _P),
-                ("pub_src", _P), ("V", _P), ("reinit_tol", _D), ("uf", _P), ("nvr", _I),
+                ("pub_src", _P), ("V", _P), ("uf", _P), ("nvr", _I),
                 ("vrs", _P), ("slots", _P), ("set", _P), ("changed", _I), ("restarts", _I),
                 ("est", _P), ("check", _P), ("audit", _P), ("divergence", _D), ("roundoff", _D)]
 
@@ -110,16 +110,17 @@ class FixedSteps:
         return r, estimate, arrays
 
     def arm_fixed_steps(self, run: dict, table, offsets, uf, pub_dst, pub_src,
-                        inputs=None, reinit_tol: float = 0.0) -> tuple:
+                        inputs=None) -> tuple:
         """Let an FMU's wrapper take rk4p's communication steps (``mbd_fixed_step``) from
         the state in ``run`` (t_now, time_tol, h_max, slack, max_steps, tol, max_iter, y,
         f and ``estimate``: ``Estimate``'s fields), the drivers' motion ``table``
         (``motion_table``), the constraints' ``offsets`` and the held force inputs ``uf``,
         publishing as ``DenseReads.arm_dense_steps`` does. With ``inputs`` (value
         references and places in uf of the inputs fmi2SetReal may set here) the wrapper
-        takes those sets too (``mbd_fixed_set``; ``reinit_tol``: the projection after
-        one). Returns (the address of ``mbd_fixed_step``, of the model, of the FixedRun),
-        then that of ``mbd_fixed_set`` with ``inputs``."""
+        takes those sets too (``mbd_fixed_set``; the steps then restart without a
+        projection, as ``Simulation._reinitialize``). Returns (the address of
+        ``mbd_fixed_step``, of the model, of the FixedRun), then that of ``mbd_fixed_set``
+        with ``inputs``."""
         vrs, slots = (np.ascontiguousarray(a, dtype=np.int64) for a in
                       (inputs if inputs is not None else ([], [])))
         dst, src = (np.ascontiguousarray(a, dtype=np.int64) for a in (pub_dst, pub_src))
@@ -128,7 +129,7 @@ class FixedSteps:
         self.fixed, self._fixed_arrays = r, (*arrays, estimate)    # what r points at
         r.pub_dst, r.pub_src, r.vrs, r.slots, r.set = (a.ctypes.data for a in arrays[7:])
         r.npub, r.nout, r.V = dst.size, self.nout, self._dense_scratch.ctypes.data
-        r.nvr, r.reinit_tol = vrs.size, reinit_tol
+        r.nvr = vrs.size
         function = ctypes.cast(self.library.mbd_fixed_step, ctypes.c_void_p).value
         armed = (function, self.address, ctypes.addressof(r))
         if inputs is None:
