@@ -45,6 +45,7 @@ typedef struct {
     double *check;           /* a check's room: y and f saved (4n), then its one step (2n) */
     double *audit;           /* the energy check's state (rk4p runs with constant forces) */
     double divergence, roundoff;  /* ... its ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF */
+    double *kept;            /* the last step's end for the restart (keep_step_end) */
 } FixedRun;
 
 /* stated_accuracy.ErrorEstimate: its fields, the run's step count (Counters.nsteps) and
@@ -153,14 +154,58 @@ static void motion_at(const Model *M, const FixedRun *r, double t, double *out) 
     }
 }
 
+/* Doubles of FixedRun.kept: a flag, y (2n) and the motion (3m) at the last step's end,
+ * Psi_q's values (nkeep) and gamma (m) there, the band factor of S (2 (kd + 1) m). */
+I mbd_fixed_kept_size(const Model *M) {
+    return 1 + 2 * M->n + 3 * M->m + M->nkeep + M->m + 2 * (M->kd + 1) * M->m;
+}
+
+/* After a doStep's steps (the last thing fixed_loop did was a step, whose q'' was solved
+ * by the band factor its velocity projection kept, s->kept): what eq. (14) at its end
+ * needs besides the forces, for a restart there after a force input was set. */
+static void keep_step_end(const Model *M, FixedRun *r, const Scratch *s) {
+    I n2 = 2 * M->n, m = M->m;
+    double *p = r->kept;
+    p[0] = (s->kept && m > 0) ? 1.0 : 0.0;
+    if (p[0] == 0.0) return;
+    memcpy(p + 1, r->y, (size_t)n2 * sizeof(double)); p += 1 + n2;
+    memcpy(p, r->motions + 6 * m, (size_t)(3 * m) * sizeof(double)); p += 3 * m;
+    memcpy(p, s->values, (size_t)M->nkeep * sizeof(double)); p += M->nkeep;
+    memcpy(p, s->gamma, (size_t)m * sizeof(double)); p += m;
+    memcpy(p, s->band, (size_t)(2 * (M->kd + 1) * m) * sizeof(double));
+}
+
+/* eq. (14) at the state and motion keep_step_end kept (checked bit for bit) with the new
+ * force inputs: accelerations_at's arithmetic with Psi_q, gamma and S's factor as they
+ * were (they do not depend on forces), so q'' and lam are those of a whole evaluation.
+ * 0: nothing kept for this state, the caller evaluates it all. */
+static int restart_kept(const Model *M, FixedRun *r, Scratch *s) {
+    I n = M->n, n2 = 2 * n, m = M->m;
+    const double *p = r->kept, *q = r->y, *qd = r->y + n, *cdd = r->motions + 2 * m;
+    if (p[0] == 0.0 || memcmp(p + 1, r->y, (size_t)n2 * sizeof(double)) ||
+            memcmp(p + 1 + n2, r->motions, (size_t)(3 * m) * sizeof(double)))
+        return 0;
+    const double *values = p + 1 + n2 + 3 * m, *gamma = values + M->nkeep, *band = gamma + m;
+    if (forces(M, q, qd, r->uf, s->F) != ST_OK) return 0;
+    for (I k = 0; k < n; k++) s->Fm[k] = M->minv[k] * s->F[k];
+    jac_mul(M, values, s->Fm, s->rhs);
+    for (I row = 0; row < m; row++) s->rhs[row] -= gamma[row] + cdd[row];
+    schur_again(M, s->rhs, s->lam, band, s->tmp);
+    jac_t_mul(M, values, s->lam, s->nv);
+    for (I k = 0; k < n; k++) r->f[n + k] = M->minv[k] * (s->F[k] - s->nv[k]);
+    memo_store(M, q, qd, r->motions, cdd, r->uf, r->f + n, s->lam);
+    return 1;
+}
+
 /* After a force input was set: the restart's f = (q', q'') at t0 with the new inputs (the
  * state as it is, Simulation._reinitialize); the inputs then held over the step's stages. */
 static int fixed_restart(const Model *M, FixedRun *r, Scratch *s, double t0) {
     I n = M->n, m = M->m, nf = M->nf;
     motion_at(M, r, t0, r->motions);
     memcpy(r->f, r->y + n, (size_t)n * sizeof(double));
-    int st = mbd_accelerations(M, r->y, r->y + n, r->motions, r->motions + 2 * m, r->uf,
-                               r->f + n, s->lam);
+    int st = restart_kept(M, r, s) ? ST_OK :
+        mbd_accelerations(M, r->y, r->y + n, r->motions, r->motions + 2 * m, r->uf, r->f + n,
+                          s->lam);
     if (st != ST_OK) return st;
     for (I row = 0; row < 3; row++)
         if (nf) memcpy(r->ufs + row * nf, r->uf, (size_t)nf * sizeof(double));
@@ -270,6 +315,7 @@ int mbd_fixed_step(const Model *M, FixedRun *r, double t, double h, double *valu
     int st = r->changed ? fixed_restart(M, r, &s, t0) : ST_OK;
     I k = 0, stop = 0;
     if (st == ST_OK) st = fixed_loop(M, r, &s, &E, t0, step, steps, end, steps, &k, &stop);
+    if (st == ST_OK) keep_step_end(M, r, &s);
     double *out = r->V, *q = out + r->nout, *qd = q + n, *qdd = qd + n, *lam = qdd + n;
     if (st == ST_OK) {
         motion_at(M, r, end, r->motions);

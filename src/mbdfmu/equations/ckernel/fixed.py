@@ -32,7 +32,8 @@ class FixedRun(ctypes.Structure):
                 ("motions", _P), ("steps", _I), ("nout", _I), ("npub", _I), ("pub_dst", _P),
                 ("pub_src", _P), ("V", _P), ("uf", _P), ("nvr", _I),
                 ("vrs", _P), ("slots", _P), ("set", _P), ("changed", _I), ("restarts", _I),
-                ("est", _P), ("check", _P), ("audit", _P), ("divergence", _D), ("roundoff", _D)]
+                ("est", _P), ("check", _P), ("audit", _P), ("divergence", _D), ("roundoff", _D),
+                ("kept", _P)]
 
 
 class Estimate(ctypes.Structure):
@@ -124,10 +125,14 @@ class FixedSteps:
         vrs, slots = (np.ascontiguousarray(a, dtype=np.int64) for a in
                       (inputs if inputs is not None else ([], [])))
         dst, src = (np.ascontiguousarray(a, dtype=np.int64) for a in (pub_dst, pub_src))
+        size = self.library.mbd_fixed_kept_size
+        size.restype, size.argtypes = _I, [_P]
+        kept = np.zeros(size(self.address))        # nothing kept yet (its flag 0)
         r, estimate, arrays = self._fixed_struct(run, table, offsets, uf, (
-            dst, src, vrs, slots, np.zeros(max(vrs.size, 1), dtype=np.int64)))
+            dst, src, vrs, slots, np.zeros(max(vrs.size, 1), dtype=np.int64), kept))
         self.fixed, self._fixed_arrays = r, (*arrays, estimate)    # what r points at
-        r.pub_dst, r.pub_src, r.vrs, r.slots, r.set = (a.ctypes.data for a in arrays[7:])
+        r.kept = kept.ctypes.data
+        r.pub_dst, r.pub_src, r.vrs, r.slots, r.set = (a.ctypes.data for a in arrays[7:12])
         r.npub, r.nout, r.V = dst.size, self.nout, self._dense_scratch.ctypes.data
         r.nvr = vrs.size
         function = ctypes.cast(self.library.mbd_fixed_step, ctypes.c_void_p).value
