@@ -317,10 +317,13 @@ int mbd_fixed_step(const Model *M, FixedRun *r, double t, double h, double *valu
     if (st == ST_OK) st = fixed_loop(M, r, &s, &E, t0, step, steps, end, steps, &k, &stop);
     if (st == ST_OK) keep_step_end(M, r, &s);
     double *out = r->V, *q = out + r->nout, *qd = q + n, *qdd = qd + n, *lam = qdd + n;
-    if (st == ST_OK) {
+    if (st == ST_OK) {       /* mbd_state_outputs, without evaluating Psi_q once more: */
         motion_at(M, r, end, r->motions);
         memcpy(q, r->y, (size_t)n2 * sizeof(double));
-        st = mbd_state_outputs(M, q, qd, r->motions, r->ufs, qdd, lam, out);
+        st = mbd_accelerations(M, q, qd, r->motions, r->motions + 2 * M->m, r->ufs, qdd, lam);
+        /* whether kept (the last step's end evaluated eq. (14) at these arguments last) or
+         * evaluated now, eq. (14) at (q, c) left Psi and Psi_q in s (with constraints) */
+        if (st == ST_OK) st = outputs_at(M, &s, M->m > 0, q, qd, lam, r->motions, r->ufs, out);
     }
     if (st != ST_OK) {
         memcpy(r->y, r->save, (size_t)n2 * sizeof(double));

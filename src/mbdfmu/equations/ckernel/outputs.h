@@ -62,19 +62,22 @@ static double potential(const Model *M, const double *q) {
 
 /* The output vector (model.variables.outputs order): body states, joint outputs, driver
  * efforts, spring states, kinetic and potential energy, |Psi|, |Psi_q q' - nu|. motion:
- * c, c', c'' (3 m) at t. ST_SPRING for a spring of zero length. */
-int mbd_outputs(const Model *M, const double *q, const double *qd, const double *qdd,
-                const double *lam, const double *motion, const double *uf, double *out) {
-    Scratch s = scratch(M, M->work);
+ * c, c', c'' (3 m) at t. ST_SPRING for a spring of zero length. `fresh`: s holds Psi and
+ * Psi_q's data and values at (q, c) already (the evaluation of eq. (14) there left them). */
+static int outputs_at(const Model *M, Scratch *sp, int fresh, const double *q,
+                      const double *qd, const double *lam, const double *motion,
+                      const double *uf, double *out) {
+    Scratch s = *sp;
     I nb = M->nb, n = M->n, m = M->m, o = 0;
-    (void)qdd;
     for (I b = 0; b < nb; b++) {
         for (int c = 0; c < 3; c++) out[o++] = q[3 * b + c];
         for (int c = 0; c < 3; c++) out[o++] = qd[3 * b + c];
     }
-    extend(M, q, s.qe);
-    terms(M, s.qe, NULL, motion, s.psi, s.raw, NULL, s.cs);
-    merged(M, s.raw, s.data, s.values);
+    if (!fresh) {
+        extend(M, q, s.qe);
+        terms(M, s.qe, NULL, motion, s.psi, s.raw, NULL, s.cs);
+        merged(M, s.raw, s.data, s.values);
+    }
     double *joints = s.qv;
     joint_values(M, q, lam, s.data, joints);
     for (I k = 0; k < M->nplan; k++) out[o++] = joints[M->joint_plan[k]];
@@ -100,6 +103,13 @@ int mbd_outputs(const Model *M, const double *q, const double *qd, const double 
     out[o++] = sqrt(psi2);
     out[o++] = sqrt(v2);
     return ST_OK;
+}
+
+int mbd_outputs(const Model *M, const double *q, const double *qd, const double *qdd,
+                const double *lam, const double *motion, const double *uf, double *out) {
+    Scratch s = scratch(M, M->work);
+    (void)qdd;
+    return outputs_at(M, &s, 0, q, qd, lam, motion, uf, out);
 }
 
 /* The outputs at a state: q'' and lam of eq. (14) (the kept evaluation when the step
