@@ -15,14 +15,16 @@ with the next one within the current run of steps (an output or communication po
 the stated accuracy's spot check, is never stepped over), and while the mechanism
 approaches a singular configuration: the indicator at the current state is below
 APPROACH_STEPS times its change over the last checked step, or ZONE times SAFETY (not with
-redundant constraints, whose indicator stays zero).
+redundant constraints, whose indicator stays zero). Clear of the zone, the indicator is
+checked again only after QUIET_STEPS steps: a master's communication steps of one step
+each would otherwise pay one evaluation per step.
 """
 
 from __future__ import annotations
 
 import math
 
-from ..equations.singular import singularity_indicator
+from . import singular_zone
 from .base import grid_step_taken
 from .newton import H_FINE, NewtonFailure, advance_with_halving
 
@@ -36,6 +38,9 @@ SAFETY = 10.0
 # An indicator below this at two checks in a row: Psi_q stays rank-deficient (redundant
 # constraints), there is nothing to step across.
 RANK_DEFICIENT = 1e-9
+# Steps after a check that found the zone at least APPROACH_STEPS steps away at its rate,
+# before the next check (half of them: the rate may grow meanwhile).
+QUIET_STEPS = APPROACH_STEPS // 2
 
 
 class CrossingWatch:
@@ -44,10 +49,13 @@ class CrossingWatch:
     def __init__(self):
         self.t = None
         self.indicator = None
+        self.quiet_until = -math.inf    # no check before this time (s): the zone was far
 
     def approaching(self, method, h: float) -> bool:
         """Whether the next steps must be checked one at a time."""
         if h > H_FINE or method.equations.m == 0:
+            return False
+        if self.t is not None and self.t <= method.t < self.quiet_until:
             return False
         now = end_indicator(method, method.t, method.qw)
         near = now < ZONE * SAFETY
@@ -59,12 +67,12 @@ class CrossingWatch:
         else:
             near = True
         self.t, self.indicator = method.t, now
+        self.quiet_until = -math.inf if near else method.t + QUIET_STEPS * h
         return near
 
 
 def end_indicator(method, t: float, qw) -> float:
-    _, J = method.constraints(t, qw)
-    return singularity_indicator(J)
+    return singular_zone.indicator(method, t, qw)     # in C where the kernel is
 
 
 def crossing_steps(method, t: float, h: float, mergeable: bool) -> int:
