@@ -2,7 +2,7 @@
 Ecos' command line (C and C++, no Python inside, clean environment), fmpy, libcosim and
 ecospy in fresh processes; each result against ``mbdfmu simulate`` at the same steps.
 
-The checker comes from CI as ../shared/tools/fmuCheck.linux64 (skipped when absent);
+The checker is $MBDFMU_FMU_CHECKER or fmuCheck.linux64 on PATH (skipped when absent);
 Ecos from the ecospy wheel (its ``ecos`` binary copied with an execute bit).
 benchmarks/fmu_hosts_matrix.py runs every shipped scene in every host, and 200 processes.
 """
@@ -24,7 +24,7 @@ from fmu_models import hosts  # noqa: E402
 from fmu_models.scenes import max_error, scene_fmu, simulate_numpy  # noqa: E402,F401
 
 needs_checker = pytest.mark.skipif(not hosts.CHECKER.exists(),
-                                   reason="the Compliance Checker is not in ../shared/tools")
+                                   reason=hosts.CHECKER_MISSING)
 # (scene, communication step, stop time) of the checker runs: a fixed-step and two adaptive
 # methods, a scene with inputs (held at their start values by the checker)
 CHECKED = [("slider_crank", 1e-3, 0.05), ("pendulum_torque", 1e-2, 0.3),
@@ -65,7 +65,7 @@ def test_fresh_processes_load_step_free_and_exit_cleanly(scene_fmu, tmp_path, ki
     for i in range(3):
         if kind == "checker":
             if not hosts.CHECKER.exists():
-                pytest.skip("the Compliance Checker is not in ../shared/tools")
+                pytest.skip(hosts.CHECKER_MISSING)
             (tmp_path / str(i)).mkdir()
             run = hosts.run_checker(path, tmp_path / str(i), stop=steps * h, h=h)
         else:

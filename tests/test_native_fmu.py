@@ -36,7 +36,7 @@ def test_model_description_passes_fmpy_validate(toy):
     assert validate_fmu(str(toy)) == []
 
 
-@pytest.mark.skipif(not hosts.CHECKER.exists(), reason="the Compliance Checker is not in ../shared")
+@pytest.mark.skipif(not hosts.CHECKER.exists(), reason=hosts.CHECKER_MISSING)
 def test_compliance_checker_from_a_clean_environment_matches_the_closed_form(toy, tmp_path):
     run = hosts.run_checker(toy, tmp_path, stop=1.0, h=H)
     assert run.returncode == 0, run.stdout + run.stderr
@@ -67,7 +67,7 @@ def test_fresh_processes_load_step_free_and_exit_cleanly(toy, tmp_path, kind):
     for i in range(runs):
         if kind == "checker":
             if not hosts.CHECKER.exists():
-                pytest.skip("the Compliance Checker is not in ../shared")
+                pytest.skip(hosts.CHECKER_MISSING)
             (tmp_path / str(i)).mkdir()
             run = hosts.run_checker(toy, tmp_path / str(i), stop=0.1, h=H)
         else:
