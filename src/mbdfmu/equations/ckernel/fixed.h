@@ -176,8 +176,8 @@ static void keep_step_end(const Model *M, FixedRun *r, const Scratch *s) {
 }
 
 /* eq. (14) at the state and motion keep_step_end kept (checked bit for bit) with the new
- * force inputs: accelerations_at's arithmetic with Psi_q, gamma and S's factor as they
- * were (they do not depend on forces), so q'' and lam are those of a whole evaluation.
+ * force inputs: solve_with_factor with Psi_q, gamma and S's factor as they were (they do
+ * not depend on forces), so q'' and lam are those of a whole evaluation.
  * 0: nothing kept for this state, the caller evaluates it all. */
 static int restart_kept(const Model *M, FixedRun *r, Scratch *s) {
     I n = M->n, n2 = 2 * n, m = M->m;
@@ -187,12 +187,7 @@ static int restart_kept(const Model *M, FixedRun *r, Scratch *s) {
         return 0;
     const double *values = p + 1 + n2 + 3 * m, *gamma = values + M->nkeep, *band = gamma + m;
     if (forces(M, q, qd, r->uf, s->F) != ST_OK) return 0;
-    for (I k = 0; k < n; k++) s->Fm[k] = M->minv[k] * s->F[k];
-    jac_mul(M, values, s->Fm, s->rhs);
-    for (I row = 0; row < m; row++) s->rhs[row] -= gamma[row] + cdd[row];
-    schur_again(M, s->rhs, s->lam, band, s->tmp);
-    jac_t_mul(M, values, s->lam, s->nv);
-    for (I k = 0; k < n; k++) r->f[n + k] = M->minv[k] * (s->F[k] - s->nv[k]);
+    solve_with_factor(M, s, values, gamma, band, cdd, r->f + n, s->lam);
     memo_store(M, q, qd, r->motions, cdd, r->uf, r->f + n, s->lam);
     return 1;
 }

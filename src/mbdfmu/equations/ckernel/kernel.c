@@ -286,6 +286,21 @@ static void extend(const Model *M, const double *q, double *qe) {
 /* ---- eq. (14) ------------------------------------------------------------------------------ */
 
 /* again: S's factor is in s->band already (s->kept after a projection to this q). */
+/* eq. (14)'s solve with the forces in s->F and Psi_q's values, gamma and the band factor of
+ * S = Psi_q M^-1 Psi_q^T given (none of them depends on the forces): q'' and lam. */
+static int solve_with_factor(const Model *M, Scratch *s, const double *values,
+                             const double *gamma, const double *band, const double *cdd,
+                             double *qdd, double *lam) {
+    I n = M->n, m = M->m;
+    for (I k = 0; k < n; k++) s->Fm[k] = M->minv[k] * s->F[k];
+    jac_mul(M, values, s->Fm, s->rhs);
+    for (I r = 0; r < m; r++) s->rhs[r] -= gamma[r] + cdd[r];
+    schur_again(M, s->rhs, lam, band, s->tmp);
+    jac_t_mul(M, values, lam, s->nv);
+    for (I k = 0; k < n; k++) qdd[k] = M->minv[k] * (s->F[k] - s->nv[k]);
+    return ST_OK;
+}
+
 static int accelerations_at(const Model *M, Scratch *s, const double *q, const double *qd,
                             const double *cval, const double *cdd, const double *uf,
                             double *qdd, double *lam, int again) {
@@ -300,11 +315,11 @@ static int accelerations_at(const Model *M, Scratch *s, const double *q, const d
     extend(M, qd, s->qde);
     terms(M, s->qe, s->qde, cval, s->psi, s->raw, s->gamma, s->cs);
     merged(M, s->raw, s->data, s->values);
+    if (again) return solve_with_factor(M, s, s->values, s->gamma, s->band, cdd, qdd, lam);
     for (I k = 0; k < n; k++) s->Fm[k] = M->minv[k] * s->F[k];
     jac_mul(M, s->values, s->Fm, s->rhs);
     for (I r = 0; r < m; r++) s->rhs[r] -= s->gamma[r] + cdd[r];
-    if (again) schur_again(M, s->rhs, lam, s->band, s->tmp);
-    else st = schur_solve(M, s->values, s->rhs, lam, s->band, s->tmp);
+    st = schur_solve(M, s->values, s->rhs, lam, s->band, s->tmp);
     if (st != ST_OK) return st;
     jac_t_mul(M, s->values, lam, s->nv);
     for (I k = 0; k < n; k++) qdd[k] = M->minv[k] * (s->F[k] - s->nv[k]);
