@@ -13,13 +13,11 @@ run (Python's check and charge then say why).
 from __future__ import annotations
 
 from ..equations import ckernel
+from ..equations.ckernel.fixed import CHECK, ESTIMATE
 from ..equations.projection import PROJECTION_MAX_ITER
 from .c_steps import RUN_LENGTH, audit_back, audit_state
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
 from .stated_accuracy import adopt_c_estimate, c_estimate
-
-# fixed.h's statuses beyond kernel.c's: a check's step failed; the next charge stops the run.
-CHECK, ESTIMATE = 16, 17
 
 
 def inputs_held(rk, t_target: float):

@@ -19,6 +19,8 @@ from ...model.motion import ConstantMotion, HarmonicMotion, LinearMotion
 
 _P, _I, _D = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
 # fixed.h's MOTION_* codes of the motions it evaluates; any other kind stays with Python.
+# fixed.h's statuses beyond kernel.c's: a check's step failed; the next charge stops the run.
+CHECK, ESTIMATE = 16, 17
 MOTION_CODES = {ConstantMotion: 0, LinearMotion: 1, HarmonicMotion: 2}
 
 
