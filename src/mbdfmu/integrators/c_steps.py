@@ -261,11 +261,16 @@ def adopt_fast_run(rk, steps: int, t: float, y, f, estimate: dict) -> None:
     ``rk4p_run`` leaves them (a check: three steps' work)."""
     n = rk.q.size
     rk.q, rk.qd, rk.f, rk.t = y[:n].copy(), y[n:].copy(), f, t
-    stats, checks = rk.stats, estimate["checks"]
+    count_rk4p_work(rk.stats, steps, estimate["checks"])
+    adopt_c_estimate(rk, estimate)
+
+
+def count_rk4p_work(stats, steps: int, checks: int) -> None:
+    """The counters of ``steps`` rk4p steps and ``checks`` step-doubling checks taken in C
+    (a check: three steps' work, four evaluations of eq. (14) and a projection each)."""
     stats.nsteps += steps
     stats.naccel += 4 * (steps + 3 * checks)
     stats.nprojections += steps + 3 * checks
-    adopt_c_estimate(rk, estimate)
 
 
 def fast_prk_run(rk, limit, time_tol: float, factors: tuple,

@@ -15,7 +15,7 @@ from __future__ import annotations
 from ..equations import ckernel
 from ..equations.ckernel.fixed import CHECK, ESTIMATE
 from ..equations.projection import PROJECTION_MAX_ITER
-from .c_steps import RUN_LENGTH, audit_back, audit_state
+from .c_steps import RUN_LENGTH, audit_back, audit_state, count_rk4p_work
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
 from .stated_accuracy import adopt_c_estimate, c_estimate
 
@@ -81,10 +81,7 @@ def _turns(rk, held, grid, k: int, pause: int) -> tuple[int, int, int]:
         run, held[0], eq.constraint_set.offsets, held[1], audit, grid, k, pause)
     t0, h, steps, t_target = grid
     rk.t = t0 + k * h if k < steps else t_target
-    stats, done, checks = rk.stats, estimate["nsteps"] - steps_before, estimate["checks"]
-    stats.nsteps += done
-    stats.naccel += 4 * (done + 3 * checks)
-    stats.nprojections += done + 3 * checks
+    count_rk4p_work(rk.stats, estimate["nsteps"] - steps_before, estimate["checks"])
     adopt_c_estimate(rk, estimate)
     if audit is not None:
         audit_back(rk.audit, state)
