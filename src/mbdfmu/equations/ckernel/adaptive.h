@@ -5,9 +5,10 @@
  * FastSteps: fmi2SetReal of those inputs lands in PrkRun.uf without Python either).
  *
  * The decisions are Python's, in the same order and arithmetic: Simulation._reinitialize
- * and ProjectedRK.restart after a force input was set (q'' and the singularity indicator;
- * no projection: the constraints do not depend on forces), AdaptiveStepping._advance_adaptive without dense output (landing, the
- * controller's proposal kept after a step cut short, rejections), c_steps.prk_attempt's
+ * and ProjectedRK.restart after a force input was set (q'' and the singularity
+ * indicator; no projection: the constraints do not depend on forces),
+ * AdaptiveStepping._advance_adaptive without dense output (landing, the controller's
+ * proposal kept after a step cut short, rejections), c_steps.prk_attempt's
  * step factors. Anything else (a step near a singular configuration, where
  * singular_zone.py plans, a case the kernel hands back, too many rejections, the work
  * limit) returns non-zero with nothing changed, and Python takes the step and says why.
