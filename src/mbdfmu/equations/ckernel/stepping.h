@@ -204,10 +204,7 @@ static int prk_trial(const Model *M, I ns, const double *A, const double *B, con
     if (r == ST_SINGULAR || r == ST_SPRING) return r;
     if (r != ST_OK || !all_finite(y_new, n2) || !all_finite(K + ns * n2, n2)) return ST_NOT_FINITE;
     int tangent = 0;
-    if (c1) {
-        extend(M, y_new, s.qe);
-        terms(M, s.qe, NULL, motions + ns * 3 * m, s.psi, s.raw, NULL, s.cs);
-        merged(M, s.raw, s.data, s.values);
+    if (c1) {     /* Psi_q's values at y_new: the evaluation just above left them */
         *c1 = m ? indicator_of(M, &s, s.values) : INFINITY;
         tangent = m && !(fmin(c0, *c1) >= NEAR_ZONE_C);
     }
