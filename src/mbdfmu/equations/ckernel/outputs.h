@@ -46,8 +46,8 @@ static double potential(const Model *M, const double *q) {
         const double *fr = M->f_real + 8 * k;
         if (fi[0] == F_SPRING) {
             double xi, yi, aix, aiy, xj, yj, ajx, ajy;
-            body_point(M, q, fi[1], fr[0], fr[1], &xi, &yi, &aix, &aiy);
-            body_point(M, q, fi[2], fr[2], fr[3], &xj, &yj, &ajx, &ajy);
+            body_point(M, q, NULL, fi[1], fr[0], fr[1], &xi, &yi, &aix, &aiy);
+            body_point(M, q, NULL, fi[2], fr[2], fr[3], &xj, &yj, &ajx, &ajy);
             double stretch = hypot(xj + ajx - xi - aix, yj + ajy - yi - aiy) - fr[6];
             e += 0.5 * fr[4] * stretch * stretch;
         } else if (fi[0] == F_TORSION) {
@@ -85,7 +85,7 @@ static int outputs_at(const Model *M, Scratch *sp, int fresh, const double *q,
     for (I k = 0; k < M->nforce; k++) {
         if (M->f_int[4 * k] != F_SPRING) continue;
         double g[8];
-        if (spring_geometry(M, k, q, qd, g) != ST_OK) return ST_SPRING;
+        if (spring_geometry(M, k, q, qd, s.cs, g) != ST_OK) return ST_SPRING;
         out[o++] = g[0];
         out[o++] = g[1];
         out[o++] = spring_tension(M, k, g[0], g[1], uf);
