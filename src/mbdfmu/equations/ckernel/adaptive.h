@@ -46,6 +46,7 @@ typedef struct {
     I nout, npub; const I *pub_dst, *pub_src;
     double *V;                     /* (outputs, q, q', q''), then lam */
     double stiff_limit;            /* > 0: auto's watch; Hairer's h |lambda| at most this */
+    double *kept;                  /* the last accepted step's end (keep_end) */
 } PrkRun;
 
 /* auto_watch.stiffness, Hairer's h |lambda| of a step of the pair (ns stages, A (ns, ns),
@@ -90,11 +91,12 @@ static int prk_try(const Model *M, PrkRun *r, Scratch *s, const double *y, const
                    double hh, double *h_next, double *c1, I *naccel, I *nproj) {
     I ns = r->ns;
     double err = 0.0;
+    int kept = 0;
     /* the indicator at the start is at least NEAR_ZONE (checked before), so the trial's
      * error estimate is the plain one unless *c1 < NEAR_ZONE, which hands the step back */
     int st = prk_trial(M, ns, r->A, r->B, r->E, r->E3, hh, y, f, r->motions, r->ufs, r->rtol,
                        r->atol, r->tol, r->max_iter, r->y_new, r->f_new, &err, r->K,
-                       INFINITY, c1);
+                       INFINITY, c1, &kept);
     if (st == ST_SINGULAR || st == ST_SPRING || st == ST_PROJECTION) return -1;
     if (st == ST_NOT_FINITE) { *naccel += ns; *h_next = hh * r->min_factor; return 0; }
     if (*c1 < NEAR_ZONE) return -1;    /* the indicator at the step's end, before projecting */
@@ -106,6 +108,8 @@ static int prk_try(const Model *M, PrkRun *r, Scratch *s, const double *y, const
     *nproj += 1;
     *naccel += 1;
     *h_next = hh * (err == 0.0 ? r->max_factor : fmin(r->max_factor, r->safety * pow(err, r->exponent)));
+    s->kept = kept;         /* the trial's scratch is this one: keep what a restart needs */
+    keep_end(M, r->kept, r->y_new, r->motions + ns * 3 * M->m, s);
     return 1;
 }
 
@@ -125,10 +129,15 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
     if (r->changed) {      /* reset_state's restart (h kept): no projection for a force
                             * input (Simulation._reinitialize), the state ended projected */
         memcpy(f, y + n, (size_t)n * sizeof(double));
-        if (mbd_accelerations(M, y, y + n, r->motion, r->motion + 2 * m, r->uf, f + n, s.lam) != ST_OK)
+        /* Psi_q, gamma and S's factor as the last step's end left them (the projected
+         * state: a force does not move it), else a whole evaluation */
+        const double *values = kept_values(M, r->kept, y, r->motion);
+        if (!solve_kept(M, r->kept, y, r->motion, r->uf, &s, f + n) &&
+                mbd_accelerations(M, y, y + n, r->motion, r->motion + 2 * m, r->uf, f + n, s.lam) != ST_OK)
             return ST_SINGULAR;
         naccel += 1;
-        mbd_singularity_indicator(M, y, r->motion, &c0);
+        if (values) c0 = m ? indicator_of(M, &s, values) : INFINITY;
+        else mbd_singularity_indicator(M, y, r->motion, &c0);
         landing = 0;
     }
     while (tt < end) {
@@ -269,7 +278,7 @@ static int near_try(const Model *M, PrkRun *r, Scratch *s, const double *y, cons
     double err = 0.0;
     int st = prk_trial(M, ns, r->A, r->B, r->E, r->E3, hh, y, f, r->motions, r->ufs, r->rtol,
                        r->atol, r->tol, r->max_iter, r->y_new, r->f_new, &err, r->K,
-                       r->indicator, c1);
+                       r->indicator, c1, NULL);
     if (st == ST_SINGULAR || st == ST_SPRING || st == ST_PROJECTION) return -1;
     *naccel += ns;
     if (st == ST_NOT_FINITE) { *h_next = hh * r->min_factor; return 0; }
