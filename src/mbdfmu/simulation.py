@@ -59,9 +59,7 @@ class Simulation(SimulationInputs):
         self.equations = Equations(scene, kernel=kernel)
         layout = self.equations.layout
         self.input_names = [v.name for v in inputs(scene)]
-        variables = outputs(scene)
-        self.output_names = [v.name for v in variables]
-        self.units = {v.name: v.unit for v in variables}
+        self._output_table = None        # (names, units): built when first asked for
         self._drivers = {name: SampledDriver(x0) for name, x0 in
                          zip(layout.drivers, layout.driver_initial)}
         self._forces = {name: Held(np.zeros(len(f))) for name, f in layout.fields.items()}
@@ -82,6 +80,23 @@ class Simulation(SimulationInputs):
             output_interval=self.settings.output_interval_for(scene.simulation.t_end))
         check_method(self.integrator, scene)
         self._cache = None
+
+    @property
+    def output_names(self) -> list[str]:
+        """Every output's name, in ``output_vector``'s order (``model.variables.outputs``)."""
+        return self._outputs_table()[0]
+
+    @property
+    def units(self) -> dict[str, str]:
+        """Each output's unit, by name."""
+        return self._outputs_table()[1]
+
+    def _outputs_table(self):
+        # built on first use: a run that only steps (an FMU's, a benchmark's) never reads it
+        if self._output_table is None:
+            variables = outputs(self.scene)
+            self._output_table = ([v.name for v in variables], {v.name: v.unit for v in variables})
+        return self._output_table
 
     @property
     def t(self) -> float:
