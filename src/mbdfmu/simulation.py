@@ -9,6 +9,7 @@ values and passes them on.
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ from .equations import Equations
 from .equations.projection import (ASSEMBLY_TOL, PROJECTION_MAX_ITER, assemble,
                                    assembly_changes, initial_estimates, project_positions,
                                    project_velocities)
-from .errors import SettingError, SolverError
+from .errors import InputError, SettingError, SolverError
 from .integrators import make_integrator
 from .integrators.auto_watch import method_chain, switches_of
 from .integrators.base import WorkLimit
@@ -44,14 +45,15 @@ class Simulation(SimulationInputs):
     Inputs are set by name (``<driver>.position`` / ``.velocity`` / ``.acceleration``,
     ``<force>.fx`` / ``.fy`` / ``.torque`` / ``.actuator``) and hold until set again, or
     given as functions of time with ``set_input_signal``. Settings: a ``SolverSettings``
-    (default: the scene's), updated by the keyword values given.
+    (default: the scene's), updated by the keyword values given. ``scene``: a ``Scene``, or
+    a scene file's path or a shipped scene's name (loaded, as ``simulate`` and the CLI do).
     """
 
-    def __init__(self, scene: Scene, method=None, step=None, rtol=None, atol=None,
+    def __init__(self, scene: Scene | str | Path, method=None, step=None, rtol=None, atol=None,
                  t0: float = 0.0, method_options: dict | None = None,
                  kernel: str | None = None, *, settings: SolverSettings | None = None,
                  output_interval: float | None = None):
-        self.scene = scene
+        self.scene = scene = as_scene(scene)
         self.settings = (settings or settings_from_scene(scene)).updated(
             method=method, step=step, rtol=rtol, atol=atol, options=method_options,
             output_interval=output_interval)
@@ -316,6 +318,17 @@ def output_times(t_end: float, interval: float) -> np.ndarray:
     return times
 
 
+def as_scene(scene) -> Scene:
+    """A ``Scene`` as given, or loaded from a scene file's path or a shipped scene's name;
+    ``InputError`` for anything else."""
+    if isinstance(scene, Scene):
+        return scene
+    if isinstance(scene, (str, os.PathLike)):
+        return load_scene(scene)
+    raise InputError(f"scene must be a Scene, a scene file's path or a shipped scene's name, "
+                     f"got {type(scene).__name__} {scene!r:.60}")
+
+
 def check_t_end(t_end, name: str = "t_end", where: str = "") -> float:
     if isinstance(t_end, bool) or not isinstance(t_end, (int, float)) or \
             not (math.isfinite(t_end) and t_end > 0):
@@ -337,8 +350,7 @@ def simulate(scene: Scene | str | Path, t_end: float | None = None, method=None,
     work (``SettingError``). ``Result.warnings`` lists the initial values that assembly
     changed.
     """
-    if not isinstance(scene, Scene):
-        scene = load_scene(scene)
+    scene = as_scene(scene)
     t_end = check_t_end(t_end if t_end is not None else scene.simulation.t_end)
     sim = Simulation(scene, method=method, step=step, rtol=rtol, atol=atol,
                      method_options=method_options, kernel=kernel, settings=settings,
