@@ -121,8 +121,7 @@ class ConstraintSet:
         ij = 3 * np.concatenate((c.bi, c.bi, c.bj, c.bj))            # each block's body
         # in blocks: constants [r0, r1, r0, r1 | angle rows twice], coincidence phi
         # [r0, r1, r0, r1], line rows six times; their columns below, block by block
-        rows = np.concatenate((np.tile(pair, 2), np.tile(a.rows, 2), np.tile(pair, 2),
-                               np.tile(l.rows, 6)))
+        rows = np.concatenate((pair, pair, a.rows, a.rows, pair, pair, *(l.rows,) * 6))
         cols = np.concatenate((ij + np.repeat(_XYXY, c.n), 3 * a.bj + 2, 3 * a.bi + 2, ij + 2,
                                (3 * np.concatenate((l.bi, l.bi, l.bi, l.bj, l.bj, l.bj))
                                 + np.repeat(_XYPHI2, l.n))))

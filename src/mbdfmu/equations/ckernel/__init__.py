@@ -187,17 +187,16 @@ def _packed(arrays: dict) -> tuple[dict, list]:
     its address there; and the two blocks, which must live as long as the model."""
     values = {name: arrays[name] for name in _COUNTS}
     given = [np.asarray(arrays[name]) for name in _POINTERS]
+    integer = [a.dtype.kind in "iu" for a in given]
     blocks = []
-    for integer, dtype in ((True, np.int64), (False, np.float64)):
-        part = [(name, a) for name, a in zip(_POINTERS, given)
-                if (a.dtype.kind in "iu") == integer]
-        sizes = [a.size for _, a in part]
-        block = np.zeros(sum(sizes) + 1, dtype=dtype)     # + 1: never of size 0
-        if part:
-            block[:-1] = np.concatenate([a for _, a in part], axis=None)
+    for kind, dtype in ((True, np.int64), (False, np.float64)):
+        names = [name for name, k in zip(_POINTERS, integer) if k is kind]
+        part = [a for a, k in zip(given, integer) if k is kind]
+        # one element more: never of size 0
+        block = np.concatenate(part + [np.zeros(1, dtype)], axis=None, dtype=dtype)
         base = block.ctypes.data
-        values.update((name, base + 8 * start) for (name, _), start in
-                      zip(part, itertools.accumulate(sizes, initial=0)))
+        values.update((name, base + 8 * start) for name, start in
+                      zip(names, itertools.accumulate((a.size for a in part), initial=0)))
         blocks.append(block)
     return values, blocks
 
