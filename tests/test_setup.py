@@ -13,7 +13,7 @@ import scipy.sparse
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 import mbdfmu
-from mbdfmu.equations import ckernel
+from mbdfmu.equations import ckernel, sparsity
 from mbdfmu.equations.dynamics import Equations
 from mbdfmu.equations.sparsity import _first_use
 from mbdfmu.errors import InputError
@@ -37,11 +37,23 @@ def test_pattern_plan_matches_numpy_and_scipy(scenes_dir, name):
     S = scipy.sparse.csr_matrix(J @ J.T)
     if eq.m:
         np.testing.assert_array_equal(p.perm, reverse_cuthill_mckee(S, symmetric_mode=True))
+        # and the public function's path, for a scipy without the routine where it is now
+        public = _without_private_rcm(lambda: _equations(scenes_dir, name).pattern.perm)
+        np.testing.assert_array_equal(public, p.perm)
     # the reaction blocks: each (row, column) looked up in the pattern's entries by a dict
     where = {int(f): k for k, f in enumerate(p.flat_with_ground)}
     flat = c.joint_rows[:, :, None] * (eq.n + 3) + 3 * c.joint_bj[:, None, None] + np.arange(3)
     expected = [where.get(int(f), p.size) for f in flat.ravel()]
     np.testing.assert_array_equal(eq._reaction_entries.ravel(), expected)
+
+
+def _without_private_rcm(build):
+    kept = sparsity._reverse_cuthill_mckee
+    sparsity._reverse_cuthill_mckee = None
+    try:
+        return build()
+    finally:
+        sparsity._reverse_cuthill_mckee = kept
 
 
 @pytest.mark.parametrize("size, values", [(0, 1), (1, 1), (7, 3), (60, 20), (2000, 300)])

@@ -68,10 +68,10 @@ class Simulation(SimulationInputs):
         self._inputs_changed = False
         self._motion_changed = False     # a driver's input among them (the constraints move)
         self._held = None                # the inputs while all are held (inputs_at)
-        q0, qd0 = assemble(self.equations, t0, self.inputs_at(t0))
+        estimates = initial_estimates(self.equations)
+        q0, qd0 = assemble(self.equations, t0, self.inputs_at(t0), estimates=estimates)
         # what assembly changed of the scene's initial values, for the user to see
-        self.warnings = assembly_changes(self.equations, initial_estimates(self.equations),
-                                         (q0, qd0))
+        self.warnings = assembly_changes(self.equations, estimates, (q0, qd0))
         self.events = None                          # stops and friction: their contact mode
         if has_events(scene):
             self.events = EventRunner(scene, kernel, t0, q0, qd0, self.inputs_at)

@@ -115,11 +115,13 @@ def initial_estimates(system: Equations) -> tuple[np.ndarray, np.ndarray]:
             np.array([[*b.velocity, b.angular_velocity] for b in bodies], dtype=float).ravel())
 
 
-def assemble(system: Equations, t: float = 0.0,
-             u: InputValues | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Consistent (q, q') at time t from the scene's estimates; AssemblyError if impossible."""
+def assemble(system: Equations, t: float = 0.0, u: InputValues | None = None, *,
+             estimates: tuple[np.ndarray, np.ndarray] | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Consistent (q, q') at time t from the scene's estimates (``initial_estimates``, or
+    those given); AssemblyError if impossible."""
     scene = system.scene
-    q, qd = initial_estimates(system)
+    q, qd = initial_estimates(system) if estimates is None else estimates
     tol = ASSEMBLY_TOL * system.length_scale
     try:
         q, _ = project_positions(system, t, q, tol=tol, max_iter=ASSEMBLY_MAX_ITER, u=u)
