@@ -26,7 +26,7 @@ from .integrators.events import EventRunner, check_method, event_kernel
 from .integrators.projected_rk import ProjectedRK
 from .integrators.settings import SolverSettings, settings_from_scene
 from .model.reader import load_scene
-from .model.scene import Scene, has_events
+from .model.scene import Scene
 from .model.variables import inputs, outputs
 from .plain import decode, encode
 from .result import Result
@@ -73,7 +73,7 @@ class Simulation(SimulationInputs):
         # what assembly changed of the scene's initial values, for the user to see
         self.warnings = assembly_changes(self.equations, estimates, (q0, qd0))
         self.events = None                          # stops and friction: their contact mode
-        if has_events(scene):
+        if self.equations.has_events:
             self.events = EventRunner(scene, kernel, t0, q0, qd0, self.inputs_at)
             q0, qd0 = self.events.q, self.events.qd
         self.integrator = make_integrator(      # auto watches runs without events

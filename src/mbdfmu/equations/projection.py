@@ -17,7 +17,6 @@ import scipy.linalg
 from ..errors import AssemblyError, SolverError
 from ..model.variables import InputValues
 from .dynamics import Equations
-from ..model.scene import has_events
 from .sparsity import RANK_TOLERANCE, schur_solve
 
 # Newton iterations allowed when assembling from rough estimates, and while projecting.
@@ -53,7 +52,7 @@ def project_positions(system: Equations, t: float, q: np.ndarray, *, tol: float,
     q = q.copy()
     if system.m == 0:
         return q, 0
-    held_rows = has_events(system.scene)
+    held_rows = system.has_events
     err = np.inf
     for it in range(max_iter + 1):
         Psi, J = system.constraints(t, q, u=u, sparse=True)
