@@ -9,6 +9,7 @@ values and passes them on.
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ from .equations import Equations
 from .equations.projection import (ASSEMBLY_TOL, PROJECTION_MAX_ITER, assemble,
                                    assembly_changes, initial_estimates, project_positions,
                                    project_velocities)
-from .errors import SettingError, SolverError
+from .errors import InputError, SettingError, SolverError
 from .integrators import make_integrator
 from .integrators.auto_watch import method_chain, switches_of
 from .integrators.base import WorkLimit
@@ -25,7 +26,7 @@ from .integrators.events import EventRunner, check_method, event_kernel
 from .integrators.projected_rk import ProjectedRK
 from .integrators.settings import SolverSettings, settings_from_scene
 from .model.reader import load_scene
-from .model.scene import Scene, has_events
+from .model.scene import Scene
 from .model.variables import inputs, outputs
 from .plain import decode, encode
 from .result import Result
@@ -44,14 +45,15 @@ class Simulation(SimulationInputs):
     Inputs are set by name (``<driver>.position`` / ``.velocity`` / ``.acceleration``,
     ``<force>.fx`` / ``.fy`` / ``.torque`` / ``.actuator``) and hold until set again, or
     given as functions of time with ``set_input_signal``. Settings: a ``SolverSettings``
-    (default: the scene's), updated by the keyword values given.
+    (default: the scene's), updated by the keyword values given. ``scene``: a ``Scene``, or
+    a scene file's path or a shipped scene's name (loaded, as ``simulate`` and the CLI do).
     """
 
-    def __init__(self, scene: Scene, method=None, step=None, rtol=None, atol=None,
+    def __init__(self, scene: Scene | str | Path, method=None, step=None, rtol=None, atol=None,
                  t0: float = 0.0, method_options: dict | None = None,
                  kernel: str | None = None, *, settings: SolverSettings | None = None,
                  output_interval: float | None = None):
-        self.scene = scene
+        self.scene = scene = as_scene(scene)
         self.settings = (settings or settings_from_scene(scene)).updated(
             method=method, step=step, rtol=rtol, atol=atol, options=method_options,
             output_interval=output_interval)
@@ -59,21 +61,19 @@ class Simulation(SimulationInputs):
         self.equations = Equations(scene, kernel=kernel)
         layout = self.equations.layout
         self.input_names = [v.name for v in inputs(scene)]
-        variables = outputs(scene)
-        self.output_names = [v.name for v in variables]
-        self.units = {v.name: v.unit for v in variables}
+        self._output_table = None        # (names, units): built when first asked for
         self._drivers = {name: SampledDriver(x0) for name, x0 in
                          zip(layout.drivers, layout.driver_initial)}
         self._forces = {name: Held(np.zeros(len(f))) for name, f in layout.fields.items()}
         self._inputs_changed = False
         self._motion_changed = False     # a driver's input among them (the constraints move)
         self._held = None                # the inputs while all are held (inputs_at)
-        q0, qd0 = assemble(self.equations, t0, self.inputs_at(t0))
+        estimates = initial_estimates(self.equations)
+        q0, qd0 = assemble(self.equations, t0, self.inputs_at(t0), estimates=estimates)
         # what assembly changed of the scene's initial values, for the user to see
-        self.warnings = assembly_changes(self.equations, initial_estimates(self.equations),
-                                         (q0, qd0))
+        self.warnings = assembly_changes(self.equations, estimates, (q0, qd0))
         self.events = None                          # stops and friction: their contact mode
-        if has_events(scene):
+        if self.equations.has_events:
             self.events = EventRunner(scene, kernel, t0, q0, qd0, self.inputs_at)
             q0, qd0 = self.events.q, self.events.qd
         self.integrator = make_integrator(      # auto watches runs without events
@@ -82,6 +82,23 @@ class Simulation(SimulationInputs):
             output_interval=self.settings.output_interval_for(scene.simulation.t_end))
         check_method(self.integrator, scene)
         self._cache = None
+
+    @property
+    def output_names(self) -> list[str]:
+        """Every output's name, in ``output_vector``'s order (``model.variables.outputs``)."""
+        return self._outputs_table()[0]
+
+    @property
+    def units(self) -> dict[str, str]:
+        """Each output's unit, by name."""
+        return self._outputs_table()[1]
+
+    def _outputs_table(self):
+        # built on first use: a run that only steps (an FMU's, a benchmark's) never reads it
+        if self._output_table is None:
+            variables = outputs(self.scene)
+            self._output_table = ([v.name for v in variables], {v.name: v.unit for v in variables})
+        return self._output_table
 
     @property
     def t(self) -> float:
@@ -301,6 +318,17 @@ def output_times(t_end: float, interval: float) -> np.ndarray:
     return times
 
 
+def as_scene(scene) -> Scene:
+    """A ``Scene`` as given, or loaded from a scene file's path or a shipped scene's name;
+    ``InputError`` for anything else."""
+    if isinstance(scene, Scene):
+        return scene
+    if isinstance(scene, (str, os.PathLike)):
+        return load_scene(scene)
+    raise InputError(f"scene must be a Scene, a scene file's path or a shipped scene's name, "
+                     f"got {type(scene).__name__} {scene!r:.60}")
+
+
 def check_t_end(t_end, name: str = "t_end", where: str = "") -> float:
     if isinstance(t_end, bool) or not isinstance(t_end, (int, float)) or \
             not (math.isfinite(t_end) and t_end > 0):
@@ -322,8 +350,7 @@ def simulate(scene: Scene | str | Path, t_end: float | None = None, method=None,
     work (``SettingError``). ``Result.warnings`` lists the initial values that assembly
     changed.
     """
-    if not isinstance(scene, Scene):
-        scene = load_scene(scene)
+    scene = as_scene(scene)
     t_end = check_t_end(t_end if t_end is not None else scene.simulation.t_end)
     sim = Simulation(scene, method=method, step=step, rtol=rtol, atol=atol,
                      method_options=method_options, kernel=kernel, settings=settings,

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import itertools
 import os
 
 import numpy as np
@@ -27,6 +28,9 @@ from .planar import dot, poses, rot90, rotate, velocities
 from .sparsity import JacobianPattern
 
 KERNELS = ("numpy", "numba", "c")
+# Column offsets of the coincidence rows' x, y blocks and of the line rows' six blocks.
+_XYXY = np.array([0, 1, 0, 1])
+_XYPHI2 = np.array([0, 1, 2, 0, 1, 2])
 
 
 def numba_installed() -> bool:
@@ -113,25 +117,25 @@ class ConstraintSet:
         pattern (``JacobianPattern.merged``).
         """
         c, l, a = self.coincidence, self.line, self.angle
-        r0, r1 = (c.rows[:, 0], c.rows[:, 1]) if c.n else (np.zeros(0, int),) * 2
-        rows = [r0, r1, r0, r1, a.rows, a.rows,                      # constants
-                r0, r1, r0, r1,                                      # coincidence, phi
-                *([l.rows] * 6)]                                     # line rows
-        cols = [3 * c.bi, 3 * c.bi + 1, 3 * c.bj, 3 * c.bj + 1, 3 * a.bj + 2, 3 * a.bi + 2,
-                3 * c.bi + 2, 3 * c.bi + 2, 3 * c.bj + 2, 3 * c.bj + 2,
-                3 * l.bi, 3 * l.bi + 1, 3 * l.bi + 2, 3 * l.bj, 3 * l.bj + 1, 3 * l.bj + 2]
+        pair = c.rows.reshape(-1, 2).T.ravel()                      # r0, r1
+        ij = 3 * np.concatenate((c.bi, c.bi, c.bj, c.bj))            # each block's body
+        # in blocks: constants [r0, r1, r0, r1 | angle rows twice], coincidence phi
+        # [r0, r1, r0, r1], line rows six times; their columns below, block by block
+        rows = np.concatenate((pair, pair, a.rows, a.rows, pair, pair, *(l.rows,) * 6))
+        cols = np.concatenate((ij + np.repeat(_XYXY, c.n), 3 * a.bj + 2, 3 * a.bi + 2, ij + 2,
+                               (3 * np.concatenate((l.bi, l.bi, l.bi, l.bj, l.bj, l.bj))
+                                + np.repeat(_XYPHI2, l.n))))
         self._constants = np.concatenate(
             [np.ones(2 * c.n), -np.ones(2 * c.n), a.w, -a.w])
         self._line_weights = None if np.all(l.w == 1.0) else np.tile(l.w, 6)
         self._nnz = 4 * c.n + 6 * l.n + self._constants.size
-        self.pattern = p = JacobianPattern(np.concatenate(rows), np.concatenate(cols),
-                                           self.m, self.n, minv)
+        self.pattern = p = JacobianPattern(rows, cols, self.m, self.n, minv)
         # every body-fixed vector that rotates with its body, rotated in one go:
         # coincidence s_i, s_j; line s_i, s_j, u_i
         self._points = np.concatenate([c.si, c.sj, l.si, l.sj, l.u]).reshape(-1, 2)
         self._point_body = np.concatenate([c.bi, c.bj, l.bi, l.bj, l.bi]).astype(np.intp)
-        ends = np.cumsum([c.n, c.n, l.n, l.n, l.n])
-        self._point_slices = [slice(s, e) for s, e in zip(np.r_[0, ends[:-1]], ends)]
+        ends = list(itertools.accumulate((c.n, c.n, l.n, l.n, l.n), initial=0))
+        self._point_slices = [slice(s, e) for s, e in zip(ends[:-1], ends[1:])]
         self.compiled = compiled = compiled_kernel() if self.kernel == "numba" else None
         if compiled is not None:
             self.compiled_terms = compiled.direct(compiled.constraint_terms)

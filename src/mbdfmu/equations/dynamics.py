@@ -27,7 +27,8 @@ class Equations:
     ``n`` coordinates, ``m`` constraint rows, ``mass`` (n,) the diagonal of M,
     ``constraints`` the rows and their Jacobian pattern, ``applied`` the forces,
     ``layout`` where each input sits in ``InputValues``, ``length_scale`` (m) the size of
-    the mechanism (for tolerances).
+    the mechanism (for tolerances), ``has_events`` whether the scene has end stops or
+    friction (``model.scene.has_events``, a scan of its joints: once here).
     """
 
     def __init__(self, scene: Scene, *, kernel: str | None = None):
@@ -37,7 +38,8 @@ class Equations:
         self.mass = np.array([[b.mass, b.mass, b.inertia] for b in scene.bodies]).ravel()
         self.minv = 1.0 / self.mass
         self.layout = input_layout(scene)
-        if has_events(scene) and choose_kernel(kernel) == "c":
+        self.has_events = has_events(scene)
+        if self.has_events and choose_kernel(kernel) == "c":
             kernel = "numpy"    # the C kernel has no stops or friction (Simulation says so)
         self.no_inputs = self.layout.initial()
         self.constraint_set = ConstraintSet(scene, self.minv, kernel)
@@ -253,10 +255,10 @@ def _joint_output_plan(scene: Scene, c) -> np.ndarray:
     coupler = {int(k): i for i, k in enumerate(c.coupler_joints)}
     nj = len(scene.joints)
     zero = 3 * nj + len(coupler)
-
-    def slot(k, suffix):
-        if suffix == "effort":
-            return 3 * nj + coupler[k]
-        return 3 * k + column[suffix] if suffix in column else zero
-    return np.array([slot(k, s.suffix) for k, j in enumerate(scene.joints)
-                     for s in TABLES[type(j)].outputs if s.applies(j)], dtype=int)
+    plan = []
+    for k, j in enumerate(scene.joints):
+        for s in TABLES[type(j)].outputs:
+            if s.when is None or s.applies(j):     # the reactions always apply
+                plan.append(3 * nj + coupler[k] if s.suffix == "effort" else
+                            3 * k + column[s.suffix] if s.suffix in column else zero)
+    return np.array(plan, dtype=int)

@@ -49,7 +49,8 @@ class Primitive:
         self.u = np.array(self.u, dtype=float).reshape(-1, 2)
         self.w = np.array(self.w, dtype=float)
         self.n = len(self.bi)
-        self.repeats = np.unique(self.rows).size < self.n   # a row with several terms
+        flat = self.rows.ravel().tolist()
+        self.repeats = len(set(flat)) < self.n   # a row with several terms
 
 
 @dataclass(frozen=True)

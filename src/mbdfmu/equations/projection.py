@@ -17,7 +17,6 @@ import scipy.linalg
 from ..errors import AssemblyError, SolverError
 from ..model.variables import InputValues
 from .dynamics import Equations
-from ..model.scene import has_events
 from .sparsity import RANK_TOLERANCE, schur_solve
 
 # Newton iterations allowed when assembling from rough estimates, and while projecting.
@@ -53,7 +52,7 @@ def project_positions(system: Equations, t: float, q: np.ndarray, *, tol: float,
     q = q.copy()
     if system.m == 0:
         return q, 0
-    held_rows = has_events(system.scene)
+    held_rows = system.has_events
     err = np.inf
     for it in range(max_iter + 1):
         Psi, J = system.constraints(t, q, u=u, sparse=True)
@@ -115,11 +114,13 @@ def initial_estimates(system: Equations) -> tuple[np.ndarray, np.ndarray]:
             np.array([[*b.velocity, b.angular_velocity] for b in bodies], dtype=float).ravel())
 
 
-def assemble(system: Equations, t: float = 0.0,
-             u: InputValues | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Consistent (q, q') at time t from the scene's estimates; AssemblyError if impossible."""
+def assemble(system: Equations, t: float = 0.0, u: InputValues | None = None, *,
+             estimates: tuple[np.ndarray, np.ndarray] | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Consistent (q, q') at time t from the scene's estimates (``initial_estimates``, or
+    those given); AssemblyError if impossible."""
     scene = system.scene
-    q, qd = initial_estimates(system)
+    q, qd = initial_estimates(system) if estimates is None else estimates
     tol = ASSEMBLY_TOL * system.length_scale
     try:
         q, _ = project_positions(system, t, q, tol=tol, max_iter=ASSEMBLY_MAX_ITER, u=u)
@@ -143,18 +144,22 @@ def assembly_changes(system: Equations, given: tuple[np.ndarray, np.ndarray],
     defaults are not reported."""
     q0, qd0 = given
     q, qd = assembled
+    moved = np.abs(q - q0) > ASSEMBLY_TOL * system.length_scale
+    sped = np.abs(qd - qd0) > VELOCITY_CHANGE_TOL * np.maximum(
+        1.0, np.maximum(np.abs(qd0), np.abs(qd)))
     lines = []
-    for k, body in enumerate(system.scene.bodies):
-        for c in range(3):
-            i = 3 * k + c
-            for keys, old, new, stage in ((POSITION_KEYS, q0[i], q[i], "assembly"),
-                                          (VELOCITY_KEYS, qd0[i], qd[i], "the velocity projection")):
-                name, index, unit = keys[c]
-                limit = (ASSEMBLY_TOL * system.length_scale if keys is POSITION_KEYS
-                         else VELOCITY_CHANGE_TOL * max(1.0, abs(old), abs(new)))
-                if body.gave(name) and abs(new - old) > limit:
-                    label = name if index is None else f"{name}[{index}]"
-                    lines.append(f'body "{body.name}": {label} = {old:.6g} {unit} as given, '
-                                 f"{new:.6g} after {stage} (changed by {new - old:+.3g}): the "
-                                 "joints and drivers allow no other")
+    # the values beyond their limit (a vectorised first look), then the scene's own
+    for i in np.flatnonzero(moved | sped).tolist():
+        k, c = divmod(i, 3)
+        body = system.scene.bodies[k]
+        for keys, old, new, stage in ((POSITION_KEYS, q0[i], q[i], "assembly"),
+                                      (VELOCITY_KEYS, qd0[i], qd[i], "the velocity projection")):
+            name, index, unit = keys[c]
+            limit = (ASSEMBLY_TOL * system.length_scale if keys is POSITION_KEYS
+                     else VELOCITY_CHANGE_TOL * max(1.0, abs(old), abs(new)))
+            if body.gave(name) and abs(new - old) > limit:
+                label = name if index is None else f"{name}[{index}]"
+                lines.append(f'body "{body.name}": {label} = {old:.6g} {unit} as given, '
+                             f"{new:.6g} after {stage} (changed by {new - old:+.3g}): the "
+                             "joints and drivers allow no other")
     return lines

@@ -29,6 +29,12 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from ..errors import SolverError
 
+try:    # the ordering itself, on index arrays: what reverse_cuthill_mckee calls once it has
+    # built and checked a csr matrix, four times the ordering's own cost at tens of rows
+    from scipy.sparse.csgraph._reordering import _reverse_cuthill_mckee
+except ImportError:         # a scipy that moved it: the public function
+    _reverse_cuthill_mckee = None
+
 # Constraint rows from which the sparse banded form is used (below it dense wins).
 BANDED_MIN_ROWS = 60
 # Relative size of the smallest singular value kept in minimum-norm solves.
@@ -110,15 +116,11 @@ class JacobianPattern:
     def __init__(self, rows, cols, m: int, n: int, minv: np.ndarray, *, banded: bool | None = None):
         rows, cols = np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp)
         flat = rows * (n + 3) + cols
-        _, first, inverse = np.unique(flat, return_index=True, return_inverse=True)
-        order = np.argsort(first)                      # distinct entries in order of first use
-        position = np.empty(order.size, dtype=np.intp)
-        position[order] = np.arange(order.size)
-        self.merge = position[inverse.ravel()].astype(np.intp)
-        self.size = int(order.size)
+        first, self.merge = _first_use(flat)
+        self.size = int(first.size)
         self.repeats = self.size < flat.size
-        rows, cols = rows[first[order]], cols[first[order]]
-        self.flat_with_ground = flat[first[order]]
+        rows, cols = rows[first], cols[first]
+        self.flat_with_ground = flat[first]
         self.keep = np.flatnonzero(cols < n)
         self.rows, self.cols = rows[self.keep], cols[self.keep]
         self.m, self.n = m, n
@@ -150,10 +152,12 @@ class JacobianPattern:
         ``data``: indices into ``data`` with one zero appended, so that structural zeros
         read that zero. ``np.append(data, 0.0)[entries(...)]`` gathers a block in O(size)."""
         flat = np.asarray(rows, dtype=np.intp) * (self.n + 3) + np.asarray(cols, dtype=np.intp)
-        position = {int(f): k for k, f in enumerate(self.flat_with_ground)}
-        zero = self.flat_with_ground.size
-        return np.fromiter((position.get(int(f), zero) for f in flat.ravel()), dtype=np.intp,
-                           count=flat.size).reshape(flat.shape)
+        known = self.flat_with_ground                    # distinct: one match at most
+        if known.size == 0:
+            return np.zeros(flat.shape, dtype=np.intp)   # all read the appended zero
+        order = np.argsort(known)
+        hit = order[np.minimum(np.searchsorted(known, flat, sorter=order), known.size - 1)]
+        return np.where(known[hit] == flat, hit, known.size).astype(np.intp)
 
     def jacobian(self, data: np.ndarray, sparse: bool):
         """Psi_q from its values: a ``SparseJacobian`` when asked for and banded, else dense."""
@@ -168,8 +172,8 @@ class JacobianPattern:
         sum over exactly these pairs, so S can be assembled without forming J."""
         order = np.argsort(self.cols, kind="stable")
         cols_sorted = self.cols[order]
-        starts = np.flatnonzero(np.r_[True, cols_sorted[1:] != cols_sorted[:-1]])
-        sizes = np.diff(np.r_[starts, cols_sorted.size])
+        starts = np.flatnonzero(_first_of_runs(cols_sorted))
+        sizes = np.diff(np.append(starts, cols_sorted.size))
         # each entry of a column pairs with every entry of it, in the order a per-column
         # meshgrid (i outer, j inner) would give, without a Python loop over columns
         group = np.repeat(np.arange(starts.size), sizes)          # column of each sorted entry
@@ -188,11 +192,10 @@ class JacobianPattern:
         ra, rb = self.rows[pa], self.rows[pb]
         # S's pattern straight in canonical CSR (sorted, no repeats): what coo's tocsr
         # gives, without its checks and conversions
-        flat = np.unique(ra * m + rb)
+        flat = np.sort(ra * m + rb)
+        flat = flat[_first_of_runs(flat)]
         indptr = np.searchsorted(flat, np.arange(m + 1) * m)
-        graph = scipy.sparse.csr_matrix((np.ones(flat.size), flat % m, indptr), shape=(m, m))
-        perm = (reverse_cuthill_mckee(graph, symmetric_mode=True).astype(np.intp) if m
-                else np.zeros(0, np.intp))            # no constraints: nothing to order
+        perm = _rcm(flat % m, indptr, m)
         position = np.empty(m, dtype=np.intp)
         position[perm] = np.arange(m)
         i, j = position[ra], position[rb]
@@ -254,6 +257,40 @@ class JacobianPattern:
         x = np.empty_like(xp)
         x[self.perm] = xp
         return x
+
+
+def _first_of_runs(values: np.ndarray) -> np.ndarray:
+    """Mask of the entries of a sorted array that differ from the one before."""
+    new = np.empty(values.size, dtype=bool)
+    new[:1] = True
+    np.not_equal(values[1:], values[:-1], out=new[1:])
+    return new
+
+
+def _first_use(flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct values of ``flat`` in order of first use: where each first occurs, and
+    each entry's number among them (np.unique's index and inverse, renumbered)."""
+    order = np.argsort(flat, kind="stable")          # stable: a value's first entry leads
+    new = _first_of_runs(flat[order])
+    first = order[new]                               # in value order
+    by_use = np.argsort(first)
+    position = np.empty(by_use.size, dtype=np.intp)
+    position[by_use] = np.arange(by_use.size)
+    merge = np.empty(flat.size, dtype=np.intp)
+    merge[order] = position[np.cumsum(new) - 1]
+    return first[by_use], merge
+
+
+def _rcm(indices: np.ndarray, indptr: np.ndarray, m: int) -> np.ndarray:
+    """scipy's reverse Cuthill-McKee order of the symmetric pattern (csr ``indices``,
+    ``indptr``, canonical) of an m x m matrix."""
+    if m == 0:
+        return np.zeros(0, np.intp)                  # no constraints: nothing to order
+    if _reverse_cuthill_mckee is not None:
+        return _reverse_cuthill_mckee(indices.astype(np.int32), indptr.astype(np.int32),
+                                      m).astype(np.intp)
+    graph = scipy.sparse.csr_matrix((np.ones(indices.size), indices, indptr), shape=(m, m))
+    return reverse_cuthill_mckee(graph, symmetric_mode=True).astype(np.intp)
 
 
 def _band_matvec(band: np.ndarray, x: np.ndarray) -> np.ndarray:

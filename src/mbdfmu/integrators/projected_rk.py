@@ -116,12 +116,12 @@ class ProjectedRK(AdaptiveStepping, Integrator):
         """Hairer, Norsett and Wanner's starting step (Solving ODEs I, II.4)."""
         y = np.concatenate((self.q, self.qd))
         scale = self._scale(y, y)
-        d0 = np.sqrt(np.mean((y / scale) ** 2))
-        d1 = np.sqrt(np.mean((self.f / scale) ** 2))
+        d0 = _rms(y / scale)
+        d1 = _rms(self.f / scale)
         h0 = 1e-6 if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
         h0 = min(h0, self.max_step)
         f1 = self._rhs_y(self.t + h0, y + h0 * self.f)
-        d2 = np.sqrt(np.mean(((f1 - self.f) / scale) ** 2)) / h0
+        d2 = _rms((f1 - self.f) / scale) / h0
         h1 = (max(1e-6, h0 * 1e-3) if d1 <= 1e-15 and d2 <= 1e-15
               else (0.01 / max(d1, d2)) ** (1.0 / (self.order + 1)))
         return min(100 * h0, h1, self.max_step)
@@ -336,3 +336,9 @@ class DOP853P(ProjectedRK):
 
     def _interpolated(self, step, x):
         return dense_output.dop853_value(step, x)
+
+
+def _rms(v: np.ndarray) -> float:
+    """np.sqrt(np.mean(v ** 2)) to the last bit (the same sum and division), without
+    np.mean's dispatch."""
+    return math.sqrt(np.add.reduce(v * v) / v.size)

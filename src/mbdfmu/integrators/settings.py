@@ -80,6 +80,8 @@ class SolverSettings:
                                    where)
             if value is not None:
                 changes[key] = _check(key, value, names.get(key, key), where)
+        if not changes:
+            return self            # nothing new to check (frozen: the same settings)
         out = replace(self, given=self.given | frozenset(changes), **changes)
         if "method" in changes or "options" in changes:
             out.method_class.check_options(out.options, names.get("options", "options"), where)

@@ -13,6 +13,7 @@ to the numpy kernel (tests/test_ckernel.py).
 from __future__ import annotations
 
 import ctypes
+import itertools
 import os
 from pathlib import Path
 
@@ -22,7 +23,7 @@ from ...model.scene import PointForce, RotationalSpringDamper, SpringDamper, Tor
 from .dense import DENSE_KINDS, DenseRead, DenseReads  # noqa: F401 (DENSE_KINDS: public here)
 from .adaptive import PrkSteps
 from .fixed import FixedSteps
-from .implicit import ImplicitCalls
+from .implicit import ImplicitCalls, declare_implicit
 
 # Return codes of kernel.c (ST_*).
 OK, SINGULAR, PROJECTION, NOT_FINITE, SPRING, ENERGY, ERROR_NORM, NEWTON = range(8)
@@ -50,12 +51,31 @@ _FIELDS = (
     "*coupler_rows ndriver *driver_rows banded min_norm *work *memo").split()
 
 
+# Model's array fields (work and memo: set by Kernel) and its counts
+_POINTERS = [f[1:] for f in _FIELDS if f[0] == "*" and f not in ("*work", "*memo")]
+_COUNTS = [f for f in _FIELDS if f[0] not in "*%"]
+
+
 class Model(ctypes.Structure):
     """kernel.c's ``Model``: counts (int64), pointers, one double (``%``)."""
 
     _fields_ = [(f.strip("*%"), _P if f[0] == "*" else ctypes.c_double if f[0] == "%" else _I)
                 for f in _FIELDS]
 
+
+_D = ctypes.c_double
+# kernel.c's entry points called through a Kernel, and their argument types (all return int)
+_SIGNATURES = {
+    "mbd_accelerations": [_P] * 8, "mbd_outputs": [_P] * 8, "mbd_state_outputs": [_P] * 8,
+    "mbd_project_positions": [_P, _P, _P, _D, _I], "mbd_project_velocities": [_P] * 5,
+    "mbd_singularity_indicator": [_P] * 4, "mbd_dense_state": [_P, _P, _D, _P],
+    "mbd_rk4p_steps": [_P, _P, _P, _D, _I, _P, _I, _P, _I, _D, _I, _P, _D, _D, _P],
+    "mbd_prk_trial": [_P, _I, _P, _P, _P, _P, _D, _P, _P, _P, _P, _D, _D, _D, _I, _P, _P, _P,
+                      _P],
+    "mbd_mc_trial": [_P, _P, _I, _P, _P, _P, _P, _D, _P, _P, _P, _P, _D, _D, _D, _I, _P, _P,
+                     _P, _P],
+    "mbd_prk_trial_near": [_P, _I, _P, _P, _P, _P, _D, _P, _P, _P, _P, _D, _D, _D, _I, _P, _P,
+                           _P, _P, _D, _P]}
 
 _library_path: str | None = None
 _library = None
@@ -78,8 +98,17 @@ def library():
         lib = ctypes.CDLL(str(Path(path)))
         for name, restype in (("mbd_work_size", _I), ("mbd_memo_size", _I)):
             getattr(lib, name).restype, getattr(lib, name).argtypes = restype, [_P, _I][:1 + (name == "mbd_work_size")]
+        _declare(lib, _SIGNATURES, ctypes.c_int)     # once per library, not per Kernel
+        declare_implicit(lib)
         _library = lib
     return _library
+
+
+def _declare(lib, signatures: dict, restype) -> None:
+    """Set the argument types of the library's functions (``{name: argtypes}``)."""
+    for name, argtypes in signatures.items():
+        function = getattr(lib, name)
+        function.argtypes, function.restype = argtypes, restype
 
 
 def available() -> bool:
@@ -152,22 +181,45 @@ def model_arrays(eq) -> dict:
     return a
 
 
+def _packed(arrays: dict) -> tuple[dict, list]:
+    """``Model``'s fields from ``model_arrays``: counts as they are, each array copied into
+    one int64 or one float64 block (as ``_ints`` / ``_floats`` would give it) and given by
+    its address there; and the two blocks, which must live as long as the model."""
+    values = {name: arrays[name] for name in _COUNTS}
+    given = [np.asarray(arrays[name]) for name in _POINTERS]
+    integer = [a.dtype.kind in "iu" for a in given]
+    blocks = []
+    for kind, dtype in ((True, np.int64), (False, np.float64)):
+        names = [name for name, k in zip(_POINTERS, integer) if k is kind]
+        part = [a for a, k in zip(given, integer) if k is kind]
+        # one element more: never of size 0
+        block = np.concatenate(part + [np.zeros(1, dtype)], axis=None, dtype=dtype)
+        base = block.ctypes.data
+        values.update((name, base + 8 * start) for name, start in
+                      zip(names, itertools.accumulate((a.size for a in part), initial=0)))
+        blocks.append(block)
+    return values, blocks
+
+
 class Buffers:
     """The persistent arrays of one kernel, and their addresses (``p_<name>``): arguments
     and results are copied in and out, so a call passes addresses known beforehand."""
 
     def __init__(self, n: int, m: int, nf: int, nout: int):
-        sizes = dict(q=n, qd=n, motion=3 * m, uf=max(nf, 1), qdd=n, lam=max(m, 1),
-                     y=2 * n, f=2 * n, y_new=2 * n, f_new=2 * n, K=MAX_STAGES * 2 * n, err=2,
-                     audit=13, out=nout)
+        # inputs at each time a run of steps evaluates (motions: (c, c', c''), ufs: the
+        # force inputs), then one row each
+        sizes = dict(motions=MAX_ROWS * 3 * m, ufs=MAX_ROWS * max(nf, 1), q=n, qd=n,
+                     motion=3 * m, uf=max(nf, 1), qdd=n, lam=max(m, 1), y=2 * n, f=2 * n,
+                     y_new=2 * n, f_new=2 * n, K=MAX_STAGES * 2 * n, err=2, audit=13, out=nout)
+        # one block, parts of it by name: one address to ask numpy for
+        self.block = block = np.zeros(sum(sizes.values()))
+        base, start = block.ctypes.data, 0
         for name, size in sizes.items():
-            array = np.zeros(size)
-            setattr(self, name, array)
-            setattr(self, "p_" + name, array.ctypes.data)
-        # inputs at each time a run of steps evaluates: (c, c', c'') and the force inputs
-        self.motions = np.zeros((MAX_ROWS, 3 * m))
-        self.ufs = np.zeros((MAX_ROWS, max(nf, 1)))
-        self.p_motions, self.p_ufs = self.motions.ctypes.data, self.ufs.ctypes.data
+            setattr(self, name, block[start:start + size])
+            setattr(self, "p_" + name, base + 8 * start)
+            start += size
+        self.motions = self.motions.reshape(MAX_ROWS, 3 * m)
+        self.ufs = self.ufs.reshape(MAX_ROWS, max(nf, 1))
         self.done = np.zeros(1, dtype=np.int64)
         self.p_done = self.done.ctypes.data
 
@@ -187,18 +239,8 @@ class Kernel(DenseReads, FixedSteps, PrkSteps, ImplicitCalls):
         self._partition: tuple | None = None
         springs = sum(isinstance(f, SpringDamper) for f in eq.scene.forces)
         self.nout = 6 * eq.nb + arrays["nplan"] + arrays["ndriver"] + 3 * springs + 4
-        model, self._arrays = Model(), []
-        for name, kind in Model._fields_:
-            if name in ("work", "memo", "rank_tol"):
-                continue
-            value = arrays[name]
-            if kind is _P:
-                value = np.asarray(value)
-                value = _ints(value) if value.dtype.kind in "iu" else _floats(value)
-                self._arrays.append(value)
-                value = value.ctypes.data
-            setattr(model, name, value)
-        model.rank_tol = RANK_TOLERANCE
+        values, self._arrays = _packed(arrays)
+        model = Model(rank_tol=RANK_TOLERANCE, **values)
         self.model, self.address = model, ctypes.addressof(model)
         self.work = np.zeros(lib.mbd_work_size(self.address, MAX_STAGES))
         self.memo = np.zeros(lib.mbd_memo_size(self.address))
@@ -214,24 +256,8 @@ class Kernel(DenseReads, FixedSteps, PrkSteps, ImplicitCalls):
         self._bind_implicit(lib)
 
     def _bind(self, lib) -> None:
-        d = ctypes.c_double
-        signatures = {"mbd_accelerations": [_P] * 8, "mbd_outputs": [_P] * 8,
-                      "mbd_state_outputs": [_P] * 8,
-                      "mbd_project_positions": [_P, _P, _P, ctypes.c_double, _I],
-                      "mbd_project_velocities": [_P] * 5,
-                      "mbd_singularity_indicator": [_P] * 4,
-                      "mbd_dense_state": [_P, _P, d, _P],
-                      "mbd_rk4p_steps": [_P, _P, _P, d, _I, _P, _I, _P, _I, d, _I, _P, d, d, _P],
-                      "mbd_prk_trial": [_P, _I, _P, _P, _P, _P, d, _P, _P, _P, _P, d, d, d, _I,
-                                        _P, _P, _P, _P],
-                      "mbd_mc_trial": [_P, _P, _I, _P, _P, _P, _P, d, _P, _P, _P, _P, d, d, d,
-                                       _I, _P, _P, _P, _P],
-                      "mbd_prk_trial_near": [_P, _I, _P, _P, _P, _P, d, _P, _P, _P, _P, d, d,
-                                             d, _I, _P, _P, _P, _P, d, _P]}
-        for name, argtypes in signatures.items():
-            function = getattr(lib, name)
-            function.argtypes, function.restype = argtypes, ctypes.c_int
-            setattr(self, "_" + name[4:], function)
+        for name in _SIGNATURES:        # argument types: set when the library was loaded
+            setattr(self, "_" + name[4:], getattr(lib, name))
 
     def forget(self) -> None:
         """Drop the kept evaluation (the next accelerations call computes anew)."""

@@ -35,20 +35,24 @@ class Implicit(ctypes.Structure):
         [("dense", _I), ("fd", _I)]
 
 
+def declare_implicit(lib) -> None:
+    """The argument and return types of implicit.h's entry points (once per library)."""
+    signatures = {"mbd_implicit_kept_size": ([_P], _I),
+                  "mbd_implicit_dense_kept_size": ([_P], _I),
+                  "mbd_implicit_solve": ([_P] * 5, ctypes.c_int),
+                  "mbd_implicit_attempt": ([_P, _P, _P, _P, _D, _P, _P, _P], ctypes.c_int),
+                  "mbd_implicit_steps": ([_P, _P, _P, _P, _D, _I, _P, _P, _I, _P, _D, _D,
+                                          _P, _P], ctypes.c_int)}
+    for name, (argtypes, restype) in signatures.items():
+        function = getattr(lib, name)
+        function.argtypes, function.restype = argtypes, restype
+
+
 class ImplicitCalls:
     """The implicit methods' calls of ``Kernel`` (see the module docstring)."""
 
     def _bind_implicit(self, lib) -> None:
-        signatures = {"mbd_implicit_kept_size": ([_P], _I),
-                      "mbd_implicit_dense_kept_size": ([_P], _I),
-                      "mbd_implicit_solve": ([_P] * 5, ctypes.c_int),
-                      "mbd_implicit_attempt": ([_P, _P, _P, _P, _D, _P, _P, _P], ctypes.c_int),
-                      "mbd_implicit_steps": ([_P, _P, _P, _P, _D, _I, _P, _P, _I, _P, _D, _D,
-                                              _P, _P], ctypes.c_int)}
-        for name, (argtypes, restype) in signatures.items():
-            function = getattr(lib, name)
-            function.argtypes, function.restype = argtypes, restype
-        self._imp = lib
+        self._imp = lib          # its functions' types: declare_implicit, at loading
         n, m = self.n, self.m
         self.imp_y = np.zeros(5 * n + max(m, 1))
         self.imp_x = np.zeros(4 * n + max(m, 1))
