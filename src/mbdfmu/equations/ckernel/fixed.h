@@ -342,7 +342,9 @@ int mbd_fixed_step(const Model *M, FixedRun *r, double t, double h, double *valu
         st = mbd_accelerations(M, q, qd, r->motions, r->motions + 2 * M->m, r->ufs, qdd, lam);
         /* whether kept (the last step's end evaluated eq. (14) at these arguments last) or
          * evaluated now, eq. (14) at (q, c) left Psi and Psi_q in s (with constraints) */
-        if (st == ST_OK) st = outputs_at(M, &s, M->m > 0, q, qd, lam, r->motions, r->ufs, out);
+        int want[W_GROUPS];           /* what the wrapper publishes */
+        published_groups(M, r->nout, r->npub, r->pub_src, want);
+        if (st == ST_OK) st = outputs_at(M, &s, M->m > 0, q, qd, lam, r->motions, r->ufs, want, out);
     }
     if (st != ST_OK) {
         memcpy(r->y, r->save, (size_t)n2 * sizeof(double));
