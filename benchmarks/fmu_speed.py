@@ -21,7 +21,9 @@ and with rk4p in place of its scene's dop853p (``VARIANTS``), and P1 (the pendul
 - Exudyn (every case, ``exudyn_compare.exudyn_model``): CPU time per 1 ms step of
   ``SolveDynamic`` at h = 1 ms, best of ``--repeat``, against the FMU's CPU time per 1 ms
   step in fmpy (doStep + getReal + setReal), best of ``--repeat``, and by a minimal master
-  calling the same FMI functions through ctypes (``ctypes_run``). The crane's cylinder
+  calling the same FMI functions through ctypes (``ctypes_run``), and by a master written in
+  C with no Python in its loop (``c_master.py``: what the FMU costs a C/C++ master such as
+  libcosim's or an engine's; fmpy's Python around each call costs a few µs). The crane's cylinder
   force in Exudyn: held constant (its favourable case), and set before every step by a
   pre-step user function (Python), as the master sets the FMU's input.
 
@@ -61,6 +63,7 @@ from mbdfmu.fmu_build.scene_fmu import build_fmu  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
+from c_master import c_master_cpu, compile_master  # noqa: E402
 CASES = {"slider-crank (P4)": ROOT / "scenes" / "slider_crank.toml",
          "P2 N = 2": ROOT / "scenes" / "n_four_bar_2.toml",
          "crane mechanism": ROOT / "scenarios" / "hydraulic_crane" / "crane.toml",
@@ -72,11 +75,12 @@ VARIANTS = {"crane mechanism, auto": ("crane mechanism", 'method = "dop853p"', '
             "crane mechanism, rk4p": ("crane mechanism", 'method = "dop853p"', 'method = "rk4p"')}
 STEPS = (1e-3, 1e-2)
 HOLD = 8420.0                  # N: the cylinder force that about holds the crane's boom
+SWING = 0.05                   # its relative swing, at 1 Hz
 
 
 def actuator(t: float) -> float:
     """The crane's actuator force as the master sets it (N)."""
-    return HOLD * (1.0 + 0.05 * math.sin(2.0 * math.pi * t))
+    return HOLD * (1.0 + SWING * math.sin(2.0 * math.pi * t))
 
 
 def input_of(case: str) -> str | None:
@@ -218,6 +222,17 @@ def ctypes_run(fmu: Path, case: str, h: float, n: int) -> float:
     return cpu
 
 
+def c_master_run(binary: Path, fmu: Path, case: str, h: float, n: int) -> float:
+    """CPU s per communication step of the C master (``c_master.py``): the same setReal
+    (where the case has an input, ``actuator``'s force computed in C), doStep and getReal of
+    every output as ``FmpyRun.steps``, with no Python in the loop: the FMU's own cost."""
+    md = read_model_description(fmu)
+    names = {v.name: v.valueReference for v in md.modelVariables}
+    outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+    return c_master_cpu(binary, fmu, h=h, n=n, outputs=outputs, hold=HOLD, swing=SWING,
+                        input_vr=names[input_of(case)] if input_of(case) else None)
+
+
 def cosim_run(fmu: Path, case: str, h: float, n: int) -> tuple[float, float]:
     """(wall s, CPU s) per communication step of libcosim's ``execution.step``."""
     from libcosimpy.CosimEnums import CosimVariableType
@@ -323,17 +338,21 @@ def measure(case: str, scene_path: Path, fmu: Path, h: float, args) -> dict:
         samples.setdefault("getReal", []).append(run.timed(n, step=False))
         run.free()
         samples.setdefault("ctypes", []).append(ctypes_run(fmu, case, h, n))
+        if h == 1e-3:
+            samples.setdefault("c_master", []).append(c_master_run(args.c_master, fmu, case, h, n))
         samples.setdefault("cosim", []).append(cosim_run(fmu, case, h, n))
         for kernel in ("c", "numpy"):
             samples.setdefault(f"direct_{kernel}", []).append(
                 direct_run(scene_path, case, h, n if kernel == "c" else max(1, n // 5), kernel))
     for key, values in samples.items():
-        if key == "ctypes":
+        if key in ("ctypes", "c_master"):
             continue
         row[f"{key}_wall_us"] = statistics.median(v[0] for v in values) * 1e6
         row[f"{key}_cpu_us"] = statistics.median(v[1] for v in values) * 1e6
     row["fmpy_cpu_best_us"] = min(v[1] for v in samples["fmpy"]) * 1e6
     row["ctypes_cpu_best_us"] = min(samples["ctypes"]) * 1e6
+    if "c_master" in samples:
+        row["c_master_cpu_best_us"] = min(samples["c_master"]) * 1e6
     row["rtf_fmpy"] = h / (row["fmpy_wall_us"] * 1e-6)
     row["rtf_cosim"] = h / (row["cosim_wall_us"] * 1e-6)
     sim = mbdfmu.Simulation(mbdfmu.load_scene(scene_path))
@@ -348,8 +367,9 @@ def markdown(rows: list[dict], header: str) -> str:
              "| case | method | h (ms) | cold fmpy: instantiate + 1st doStep (s) | cold libcosim (s) "
              "| fmpy µs/step (RTF) | doStep µs | getReal µs (outputs) | libcosim µs/step (RTF) "
              "| direct, kernel c µs | direct, numpy µs | fmpy CPU µs per 1 ms, best "
-             "| ctypes master CPU µs per 1 ms, best | Exudyn CPU µs per 1 ms, best |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| ctypes master CPU µs per 1 ms, best | C master CPU µs per 1 ms, best "
+             "| Exudyn CPU µs per 1 ms, best |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
     def cold_text(prefix, r):
         if f"{prefix}_error" in r:
@@ -361,12 +381,13 @@ def markdown(rows: list[dict], header: str) -> str:
             exu += f" (force set per step: {r['exudyn_set_cpu_us']:.1f})"
         best = f"{r['fmpy_cpu_best_us']:.1f}" if r["step_ms"] == 1.0 else ""
         bare = f"{r['ctypes_cpu_best_us']:.1f}" if r["step_ms"] == 1.0 else ""
+        in_c = f"{r['c_master_cpu_best_us']:.1f}" if r.get("c_master_cpu_best_us") else ""
         lines.append(
             f"| {r['case']} | {r['method']} | {r['step_ms']:g} | {cold_text('cold_fmpy', r)} | "
             f"{cold_text('cold_cosim', r)} | {r['fmpy_wall_us']:.1f} ({r['rtf_fmpy']:.1f}) | "
             f"{r['doStep_wall_us']:.1f} | {r['getReal_wall_us']:.1f} ({r['outputs']}) | "
             f"{r['cosim_wall_us']:.1f} ({r['rtf_cosim']:.1f}) | {r['direct_c_wall_us']:.1f} | "
-            f"{r['direct_numpy_wall_us']:.1f} | {best} | {bare} | {exu} |")
+            f"{r['direct_numpy_wall_us']:.1f} | {best} | {bare} | {in_c} | {exu} |")
     return "\n".join(lines) + "\n"
 
 
@@ -405,6 +426,7 @@ def main(argv=None) -> int:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         paths = scene_paths(Path(tmp))
+        args.c_master = compile_master(Path(tmp))
         fmus = {case: build_fmu(path, output=Path(tmp) / f"case{k}.fmu")
                 for k, (case, path) in enumerate(paths.items())}
         for case, fmu in fmus.items():
