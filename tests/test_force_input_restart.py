@@ -5,6 +5,7 @@ re-projecting it (``Simulation._reinitialize``; the FMU wrapper's ``ckernel/adap
 freedom equations of motion written out independently (a boom on a ground pivot, a pendulum
 load at its tip) and integrated by scipy with the same piecewise-constant force."""
 
+import ctypes
 import math
 from pathlib import Path
 
@@ -67,3 +68,46 @@ def test_crane_force_set_every_step_follows_its_equations_of_motion(method):
     assert out["boom.omega"] == pytest.approx(y[2], abs=1e-10)
     assert out["load.phi"] == pytest.approx(y[1], abs=1e-10)
     assert math.hypot(out["load.x"] - load[0], out["load.y"] - load[1]) < 1e-10
+
+
+def test_the_wrappers_restart_after_a_force_set_is_pythons_whole_evaluation():
+    """The FMU wrapper's dop853p doSteps with the force set before each (mbd_prk_set, then
+    mbd_prk_fast_step, whose restart solves eq. (14) with Psi_q, gamma and S's factor kept
+    from the last step's end) against Python's Simulation.set_input + advance, which
+    evaluates all of eq. (14) again: the state, f = (q', q''), the singularity indicator and
+    the counters bit for bit after 300 doSteps (a restart's q'' off by 1e-12 relative fails
+    here); the indicator is singular.py's (numpy) at the final state to round-off."""
+    from mbdfmu import fast_steps
+    from mbdfmu.equations import singular
+
+    h, steps, vr = 1e-3, 300, 7
+    python, wrapper = (mbdfmu.Simulation(mbdfmu.load_scene(CRANE), method="dop853p",
+                                         kernel="c") for _ in "ab")
+    for sim in (python, wrapper):            # the slave's first step goes through Python
+        sim.set_input("cylinder.actuator", force(0))
+        sim.advance(h)
+    for k in range(1, steps):
+        python.set_input("cylinder.actuator", force(k))
+        python.advance(k * h + h)          # the slave's end: t + h, as the wrapper's
+    slot = wrapper.equations.layout.forces["cylinder"].start
+    inputs = (np.array([vr]), np.array([slot]))
+    none = np.zeros(0, dtype=np.int64)
+    step, model, context, setter = fast_steps.arm(wrapper, None, 1e-9, inputs, (none, none))
+    call = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double,
+                            ctypes.c_double, ctypes.c_void_p)(step)
+    set_real = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t,
+                                ctypes.c_void_p, ctypes.c_void_p)(setter)
+    values, ref = np.zeros(vr + 1), (ctypes.c_uint * 1)(vr)
+    for k in range(1, steps):
+        value = np.array([force(k)])
+        assert set_real(context, ref, 1, value.ctypes.data, values.ctypes.data) == 0
+        assert call(model, context, k * h, h, values.ctypes.data) == 0
+    moved, _, _ = fast_steps.catch_up(wrapper, inputs)
+    assert moved and wrapper.t == python.t
+    a, b = wrapper.integrator, python.integrator
+    assert (a.q.tobytes(), a.qd.tobytes(), a.f.tobytes()) == \
+        (b.q.tobytes(), b.qd.tobytes(), b.f.tobytes())
+    assert a.zone.indicator == b.zone.indicator
+    assert vars(a.stats) == vars(b.stats)
+    numpy_indicator = singular.singularity_indicator(b.constraints(b.t, b.q, sparse=True)[1])
+    assert a.zone.indicator == pytest.approx(numpy_indicator, rel=1e-12)

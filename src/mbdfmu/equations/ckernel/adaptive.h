@@ -46,6 +46,7 @@ typedef struct {
     I nout, npub; const I *pub_dst, *pub_src;
     double *V;                     /* (outputs, q, q', q''), then lam */
     double stiff_limit;            /* > 0: auto's watch; Hairer's h |lambda| at most this */
+    double *kept;                  /* the last accepted step's end (keep_end) */
 } PrkRun;
 
 /* auto_watch.stiffness, Hairer's h |lambda| of a step of the pair (ns stages, A (ns, ns),
@@ -88,20 +89,17 @@ static double landing_step(double proposal, double remaining, I *lands) {
  * *h_next the controller's next step, *c1 the indicator at the step's end. */
 static int prk_try(const Model *M, PrkRun *r, Scratch *s, const double *y, const double *f,
                    double hh, double *h_next, double *c1, I *naccel, I *nproj) {
-    I n = M->n, n2 = 2 * n, ns = r->ns;
+    I ns = r->ns;
     double err = 0.0;
-    int st = mbd_prk_trial(M, ns, r->A, r->B, r->E, r->E3, hh, y, f, r->motions, r->ufs,
-                           r->rtol, r->atol, r->tol, r->max_iter, r->y_new, r->f_new, &err, r->K);
+    int kept = 0;
+    /* the indicator at the start is at least NEAR_ZONE (checked before), so the trial's
+     * error estimate is the plain one unless *c1 < NEAR_ZONE, which hands the step back */
+    int st = prk_trial(M, ns, r->A, r->B, r->E, r->E3, hh, y, f, r->motions, r->ufs, r->rtol,
+                       r->atol, r->tol, r->max_iter, r->y_new, r->f_new, &err, r->K,
+                       INFINITY, c1, &kept);
     if (st == ST_SINGULAR || st == ST_SPRING || st == ST_PROJECTION) return -1;
     if (st == ST_NOT_FINITE) { *naccel += ns; *h_next = hh * r->min_factor; return 0; }
-    double *y_end = s->qv + 4 * n2;       /* the step's end before the projection */
-    for (I k = 0; k < n2; k++) {
-        double a = 0.0;
-        for (I j = 0; j < ns; j++) a += r->K[j * n2 + k] * r->B[j];
-        y_end[k] = y[k] + hh * a;
-    }
-    mbd_singularity_indicator(M, y_end, r->motion, c1);
-    if (*c1 < NEAR_ZONE) return -1;
+    if (*c1 < NEAR_ZONE) return -1;    /* the indicator at the step's end, before projecting */
     *naccel += ns;
     if (st == ST_ERROR_NORM) {
         *h_next = hh * fmax(r->min_factor, r->safety * pow(err, r->exponent));
@@ -110,6 +108,8 @@ static int prk_try(const Model *M, PrkRun *r, Scratch *s, const double *y, const
     *nproj += 1;
     *naccel += 1;
     *h_next = hh * (err == 0.0 ? r->max_factor : fmin(r->max_factor, r->safety * pow(err, r->exponent)));
+    s->kept = kept;         /* the trial's scratch is this one: keep what a restart needs */
+    keep_end(M, r->kept, r->y_new, r->motions + ns * 3 * M->m, s);
     return 1;
 }
 
@@ -129,10 +129,15 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
     if (r->changed) {      /* reset_state's restart (h kept): no projection for a force
                             * input (Simulation._reinitialize), the state ended projected */
         memcpy(f, y + n, (size_t)n * sizeof(double));
-        if (mbd_accelerations(M, y, y + n, r->motion, r->motion + 2 * m, r->uf, f + n, s.lam) != ST_OK)
+        /* Psi_q, gamma and S's factor as the last step's end left them (the projected
+         * state: a force does not move it), else a whole evaluation */
+        const double *values = kept_values(M, r->kept, y, r->motion);
+        if (!solve_kept(M, r->kept, y, r->motion, r->uf, &s, f + n) &&
+                mbd_accelerations(M, y, y + n, r->motion, r->motion + 2 * m, r->uf, f + n, s.lam) != ST_OK)
             return ST_SINGULAR;
         naccel += 1;
-        mbd_singularity_indicator(M, y, r->motion, &c0);
+        if (values) c0 = m ? indicator_of(M, &s, values) : INFINITY;
+        else mbd_singularity_indicator(M, y, r->motion, &c0);
         landing = 0;
     }
     while (tt < end) {
@@ -166,7 +171,14 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
     }
     double *out = r->V, *q = out + r->nout, *qd = q + n, *qdd = qd + n, *lam = qdd + n;
     memcpy(q, y, (size_t)n2 * sizeof(double));
-    if (mbd_state_outputs(M, q, qd, r->motion, r->uf, qdd, lam, out) != ST_OK) return ST_SINGULAR;
+    /* mbd_state_outputs without evaluating Psi_q once more: the last step's end evaluated
+     * eq. (14) at these arguments last (kept), or it is evaluated now; either way Psi and
+     * Psi_q at (q, c) are in s (fixed.h's mbd_fixed_step does the same) */
+    int want[W_GROUPS];               /* what the wrapper publishes */
+    published_groups(M, r->nout, r->npub, r->pub_src, want);
+    if (mbd_accelerations(M, q, qd, r->motion, r->motion + 2 * m, r->uf, qdd, lam) != ST_OK ||
+            outputs_at(M, &s, m > 0, q, qd, lam, r->motion, r->uf, want, out) != ST_OK)
+        return ST_SINGULAR;
     for (I k = 0; k < r->npub; k++) values[r->pub_dst[k]] = r->V[r->pub_src[k]];
     memcpy(r->y, y, (size_t)n2 * sizeof(double));
     memcpy(r->f, f, (size_t)n2 * sizeof(double));
@@ -273,7 +285,7 @@ static int near_try(const Model *M, PrkRun *r, Scratch *s, const double *y, cons
     double err = 0.0;
     int st = prk_trial(M, ns, r->A, r->B, r->E, r->E3, hh, y, f, r->motions, r->ufs, r->rtol,
                        r->atol, r->tol, r->max_iter, r->y_new, r->f_new, &err, r->K,
-                       r->indicator, c1);
+                       r->indicator, c1, NULL);
     if (st == ST_SINGULAR || st == ST_SPRING || st == ST_PROJECTION) return -1;
     *naccel += ns;
     if (st == ST_NOT_FINITE) { *h_next = hh * r->min_factor; return 0; }

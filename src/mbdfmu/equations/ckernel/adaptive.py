@@ -31,7 +31,7 @@ class PrkRun(ctypes.Structure):
                 ("f1", _P), ("K", _P), ("y_new", _P), ("f_new", _P), ("steps", _I),
                 ("nsteps", _I), ("nrejected", _I), ("naccel", _I), ("nprojections", _I),
                 ("nout", _I), ("npub", _I), ("pub_dst", _P), ("pub_src", _P), ("V", _P),
-                ("stiff_limit", _D)]
+                ("stiff_limit", _D), ("kept", _P)]
 
 
 # How ``mbd_prk_run`` stopped (adaptive.h RUN_*).
@@ -62,16 +62,19 @@ class PrkSteps:
         uf[:self.nf] = uf[nf:nf + self.nf] = run.pop("uf")
         vrs, slots = (np.ascontiguousarray(a, dtype=np.int64) for a in inputs)
         dst, src = (np.ascontiguousarray(a, dtype=np.int64) for a in (pub_dst, pub_src))
+        size = self.library.mbd_fixed_kept_size
+        size.restype, size.argtypes = _I, [_P]
         arrays = dict(motion=motion, motions=np.tile(motion, ns + 1), ufs=np.zeros((ns + 1) * nf),
                       uf=uf, vrs=vrs, slots=slots, set=np.zeros(max(vrs.size, 1), dtype=np.int64),
                       states=states, K=np.zeros((ns + 1) * n2), y_new=np.zeros(n2),
-                      f_new=np.zeros(n2), pub_dst=dst, pub_src=src)
+                      f_new=np.zeros(n2), pub_dst=dst, pub_src=src,
+                      kept=np.zeros(size(self.address)))           # nothing kept yet
         self._prk_arrays = arrays                       # what r points at
         for name, value in run.items():
             setattr(r, name, value)
         r.ns, r.A, r.B, r.E, r.E3 = tableau[0], *(x or 0 for x in tableau[1:5])
         for name in ("motion", "motions", "ufs", "uf", "vrs", "slots", "set", "K", "y_new",
-                     "f_new", "pub_dst", "pub_src"):
+                     "f_new", "pub_dst", "pub_src", "kept"):
             setattr(r, name, arrays[name].ctypes.data)
         r.uf_step = uf.ctypes.data + 8 * nf
         base = states.ctypes.data

@@ -154,42 +154,66 @@ static void motion_at(const Model *M, const FixedRun *r, double t, double *out) 
     }
 }
 
-/* Doubles of FixedRun.kept: a flag, y (2n) and the motion (3m) at the last step's end,
- * Psi_q's values (nkeep) and gamma (m) there, the band factor of S (2 (kd + 1) m). */
+/* Doubles of FixedRun.kept (and PrkRun.kept): a flag, y (2n) and the motion (3m) at the
+ * last step's end, Psi_q's values (nkeep) and gamma (m) there, the band factor of S
+ * (2 (kd + 1) m). */
 I mbd_fixed_kept_size(const Model *M) {
     return 1 + 2 * M->n + 3 * M->m + M->nkeep + M->m + 2 * (M->kd + 1) * M->m;
 }
 
-/* After a doStep's steps (the last thing fixed_loop did was a step, whose q'' was solved
- * by the band factor its velocity projection kept, s->kept): what eq. (14) at its end
- * needs besides the forces, for a restart there after a force input was set. */
-static void keep_step_end(const Model *M, FixedRun *r, const Scratch *s) {
+/* After a step to y at motion (c, c', c'') whose q'' was solved by the band factor its
+ * velocity projection kept (s->kept; s holds that evaluation's values and gamma): what
+ * eq. (14) at y needs besides the forces, into kept, for a restart there after a force
+ * input was set. */
+static void keep_end(const Model *M, double *kept, const double *y, const double *motion,
+                     const Scratch *s) {
     I n2 = 2 * M->n, m = M->m;
-    double *p = r->kept;
+    double *p = kept;
+    if (!p) return;
     p[0] = (s->kept && m > 0) ? 1.0 : 0.0;
     if (p[0] == 0.0) return;
-    memcpy(p + 1, r->y, (size_t)n2 * sizeof(double)); p += 1 + n2;
-    memcpy(p, r->motions + 6 * m, (size_t)(3 * m) * sizeof(double)); p += 3 * m;
+    memcpy(p + 1, y, (size_t)n2 * sizeof(double)); p += 1 + n2;
+    memcpy(p, motion, (size_t)(3 * m) * sizeof(double)); p += 3 * m;
     memcpy(p, s->values, (size_t)M->nkeep * sizeof(double)); p += M->nkeep;
     memcpy(p, s->gamma, (size_t)m * sizeof(double)); p += m;
     memcpy(p, s->band, (size_t)(2 * (M->kd + 1) * m) * sizeof(double));
 }
 
-/* eq. (14) at the state and motion keep_step_end kept (checked bit for bit) with the new
- * force inputs: solve_with_factor with Psi_q, gamma and S's factor as they were (they do
- * not depend on forces), so q'' and lam are those of a whole evaluation.
- * 0: nothing kept for this state, the caller evaluates it all. */
-static int restart_kept(const Model *M, FixedRun *r, Scratch *s) {
-    I n = M->n, n2 = 2 * n, m = M->m;
-    const double *p = r->kept, *q = r->y, *qd = r->y + n, *cdd = r->motions + 2 * m;
-    if (p[0] == 0.0 || memcmp(p + 1, r->y, (size_t)n2 * sizeof(double)) ||
-            memcmp(p + 1 + n2, r->motions, (size_t)(3 * m) * sizeof(double)))
-        return 0;
-    const double *values = p + 1 + n2 + 3 * m, *gamma = values + M->nkeep, *band = gamma + m;
-    if (forces(M, q, qd, r->uf, s->F) != ST_OK) return 0;
-    solve_with_factor(M, s, values, gamma, band, cdd, r->f + n, s->lam);
-    memo_store(M, q, qd, r->motions, cdd, r->uf, r->f + n, s->lam);
+/* Psi_q's values kept for the state y at motion (checked bit for bit), or NULL (also
+ * when kept is NULL: nothing is kept). */
+static const double *kept_values(const Model *M, const double *kept, const double *y,
+                                 const double *motion) {
+    I n2 = 2 * M->n, m = M->m;
+    if (!kept || kept[0] == 0.0 || memcmp(kept + 1, y, (size_t)n2 * sizeof(double)) ||
+            memcmp(kept + 1 + n2, motion, (size_t)(3 * m) * sizeof(double)))
+        return NULL;
+    return kept + 1 + n2 + 3 * m;
+}
+
+/* eq. (14) at the state y and motion keep_end kept with the force inputs uf: q'' (n) by
+ * solve_with_factor with Psi_q, gamma and S's factor as they were (they do not depend on
+ * forces), so q'' and lam are those of a whole evaluation. 0: nothing kept for this
+ * state, the caller evaluates it all. */
+static int solve_kept(const Model *M, const double *kept, const double *y,
+                      const double *motion, const double *uf, Scratch *s, double *qdd) {
+    I n = M->n, m = M->m;
+    const double *values = kept_values(M, kept, y, motion), *q = y, *qd = y + n;
+    if (!values) return 0;
+    const double *gamma = values + M->nkeep, *band = gamma + m, *cdd = motion + 2 * m;
+    if (forces(M, q, qd, uf, s->F) != ST_OK) return 0;
+    solve_with_factor(M, s, values, gamma, band, cdd, qdd, s->lam);
+    memo_store(M, q, qd, motion, cdd, uf, qdd, s->lam);
     return 1;
+}
+
+/* After a doStep's steps (the last thing fixed_loop did was a step). */
+static void keep_step_end(const Model *M, FixedRun *r, const Scratch *s) {
+    keep_end(M, r->kept, r->y, r->motions + 6 * M->m, s);
+}
+
+/* The restart's eq. (14) from what keep_step_end kept; 0: evaluate it all. */
+static int restart_kept(const Model *M, FixedRun *r, Scratch *s) {
+    return solve_kept(M, r->kept, r->y, r->motions, r->uf, s, r->f + M->n);
 }
 
 /* After a force input was set: the restart's f = (q', q'') at t0 with the new inputs (the
@@ -318,7 +342,9 @@ int mbd_fixed_step(const Model *M, FixedRun *r, double t, double h, double *valu
         st = mbd_accelerations(M, q, qd, r->motions, r->motions + 2 * M->m, r->ufs, qdd, lam);
         /* whether kept (the last step's end evaluated eq. (14) at these arguments last) or
          * evaluated now, eq. (14) at (q, c) left Psi and Psi_q in s (with constraints) */
-        if (st == ST_OK) st = outputs_at(M, &s, M->m > 0, q, qd, lam, r->motions, r->ufs, out);
+        int want[W_GROUPS];           /* what the wrapper publishes */
+        published_groups(M, r->nout, r->npub, r->pub_src, want);
+        if (st == ST_OK) st = outputs_at(M, &s, M->m > 0, q, qd, lam, r->motions, r->ufs, want, out);
     }
     if (st != ST_OK) {
         memcpy(r->y, r->save, (size_t)n2 * sizeof(double));

@@ -83,7 +83,9 @@ static void terms(const Model *M, const double *qe, const double *qde, const dou
                   double *psi, double *raw, double *gamma, double *cs) {
     I k0 = M->nconst, kc = M->kc, kl = M->kl;
     double *sn = cs + M->nb + 1;     /* cos and sin of every body's angle, once (planar.poses) */
-    for (I b = 0; b <= M->nb; b++) { cs[b] = cos(qe[3 * b + 2]); sn[b] = sin(qe[3 * b + 2]); }
+    for (I b = 0; b < M->nb; b++) { cs[b] = cos(qe[3 * b + 2]); sn[b] = sin(qe[3 * b + 2]); }
+    cs[M->nb] = 1.0;                 /* the ground's angle is 0: cos and sin exact */
+    sn[M->nb] = 0.0;
     memcpy(raw, M->constants, (size_t)k0 * sizeof(double));
     for (I r = 0; r < M->m; r++) { psi[r] = 0.0; if (gamma) gamma[r] = 0.0; }
     for (I k = 0; k < kc; k++) {
@@ -163,10 +165,12 @@ static int all_finite_values(const double *x, I k) {
 
 /* ---- applied forces (forces.py) --------------------------------------------------------- */
 
-static inline void body_point(const Model *M, const double *q, I b, double px, double py,
-                              double *x, double *y, double *ax, double *ay) {
+/* cs: NULL, or the cos and sin of every body's angle at q (terms()'s), taken instead of
+ * computing them again (the same libm calls on the same angles: the same doubles) */
+static inline void body_point(const Model *M, const double *q, const double *cs, I b,
+                              double px, double py, double *x, double *y, double *ax, double *ay) {
     if (b >= M->nb) { *x = 0.0; *y = 0.0; *ax = px; *ay = py; return; }
-    double c = cos(q[3 * b + 2]), s = sin(q[3 * b + 2]);
+    double c = cs ? cs[b] : cos(q[3 * b + 2]), s = cs ? cs[M->nb + 1 + b] : sin(q[3 * b + 2]);
     *x = q[3 * b]; *y = q[3 * b + 1];
     *ax = c * px - s * py;
     *ay = s * px + c * py;
@@ -174,13 +178,13 @@ static inline void body_point(const Model *M, const double *q, I b, double px, d
 
 /* Length, rate, unit vector and arms of spring item k (AppliedForces.spring_geometry). */
 static int spring_geometry(const Model *M, I k, const double *q, const double *qd,
-                           double g[8]) {
+                           const double *cs, double g[8]) {
     const I *fi = M->f_int + 4 * k;
     const double *fr = M->f_real + 8 * k;
     I bi = fi[1], bj = fi[2], nb = M->nb;
     double xi, yi, aix, aiy, xj, yj, ajx, ajy;
-    body_point(M, q, bi, fr[0], fr[1], &xi, &yi, &aix, &aiy);
-    body_point(M, q, bj, fr[2], fr[3], &xj, &yj, &ajx, &ajy);
+    body_point(M, q, cs, bi, fr[0], fr[1], &xi, &yi, &aix, &aiy);
+    body_point(M, q, cs, bj, fr[2], fr[3], &xj, &yj, &ajx, &ajy);
     double dx = xj + ajx - xi - aix, dy = yj + ajy - yi - aiy, length = hypot(dx, dy);
     if (length < MIN_SPRING_LENGTH) return ST_SPRING;
     double ux = dx / length, uy = dy / length, z[3] = {0.0, 0.0, 0.0};
@@ -199,7 +203,9 @@ static double spring_tension(const Model *M, I k, double length, double rate, co
     return tension;
 }
 
-static int forces(const Model *M, const double *q, const double *qd, const double *uf, double *F) {
+/* F (n) at (q, qd) with the force inputs uf; cs as body_point's. */
+static int forces_cs(const Model *M, const double *q, const double *qd, const double *uf,
+                     const double *cs, double *F) {
     I nb = M->nb;
     memcpy(F, M->f_const, (size_t)M->n * sizeof(double));
     for (I k = 0; k < M->nforce; k++) {
@@ -209,13 +215,13 @@ static int forces(const Model *M, const double *q, const double *qd, const doubl
             I b = fi[1];
             double fx = fi[3] >= 0 ? uf[fi[3]] : fr[2], fy = fi[3] >= 0 ? uf[fi[3] + 1] : fr[3];
             double x, y, ax, ay;
-            body_point(M, q, b, fr[0], fr[1], &x, &y, &ax, &ay);
+            body_point(M, q, cs, b, fr[0], fr[1], &x, &y, &ax, &ay);
             F[3 * b] += fx; F[3 * b + 1] += fy; F[3 * b + 2] += ax * fy - ay * fx;
         } else if (fi[0] == F_TORQUE) {
             F[3 * fi[1] + 2] += uf[fi[3]];
         } else if (fi[0] == F_SPRING) {
             double g[8];
-            if (spring_geometry(M, k, q, qd, g) != ST_OK) return ST_SPRING;
+            if (spring_geometry(M, k, q, qd, cs, g) != ST_OK) return ST_SPRING;
             double tension = spring_tension(M, k, g[0], g[1], uf);
             double fx = -tension * g[2], fy = -tension * g[3];
             I bi = fi[1], bj = fi[2];
@@ -231,6 +237,10 @@ static int forces(const Model *M, const double *q, const double *qd, const doubl
         }
     }
     return ST_OK;
+}
+
+static int forces(const Model *M, const double *q, const double *qd, const double *uf, double *F) {
+    return forces_cs(M, q, qd, uf, NULL, F);
 }
 
 /* ---- scratch space ----------------------------------------------------------------------- */
@@ -305,9 +315,9 @@ static int accelerations_at(const Model *M, Scratch *s, const double *q, const d
                             const double *cval, const double *cdd, const double *uf,
                             double *qdd, double *lam, int again) {
     I n = M->n, m = M->m;
-    int st = forces(M, q, qd, uf, s->F);
-    if (st != ST_OK) return st;
     if (m == 0) {
+        int st = forces(M, q, qd, uf, s->F);
+        if (st != ST_OK) return st;
         for (I k = 0; k < n; k++) qdd[k] = M->minv[k] * s->F[k];
         return ST_OK;
     }
@@ -315,6 +325,8 @@ static int accelerations_at(const Model *M, Scratch *s, const double *q, const d
     extend(M, qd, s->qde);
     terms(M, s->qe, s->qde, cval, s->psi, s->raw, s->gamma, s->cs);
     merged(M, s->raw, s->data, s->values);
+    int st = forces_cs(M, q, qd, uf, s->cs, s->F);      /* with the angles' trig of terms() */
+    if (st != ST_OK) return st;
     if (again) return solve_with_factor(M, s, s->values, s->gamma, s->band, cdd, qdd, lam);
     for (I k = 0; k < n; k++) s->Fm[k] = M->minv[k] * s->F[k];
     jac_mul(M, s->values, s->Fm, s->rhs);

@@ -46,8 +46,8 @@ static double potential(const Model *M, const double *q) {
         const double *fr = M->f_real + 8 * k;
         if (fi[0] == F_SPRING) {
             double xi, yi, aix, aiy, xj, yj, ajx, ajy;
-            body_point(M, q, fi[1], fr[0], fr[1], &xi, &yi, &aix, &aiy);
-            body_point(M, q, fi[2], fr[2], fr[3], &xj, &yj, &ajx, &ajy);
+            body_point(M, q, NULL, fi[1], fr[0], fr[1], &xi, &yi, &aix, &aiy);
+            body_point(M, q, NULL, fi[2], fr[2], fr[3], &xj, &yj, &ajx, &ajy);
             double stretch = hypot(xj + ajx - xi - aix, yj + ajy - yi - aiy) - fr[6];
             e += 0.5 * fr[4] * stretch * stretch;
         } else if (fi[0] == F_TORSION) {
@@ -60,15 +60,34 @@ static double potential(const Model *M, const double *q) {
     return e;
 }
 
+/* The groups of the output vector after the body states, which a wrapper's step computes
+ * only when it publishes one of their values (outputs_at's `want`). */
+enum { W_JOINTS, W_DRIVERS, W_SPRINGS, W_ENERGIES, W_NORMS, W_GROUPS };
+
+/* want[g]: 1 when one of the npub published sources (places in the nout outputs, then
+ * q, q', q'') lies in group g of the output vector, else 0. */
+static void published_groups(const Model *M, I nout, I npub, const I *src, int *want) {
+    I joints = 6 * M->nb, drivers = joints + M->nplan, springs = drivers + M->ndriver;
+    for (int g = 0; g < W_GROUPS; g++) want[g] = 0;
+    for (I k = 0; k < npub; k++) {
+        I i = src[k];
+        if (i < joints || i >= nout) continue;
+        want[i < drivers ? W_JOINTS : i < springs ? W_DRIVERS : i < nout - 4 ? W_SPRINGS
+             : i < nout - 2 ? W_ENERGIES : W_NORMS] = 1;
+    }
+}
+
 /* The output vector (model.variables.outputs order): body states, joint outputs, driver
  * efforts, spring states, kinetic and potential energy, |Psi|, |Psi_q q' - nu|. motion:
  * c, c', c'' (3 m) at t. ST_SPRING for a spring of zero length. `fresh`: s holds Psi and
- * Psi_q's data and values at (q, c) already (the evaluation of eq. (14) there left them). */
+ * Psi_q's data and values at (q, c) already (the evaluation of eq. (14) there left them).
+ * want: NULL for every value, else published_groups' flags: a group left out is NaN. */
 static int outputs_at(const Model *M, Scratch *sp, int fresh, const double *q,
                       const double *qd, const double *lam, const double *motion,
-                      const double *uf, double *out) {
+                      const double *uf, const int *want, double *out) {
     Scratch s = *sp;
     I nb = M->nb, n = M->n, m = M->m, o = 0;
+    int all = want == NULL;
     for (I b = 0; b < nb; b++) {
         for (int c = 0; c < 3; c++) out[o++] = q[3 * b + c];
         for (int c = 0; c < 3; c++) out[o++] = qd[3 * b + c];
@@ -79,21 +98,31 @@ static int outputs_at(const Model *M, Scratch *sp, int fresh, const double *q,
         merged(M, s.raw, s.data, s.values);
     }
     double *joints = s.qv;
-    joint_values(M, q, lam, s.data, joints);
-    for (I k = 0; k < M->nplan; k++) out[o++] = joints[M->joint_plan[k]];
-    for (I k = 0; k < M->ndriver; k++) out[o++] = -lam[M->driver_rows[k]];
+    if (all || want[W_JOINTS]) {
+        joint_values(M, q, lam, s.data, joints);
+        for (I k = 0; k < M->nplan; k++) out[o++] = joints[M->joint_plan[k]];
+    } else for (I k = 0; k < M->nplan; k++) out[o++] = NAN;
+    for (I k = 0; k < M->ndriver; k++)
+        out[o++] = all || want[W_DRIVERS] ? -lam[M->driver_rows[k]] : NAN;
     for (I k = 0; k < M->nforce; k++) {
         if (M->f_int[4 * k] != F_SPRING) continue;
         double g[8];
-        if (spring_geometry(M, k, q, qd, g) != ST_OK) return ST_SPRING;
+        if (!all && !want[W_SPRINGS]) {
+            for (int c = 0; c < 3; c++) out[o++] = NAN;
+            continue;
+        }
+        if (spring_geometry(M, k, q, qd, s.cs, g) != ST_OK) return ST_SPRING;
         out[o++] = g[0];
         out[o++] = g[1];
         out[o++] = spring_tension(M, k, g[0], g[1], uf);
     }
     double kinetic = 0.0, psi2 = 0.0, v2 = 0.0;
-    for (I k = 0; k < n; k++) kinetic += qd[k] * (M->mass[k] * qd[k]);
-    out[o++] = 0.5 * kinetic;
-    out[o++] = potential(M, q);
+    if (all || want[W_ENERGIES]) {
+        for (I k = 0; k < n; k++) kinetic += qd[k] * (M->mass[k] * qd[k]);
+        out[o++] = 0.5 * kinetic;
+        out[o++] = potential(M, q);
+    } else { out[o++] = NAN; out[o++] = NAN; }
+    if (!all && !want[W_NORMS]) { out[o++] = NAN; out[o++] = NAN; return ST_OK; }
     jac_mul(M, s.values, qd, s.rhs);
     for (I r = 0; r < m; r++) {
         double v = s.rhs[r] - motion[m + r];
@@ -109,7 +138,7 @@ int mbd_outputs(const Model *M, const double *q, const double *qd, const double 
                 const double *lam, const double *motion, const double *uf, double *out) {
     Scratch s = scratch(M, M->work);
     (void)qdd;
-    return outputs_at(M, &s, 0, q, qd, lam, motion, uf, out);
+    return outputs_at(M, &s, 0, q, qd, lam, motion, uf, NULL, out);
 }
 
 /* The outputs at a state: q'' and lam of eq. (14) (the kept evaluation when the step

@@ -176,12 +176,14 @@ static int error_norm(const Model *M, Scratch *s, I ns, const double *E, const d
  * redoes the step). K: (ns + 1) x 2n scratch. With c1 (not NULL): *c1 the singularity
  * indicator at the step's end before the projection, and the error estimate along the
  * constraints there when it or c0 (the indicator at the start) is below NEAR_ZONE, as
- * ProjectedRK._attempt's Python step does near a singular configuration. */
+ * ProjectedRK._attempt's Python step does near a singular configuration. With kept (not
+ * NULL): *kept 1 when f_new was solved by the factor of S the velocity projection kept
+ * (the scratch then holds that evaluation's Psi_q values, gamma and factor: keep_end). */
 static int prk_trial(const Model *M, I ns, const double *A, const double *B, const double *E,
                      const double *E3, double h, const double *y, const double *f0,
                      const double *motions, const double *ufs, double rtol, double atol,
                      double tol, I max_iter, double *y_new, double *f_new, double *err,
-                     double *K, double c0, double *c1) {
+                     double *K, double c0, double *c1, int *kept) {
     Scratch s = scratch(M, M->work);
     I n = M->n, n2 = 2 * n, m = M->m, nf = M->nf;
     double *ys = s.qv;
@@ -204,10 +206,7 @@ static int prk_trial(const Model *M, I ns, const double *A, const double *B, con
     if (r == ST_SINGULAR || r == ST_SPRING) return r;
     if (r != ST_OK || !all_finite(y_new, n2) || !all_finite(K + ns * n2, n2)) return ST_NOT_FINITE;
     int tangent = 0;
-    if (c1) {
-        extend(M, y_new, s.qe);
-        terms(M, s.qe, NULL, motions + ns * 3 * m, s.psi, s.raw, NULL, s.cs);
-        merged(M, s.raw, s.data, s.values);
+    if (c1) {     /* Psi_q's values at y_new: the evaluation just above left them */
         *c1 = m ? indicator_of(M, &s, s.values) : INFINITY;
         tangent = m && !(fmin(c0, *c1) >= NEAR_ZONE_C);
     }
@@ -219,6 +218,7 @@ static int prk_trial(const Model *M, I ns, const double *A, const double *B, con
     if (r != ST_OK) return ST_PROJECTION;
     r = rhs_projected(M, &s, y_new, motions + ns * 3 * m, ufs + ns * nf, f_new, s.lam);
     if (r == ST_OK) memo_store(M, y_new, y_new + n, motions + ns * 3 * m, motions + ns * 3 * m + 2 * m, ufs + ns * nf, f_new + n, s.lam);
+    if (kept) *kept = s.kept;
     return r;
 }
 
@@ -227,7 +227,7 @@ int mbd_prk_trial(const Model *M, I ns, const double *A, const double *B, const 
                   const double *motions, const double *ufs, double rtol, double atol,
                   double tol, I max_iter, double *y_new, double *f_new, double *err, double *K) {
     return prk_trial(M, ns, A, B, E, E3, h, y, f0, motions, ufs, rtol, atol, tol, max_iter,
-                     y_new, f_new, err, K, 0.0, NULL);
+                     y_new, f_new, err, K, 0.0, NULL, NULL);
 }
 
 /* mbd_prk_trial with the indicator at the step's end in *c1 and, near a singular
@@ -238,7 +238,7 @@ int mbd_prk_trial_near(const Model *M, I ns, const double *A, const double *B, c
                        double tol, I max_iter, double *y_new, double *f_new, double *err,
                        double *K, double c0, double *c1) {
     return prk_trial(M, ns, A, B, E, E3, h, y, f0, motions, ufs, rtol, atol, tol, max_iter,
-                     y_new, f_new, err, K, c0, c1);
+                     y_new, f_new, err, K, c0, c1, NULL);
 }
 
 /* One trial step of an embedded pair in minimal coordinates (integrators/minimal.py): the
