@@ -5,8 +5,9 @@ reports the process's CPU time per communication step (CLOCK_PROCESS_CPUTIME_ID:
 FMU's embedded Python, where it runs, is in the same process and counted).
 
 Used by ``fmu_speed.py`` (the "C master" column): fmpy's Python around each FMI call costs
-a few µs per call, a C/C++ master's (libcosim, the FMI Compliance Checker, an engine's
-host) next to nothing, so this is the FMU's own cost per step.
+its own time on each call (docs/performance.md measures it), a C/C++ master's (libcosim,
+the FMI Compliance Checker, an engine's host) next to nothing, so this is the FMU's own
+cost per step.
 
     from c_master import compile_master, c_master_cpu
     binary = compile_master(folder)

@@ -23,7 +23,7 @@ and with rk4p in place of its scene's dop853p (``VARIANTS``), and P1 (the pendul
   step in fmpy (doStep + getReal + setReal), best of ``--repeat``, and by a minimal master
   calling the same FMI functions through ctypes (``ctypes_run``), and by a master written in
   C with no Python in its loop (``c_master.py``: what the FMU costs a C/C++ master such as
-  libcosim's or an engine's; fmpy's Python around each call costs a few µs). The crane's cylinder
+  libcosim's or an engine's; fmpy's Python around each call is fmpy's own cost). The crane's cylinder
   force in Exudyn: held constant (its favourable case), and set before every step by a
   pre-step user function (Python), as the master sets the FMU's input.
 

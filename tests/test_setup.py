@@ -40,6 +40,10 @@ def test_pattern_plan_matches_numpy_and_scipy(scenes_dir, name):
         # and the public function's path, for a scipy without the routine where it is now
         public = _without_private_rcm(lambda: _equations(scenes_dir, name).pattern.perm)
         np.testing.assert_array_equal(public, p.perm)
+        # and a scipy whose private routine kept its name but changed its call
+        changed = _without_private_rcm(lambda: _equations(scenes_dir, name).pattern.perm,
+                                       _private_rcm_with_another_call)
+        np.testing.assert_array_equal(changed, p.perm)
     # the reaction blocks: each (row, column) looked up in the pattern's entries by a dict
     where = {int(f): k for k, f in enumerate(p.flat_with_ground)}
     flat = c.joint_rows[:, :, None] * (eq.n + 3) + 3 * c.joint_bj[:, None, None] + np.arange(3)
@@ -47,9 +51,13 @@ def test_pattern_plan_matches_numpy_and_scipy(scenes_dir, name):
     np.testing.assert_array_equal(eq._reaction_entries.ravel(), expected)
 
 
-def _without_private_rcm(build):
+def _private_rcm_with_another_call(*args):
+    raise TypeError(f"_reverse_cuthill_mckee() takes 4 positional arguments ({len(args)} given)")
+
+
+def _without_private_rcm(build, replacement=None):
     kept = sparsity._reverse_cuthill_mckee
-    sparsity._reverse_cuthill_mckee = None
+    sparsity._reverse_cuthill_mckee = replacement
     try:
         return build()
     finally:
@@ -97,13 +105,21 @@ def test_simulation_takes_a_scene_path_as_simulate_does(scenes_dir):
         np.testing.assert_array_equal(sim.output_vector(), sims[0].output_vector())
 
 
-@pytest.mark.parametrize("bad", [42, None, {"bodies": []}])
+class _BytesPath:
+    """A path-like object whose path is bytes (os.fspath gives b"...")."""
+
+    def __fspath__(self):
+        return b"scenes/pendulum.toml"
+
+
+@pytest.mark.parametrize("bad", [42, None, {"bodies": []}, np.zeros((2, 2)), _BytesPath()])
 def test_simulation_names_a_scene_of_the_wrong_kind_in_one_line(bad):
     with pytest.raises(InputError) as info:
         mbdfmu.Simulation(bad)
     message = str(info.value)
     assert "\n" not in message and message.startswith("scene must be a Scene")
-    assert type(bad).__name__ in message
+    kind = "bytes" if isinstance(bad, _BytesPath) else type(bad).__name__
+    assert message.endswith(f"got a {kind}")
 
 
 def test_missing_scene_file_is_the_scene_error_of_load_scene(tmp_path):

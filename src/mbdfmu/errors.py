@@ -56,7 +56,8 @@ class WorkLimitError(SolverError):
 
 
 class InputError(MbdfmuError):
-    """An unknown input name, a non-finite input value, or an unreadable input table."""
+    """An unknown input name, a non-finite input value, an unreadable input table, or a
+    scene given to ``Simulation`` as something other than a Scene, a path or a name."""
 
 
 def suggest(word: str, choices) -> str:

@@ -94,7 +94,8 @@ class Simulation(SimulationInputs):
         return self._outputs_table()[1]
 
     def _outputs_table(self):
-        # built on first use: a run that only steps (an FMU's, a benchmark's) never reads it
+        # built on first use: a run that only steps never reads it (an FMU reads it once,
+        # when instantiated)
         if self._output_table is None:
             variables = outputs(self.scene)
             self._output_table = ([v.name for v in variables], {v.name: v.unit for v in variables})
@@ -323,10 +324,12 @@ def as_scene(scene) -> Scene:
     ``InputError`` for anything else."""
     if isinstance(scene, Scene):
         return scene
-    if isinstance(scene, (str, os.PathLike)):
+    if isinstance(scene, os.PathLike):
+        scene = os.fspath(scene)
+    if isinstance(scene, str):
         return load_scene(scene)
     raise InputError(f"scene must be a Scene, a scene file's path or a shipped scene's name, "
-                     f"got {type(scene).__name__} {scene!r:.60}")
+                     f"got a {type(scene).__name__}")
 
 
 def check_t_end(t_end, name: str = "t_end", where: str = "") -> float:

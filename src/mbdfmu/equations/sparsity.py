@@ -30,7 +30,7 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 from ..errors import SolverError
 
 try:    # the ordering itself, on index arrays: what reverse_cuthill_mckee calls once it has
-    # built and checked a csr matrix, four times the ordering's own cost at tens of rows
+    # built and checked a csr matrix, which costs more than the ordering at tens of rows
     from scipy.sparse.csgraph._reordering import _reverse_cuthill_mckee
 except ImportError:         # a scipy that moved it: the public function
     _reverse_cuthill_mckee = None
@@ -287,8 +287,11 @@ def _rcm(indices: np.ndarray, indptr: np.ndarray, m: int) -> np.ndarray:
     if m == 0:
         return np.zeros(0, np.intp)                  # no constraints: nothing to order
     if _reverse_cuthill_mckee is not None:
-        return _reverse_cuthill_mckee(indices.astype(np.int32), indptr.astype(np.int32),
-                                      m).astype(np.intp)
+        try:
+            return _reverse_cuthill_mckee(indices.astype(np.int32), indptr.astype(np.int32),
+                                          m).astype(np.intp)
+        except (TypeError, ValueError):  # a scipy whose private routine changed its call
+            pass
     graph = scipy.sparse.csr_matrix((np.ones(indices.size), indices, indptr), shape=(m, m))
     return reverse_cuthill_mckee(graph, symmetric_mode=True).astype(np.intp)
 

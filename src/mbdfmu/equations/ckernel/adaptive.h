@@ -169,17 +169,9 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
             if (h_next < h_min || rejections > MAX_REJECTIONS_IN_A_ROW) return ST_ERROR_NORM;
         }
     }
-    double *out = r->V, *q = out + r->nout, *qd = q + n, *qdd = qd + n, *lam = qdd + n;
-    memcpy(q, y, (size_t)n2 * sizeof(double));
-    /* mbd_state_outputs without evaluating Psi_q once more: the last step's end evaluated
-     * eq. (14) at these arguments last (kept), or it is evaluated now; either way Psi and
-     * Psi_q at (q, c) are in s (fixed.h's mbd_fixed_step does the same) */
-    int want[W_GROUPS];               /* what the wrapper publishes */
-    published_groups(M, r->nout, r->npub, r->pub_src, want);
-    if (mbd_accelerations(M, q, qd, r->motion, r->motion + 2 * m, r->uf, qdd, lam) != ST_OK ||
-            outputs_at(M, &s, m > 0, q, qd, lam, r->motion, r->uf, want, out) != ST_OK)
+    if (publish_step_end(M, &s, y, r->motion, r->uf, r->nout, r->npub, r->pub_src, r->pub_dst,
+                         r->V, values) != ST_OK)
         return ST_SINGULAR;
-    for (I k = 0; k < r->npub; k++) values[r->pub_dst[k]] = r->V[r->pub_src[k]];
     memcpy(r->y, y, (size_t)n2 * sizeof(double));
     memcpy(r->f, f, (size_t)n2 * sizeof(double));
     r->t_now = end;

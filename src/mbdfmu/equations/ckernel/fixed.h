@@ -335,23 +335,16 @@ int mbd_fixed_step(const Model *M, FixedRun *r, double t, double h, double *valu
     I k = 0, stop = 0;
     if (st == ST_OK) st = fixed_loop(M, r, &s, &E, t0, step, steps, end, steps, &k, &stop);
     if (st == ST_OK) keep_step_end(M, r, &s);
-    double *out = r->V, *q = out + r->nout, *qd = q + n, *qdd = qd + n, *lam = qdd + n;
-    if (st == ST_OK) {       /* mbd_state_outputs, without evaluating Psi_q once more: */
+    if (st == ST_OK) {
         motion_at(M, r, end, r->motions);
-        memcpy(q, r->y, (size_t)n2 * sizeof(double));
-        st = mbd_accelerations(M, q, qd, r->motions, r->motions + 2 * M->m, r->ufs, qdd, lam);
-        /* whether kept (the last step's end evaluated eq. (14) at these arguments last) or
-         * evaluated now, eq. (14) at (q, c) left Psi and Psi_q in s (with constraints) */
-        int want[W_GROUPS];           /* what the wrapper publishes */
-        published_groups(M, r->nout, r->npub, r->pub_src, want);
-        if (st == ST_OK) st = outputs_at(M, &s, M->m > 0, q, qd, lam, r->motions, r->ufs, want, out);
+        st = publish_step_end(M, &s, r->y, r->motions, r->ufs, r->nout, r->npub, r->pub_src,
+                              r->pub_dst, r->V, values);
     }
     if (st != ST_OK) {
         memcpy(r->y, r->save, (size_t)n2 * sizeof(double));
         memcpy(r->f, r->save + n2, (size_t)n2 * sizeof(double));
         return st;
     }
-    for (I j = 0; j < r->npub; j++) values[r->pub_dst[j]] = r->V[r->pub_src[j]];
     r->t_now = end;
     r->restarts += r->changed;
     r->changed = 0;

@@ -148,3 +148,23 @@ int mbd_state_outputs(const Model *M, const double *q, const double *qd, const d
     int st = mbd_accelerations(M, q, qd, motion, motion + 2 * M->m, uf, qdd, lam);
     return st != ST_OK ? st : mbd_outputs(M, q, qd, qdd, lam, motion, uf, out);
 }
+
+/* A wrapper's step end: q'' and lam of eq. (14) at y = (q, q') with motion (c, c', c'') and
+ * forces uf, into V after its nout outputs, then the output groups it publishes, and the
+ * published values (V[pub_src[k]] to values[pub_dst[k]]). Without evaluating Psi_q once
+ * more: the step's end evaluated eq. (14) at these arguments last (kept), or it is evaluated
+ * now; either way Psi and Psi_q at (q, c) are then in s. */
+static int publish_step_end(const Model *M, Scratch *s, const double *y, const double *motion,
+                            const double *uf, I nout, I npub, const I *pub_src,
+                            const I *pub_dst, double *V, double *values) {
+    I n = M->n;
+    double *q = V + nout, *qd = q + n, *qdd = qd + n, *lam = qdd + n;
+    int want[W_GROUPS];
+    memcpy(q, y, (size_t)(2 * n) * sizeof(double));
+    published_groups(M, nout, npub, pub_src, want);
+    int st = mbd_accelerations(M, q, qd, motion, motion + 2 * M->m, uf, qdd, lam);
+    if (st == ST_OK) st = outputs_at(M, s, M->m > 0, q, qd, lam, motion, uf, want, V);
+    if (st == ST_OK)
+        for (I k = 0; k < npub; k++) values[pub_dst[k]] = V[pub_src[k]];
+    return st;
+}
