@@ -156,6 +156,8 @@ class Model(Slave):
         self.slots = np.array([sim.output_names.index(n) for n in OUTPUTS], dtype=np.intp)
         self.fast_inputs = self.core.fast_steps.settable_inputs(sim, self.variables)
         self.published_from = published_sources(self, sim)
+        self.keep_after_set(self.core.fast_steps.unchanged_by_force_inputs(
+            sim, self.variables, self.published))
         return sim
 
     def work_limit(self):

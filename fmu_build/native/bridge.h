@@ -142,12 +142,14 @@ struct Instance {
      * other call */
     const double *fast_values;
     const unsigned char *fast_mask;
+    const unsigned char *fast_kept;   /* those still served after fast_set (may be NULL) */
     volatile int64_t *fast_valid;
     size_t fast_count;
     /* the slave's FastSteps block (runtime/real_cache.py): enabled, a step function and
      * its two context pointers; fmi2DoSteps it takes leave the slave behind
      * (fast_pending) until it catches up (M_SYNC) before any other call; fmi2SetReal taken
-     * by its set function (fast_set) sends gets through Python until the next step */
+     * by its set function (fast_set) sends gets through Python until the next step, but
+     * those of values the set leaves as they are (fast_kept) */
     int64_t *fast_step;
     int fast_pending;
     int fast_set;
@@ -515,14 +517,18 @@ static int copy_out(Instance *in, Kind kind, PyObject *payload, void *values, si
 }
 
 /* GetReal / GetFloat64 without Python: every vr a Real variable while the slave's values
- * are valid (see Instance); 0 when Python must answer. */
+ * are valid (see Instance), and after an input set here only those the set leaves as
+ * they are; 0 when Python must answer. */
 static int fast_get_real(void *c, const unsigned int vr[], size_t nvr, double value[]) {
     Instance *in = as_instance(c);
-    if (!in || in->fatal || !in->fast_valid || !*in->fast_valid || in->fast_set
+    if (!in || in->fatal || !in->fast_valid || !*in->fast_valid
+        || (in->fast_set && !in->fast_kept)
         || !python_alive() || nvr > MAX_NVR || (nvr > 0 && (!vr || !value)))
         return 0;
     for (size_t i = 0; i < nvr; i++)
-        if (vr[i] >= in->fast_count || !in->fast_mask[vr[i]]) return 0;
+        if (vr[i] >= in->fast_count || !in->fast_mask[vr[i]]
+            || (in->fast_set && !in->fast_kept[vr[i]]))
+            return 0;
     free_strings(in);
     for (size_t i = 0; i < nvr; i++) value[i] = in->fast_values[vr[i]];
     return 1;
@@ -585,16 +591,19 @@ static int set_values(void *c, const char *function, const char *type, Kind kind
  * count); none (no fast path) when it has no such attribute. Needs the GIL. */
 static void fast_real(Instance *in, PyObject *slave) {
     PyObject *t = py.PyObject_GetAttrString(slave, "fast_real");
-    if (t && py.PyTuple_Size(t) == 4) {
+    Py_ssize_t size = t ? py.PyTuple_Size(t) : -1;
+    if (size == 4 || size == 5) {
         void *values = py.PyLong_AsVoidPtr(py.PyTuple_GetItem(t, 0));
         void *mask = py.PyLong_AsVoidPtr(py.PyTuple_GetItem(t, 1));
         void *valid = py.PyLong_AsVoidPtr(py.PyTuple_GetItem(t, 2));
         long count = py.PyLong_AsLong(py.PyTuple_GetItem(t, 3));
+        void *kept = size == 5 ? py.PyLong_AsVoidPtr(py.PyTuple_GetItem(t, 4)) : NULL;
         if (!py.PyErr_Occurred() && values && mask && valid && count >= 0) {
             in->fast_values = values;
             in->fast_mask = mask;
             in->fast_valid = valid;
             in->fast_count = (size_t)count;
+            in->fast_kept = kept;
         }
     }
     if (t) py.Py_DecRef(t);

@@ -34,8 +34,11 @@ class RealCache:
         self.mask = np.zeros(max(count, 1), dtype=np.uint8)
         self.mask[self.vrs] = 1
         self.valid = np.zeros(1, dtype=np.int64)
+        # the values the wrapper may still serve after it took fmi2SetReal of an input
+        # itself (``keep_after_set``); none until the model says which
+        self.kept = np.zeros(max(count, 1), dtype=np.uint8)
         self.address = (self.values.ctypes.data, self.mask.ctypes.data,
-                        self.valid.ctypes.data, count)
+                        self.valid.ctypes.data, count, self.kept.ctypes.data)
 
     def publish(self, values: dict) -> None:
         """Refresh from ``values`` and let the wrapper serve them (all must be numbers)."""
@@ -48,6 +51,13 @@ class RealCache:
     def invalidate(self) -> None:
         self.valid[0] = 0
 
+    def keep_after_set(self, vrs) -> None:
+        """The value references whose values an input taken by the wrapper's set function
+        (``FastSteps``) leaves as they are: a get of only these is served until the next
+        step; any other get goes through Python."""
+        self.kept[:] = 0
+        self.kept[np.asarray(vrs, dtype=np.intp)] = 1
+
 
 class FastSteps:
     """The communication steps the wrapper takes by itself: a control block of six
@@ -56,7 +66,8 @@ class FastSteps:
     h, values)`` (0: it took the step and refreshed ``values``, else Python must), its
     two context addresses, the count of steps it took (the wrapper adds to it), and 0 or
     the address of ``int set(context, vrs, nvr, new, values)`` that takes fmi2SetReal of
-    inputs the step function reads (0: all applied; a get then goes through Python). The
+    inputs the step function reads (0: all applied; a get then goes through Python unless
+    it names only values ``RealCache.keep_after_set`` keeps). The
     model arms it after a step when the next steps need no Python; the wrapper then asks
     the slave to catch up (``fmi_sync``) before any other call."""
 
@@ -87,6 +98,10 @@ class FastStepProtocol:
         other call; ``catch_up`` then brings the model to the time they reached. With
         ``setter``, fmi2SetReal too (``FastSteps``)."""
         self._fmi_fast_steps.arm(function, model, context, setter)
+
+    def keep_after_set(self, vrs) -> None:
+        """``RealCache.keep_after_set`` of this slave's Real values."""
+        self._fmi_reals.keep_after_set(vrs)
 
     def set_fast_steps(self, armed: tuple | None) -> None:
         """``arm_fast_steps(*armed)``, or disarm them when ``armed`` is None."""

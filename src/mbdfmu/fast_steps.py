@@ -28,6 +28,8 @@ from .equations.ckernel.fixed import motion_table
 from .integrators.c_steps import adopt_fast_run, adopt_prk_run, fast_prk_run, fast_run, tableau
 from .integrators.auto_watch import STIFF_HLAMBDA
 from .integrators.projected_rk import DOP853P, MAX_FACTOR, MIN_FACTOR, SAFETY
+from .model.scene import Body, SpringDamper
+from .model.variables import GLOBAL_OUTPUTS, TABLES
 from .signals import Held
 
 
@@ -42,6 +44,25 @@ def settable_inputs(sim, table) -> tuple[np.ndarray, np.ndarray]:
             pairs.append((value_reference[f"{item}.{field}"], where.start + j))
     return (np.array([p[0] for p in pairs], dtype=np.int64),
             np.array([p[1] for p in pairs], dtype=np.int64))
+
+
+def unchanged_by_force_inputs(sim, table, published) -> np.ndarray:
+    """Value references of the Real variables (``table``: the runtime's ``VariableTable``)
+    whose values a force input set since the last step leaves as they are, so the wrapper
+    may serve a get between such a set and the next step: the positions and velocities
+    (the restart after a force input does not project: ``Simulation._reinitialize``), the
+    outputs that depend on them alone (body states, spring lengths and rates, energies,
+    constraint norms), and every variable that is not published (parameters, settings,
+    the inputs themselves, which the set function writes). Not the accelerations, joint
+    outputs, driver efforts or spring tensions, which follow the forces. ``published``:
+    the names the model publishes after each step."""
+    kept = {v.name for v in GLOBAL_OUTPUTS}
+    kept |= {f"{b.name}.{s.suffix}" for b in sim.scene.bodies for s in TABLES[Body].outputs}
+    kept |= {f"{f.name}.{s}" for f in sim.scene.forces if isinstance(f, SpringDamper)
+             for s in ("length", "velocity")}
+    published = set(published)
+    return np.array(sorted(vr for vr, v in table.by_type["Real"].items()
+                           if v.name not in published or v.name in kept), dtype=np.intp)
 
 
 def auto_stiff_limit(integrator, watcher) -> float | None:
