@@ -258,7 +258,7 @@ def _joint_output_plan(scene: Scene, c) -> np.ndarray:
     plan = []
     for k, j in enumerate(scene.joints):
         for s in TABLES[type(j)].outputs:
-            if s.when is None or s.applies(j):     # the reactions always apply
+            if s.applies(j):
                 plan.append(3 * nj + coupler[k] if s.suffix == "effort" else
                             3 * k + column[s.suffix] if s.suffix in column else zero)
     return np.array(plan, dtype=int)

@@ -148,16 +148,14 @@ def assembly_changes(system: Equations, given: tuple[np.ndarray, np.ndarray],
     sped = np.abs(qd - qd0) > VELOCITY_CHANGE_TOL * np.maximum(
         1.0, np.maximum(np.abs(qd0), np.abs(qd)))
     lines = []
-    # the values beyond their limit (a vectorised first look), then the scene's own
-    for i in np.flatnonzero(moved | sped).tolist():
+    for i in np.flatnonzero(moved | sped).tolist():     # the values beyond their limit
         k, c = divmod(i, 3)
         body = system.scene.bodies[k]
-        for keys, old, new, stage in ((POSITION_KEYS, q0[i], q[i], "assembly"),
-                                      (VELOCITY_KEYS, qd0[i], qd[i], "the velocity projection")):
+        for keys, old, new, stage, beyond in (
+                (POSITION_KEYS, q0[i], q[i], "assembly", moved[i]),
+                (VELOCITY_KEYS, qd0[i], qd[i], "the velocity projection", sped[i])):
             name, index, unit = keys[c]
-            limit = (ASSEMBLY_TOL * system.length_scale if keys is POSITION_KEYS
-                     else VELOCITY_CHANGE_TOL * max(1.0, abs(old), abs(new)))
-            if body.gave(name) and abs(new - old) > limit:
+            if beyond and body.gave(name):
                 label = name if index is None else f"{name}[{index}]"
                 lines.append(f'body "{body.name}": {label} = {old:.6g} {unit} as given, '
                              f"{new:.6g} after {stage} (changed by {new - old:+.3g}): the "
