@@ -78,8 +78,8 @@ def test_invalid_time_arguments_are_errors_naming_them(scene_fmu, scene_host, st
     _after_error_reset_works(h)
 
 
-@pytest.mark.parametrize("stem, step", [("slider_force", 1e300), ("slider_crank", 1e300),
-                                        ("pendulum_torque", 1e5), ("slider_crank", 1e3)])
+@pytest.mark.parametrize("stem, step", [("slider_crank", 1e300), ("pendulum_torque", 1e5),
+                                        ("slider_crank", 1e3)])
 def test_steps_that_hung_return_discard_promptly_and_the_fmu_goes_on(scene_fmu, scene_host,
                                                                     stem, step):
     """The hangs of the findings: bounded by the work limits (here 0.5 CPU s; fixed-step
@@ -97,6 +97,17 @@ def test_steps_that_hung_return_discard_promptly_and_the_fmu_goes_on(scene_fmu, 
     last = ctypes.c_double()
     assert h.status("fmi2GetRealStatus", 2, ctypes.byref(last)) == OK and last.value == 0.0
     assert h.step(H) == OK
+
+
+def test_a_huge_step_of_a_slider_at_rest_returns_promptly_where_it_was(scene_fmu, scene_host):
+    """The findings' other hang (doStep(0, 1e300) on slider_force): at rest with no force
+    its q'' is exactly 0 (gravity is the guide's reaction), so every error estimate is 0
+    and the steps grow tenfold each to the end: OK at once, the slider where it was."""
+    h = _init(scene_host(scene_fmu("slider_force")), **{CPU: 0.5})
+    start = time.perf_counter()
+    assert h.step(1e300) == OK, h.messages[-2:]
+    assert time.perf_counter() - start < 5.0
+    assert h.real("slider.x", "slider.y", "slider.vx") == [0.0, 0.0, 0.0]
 
 
 def test_the_default_step_limit_refuses_a_fixed_step_run_before_it_starts(scene_fmu, scene_host):

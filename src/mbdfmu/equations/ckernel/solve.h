@@ -5,7 +5,8 @@
  * rows' own order (solve_spd's potrf), above it in band storage in reverse Cuthill-McKee
  * order (JacobianPattern.schur_solve's pbtrf); either is trusted when its pivots say S is
  * well conditioned (_well_conditioned). Here the band answers first at any size (the
- * same numbers to round-off, cheaper), the dense form where the band's pivots are not. Otherwise the minimum-norm least-squares solution:
+ * same numbers to round-off, cheaper; factorised as L D L^T, band_cholesky_inv), the dense
+ * form where the band's pivots are not. Otherwise the minimum-norm least-squares solution:
  * dense, the eigenvalues of S by cyclic Jacobi rotations with those at or below
  * rank_tol times the largest dropped (lstsq's cut-off on the singular values of symmetric
  * S); banded, iterated Tikhonov regularisation (JacobianPattern._min_norm). With
@@ -18,18 +19,17 @@
 #define JACOBI_OFF 1e-17
 
 /* Cholesky of the band L[d * m + j] = S[j + d, j] in place; pivots' range in *dmin, *dmax;
- * 0 when S is not positive definite. `reciprocal`: the diagonal holds the pivots'
- * reciprocals (the same 1 / d the column divides by, for band_substitute_inv) instead of
- * the pivots. The range is kept in locals: fmax's calls (not inlined without fast math)
- * made the pivot's division wait on the stack instead of beside the next column's sums. */
-static int band_factor(double *L, I m, I kd, double *dmin, double *dmax, int reciprocal) {
+ * 0 when S is not positive definite. The range is kept in locals: fmax's calls (not inlined
+ * without fast math) made the pivot's division wait on the stack instead of beside the next
+ * column's sums. */
+static int band_cholesky(double *L, I m, I kd, double *dmin, double *dmax) {
     double lo = INFINITY, hi = 0.0;
     for (I j = 0; j < m; j++) {
         double s = L[j];
         for (I k = (j - kd > 0 ? j - kd : 0); k < j; k++) s -= L[(j - k) * m + k] * L[(j - k) * m + k];
         if (!(s > 0.0)) return 0;
         double d = sqrt(s), inv = 1.0 / d;   /* one division per column, not per entry */
-        L[j] = reciprocal ? inv : d;
+        L[j] = d;
         hi = d > hi ? d : hi;
         lo = d < lo ? d : lo;
         I end = j + kd + 1 < m ? j + kd + 1 : m;
@@ -44,27 +44,46 @@ static int band_factor(double *L, I m, I kd, double *dmin, double *dmax, int rec
     return 1;
 }
 
-static int band_cholesky(double *L, I m, I kd, double *dmin, double *dmax) {
-    return band_factor(L, m, kd, dmin, dmax, 0);
-}
-
+/* S = L D L^T of the band in place, for band_substitute_inv: off the diagonal the
+ * unscaled columns W = L D (L[d * m + j] = W[j + d, j]), on it 1 / D; 0 when S is not
+ * positive definite; *dmin, *dmax: the range of sqrt(D), the pivots of S's Cholesky factor.
+ * Right-looking (each column, once final, updates the columns after it) and without square
+ * roots: a column's pivot waits on one division and one update of the column before it,
+ * where the dot-product form of a Cholesky factor waits on a square root, a division and a
+ * chain of kd products for every entry (the same sums in another order). */
 static int band_cholesky_inv(double *L, I m, I kd, double *dmin, double *dmax) {
-    return band_factor(L, m, kd, dmin, dmax, 1);
+    double lo = INFINITY, hi = 0.0;
+    for (I j = 0; j < m; j++) {
+        double d = L[j];
+        if (!(d > 0.0)) return 0;
+        hi = d > hi ? d : hi;
+        lo = d < lo ? d : lo;
+        double inv = 1.0 / d;
+        I end = j + kd + 1 < m ? j + kd + 1 : m;
+        for (I i = j + 1; i < end; i++) {          /* S[i, l] -= W[i, j] W[l, j] / D_j */
+            double u = L[(i - j) * m + j] * inv;
+            for (I l = j + 1; l <= i; l++) L[(i - l) * m + l] -= u * L[(l - j) * m + j];
+        }
+        L[j] = inv;
+    }
+    *dmin = sqrt(lo);
+    *dmax = sqrt(hi);
+    return 1;
 }
 
-/* band_substitute for band_cholesky_inv's factor: multiplications by the stored
- * reciprocals, the same numbers as band_substitute's. */
+/* S x = y in place by band_cholesky_inv's factor: z = D^-1 L^-1 y forward, then
+ * x = z - D^-1 W^T x backward (L^T = D^-1 W^T), each entry, once final, updating the
+ * entries after it (a chain of one product per row, not of kd). */
 static void band_substitute_inv(const double *L, I m, I kd, double *y) {
     for (I i = 0; i < m; i++) {
-        double s = y[i];
-        for (I k = (i - kd > 0 ? i - kd : 0); k < i; k++) s -= L[(i - k) * m + k] * y[k];
-        y[i] = s * L[i];
-    }
-    for (I i = m - 1; i >= 0; i--) {
-        double s = y[i];
+        double z = y[i] * L[i];
+        y[i] = z;
         I end = i + kd + 1 < m ? i + kd + 1 : m;
-        for (I k = i + 1; k < end; k++) s -= L[(k - i) * m + i] * y[k];
-        y[i] = s * L[i];
+        for (I k = i + 1; k < end; k++) y[k] -= L[(k - i) * m + i] * z;
+    }
+    for (I i = m - 1; i > 0; i--) {
+        double x = y[i];
+        for (I k = (i - kd > 0 ? i - kd : 0); k < i; k++) y[k] -= (L[k] * L[(i - k) * m + k]) * x;
     }
 }
 
