@@ -282,11 +282,7 @@ static int near_try(const Model *M, PrkRun *r, Scratch *s, const double *y, cons
     *naccel += ns;
     if (st == ST_NOT_FINITE) { *h_next = hh * r->min_factor; return 0; }
     double *y_end = s->qv + 4 * n2;       /* the step's end before the projection */
-    for (I k = 0; k < n2; k++) {
-        double a = 0.0;
-        for (I j = 0; j < ns; j++) a += r->K[j * n2 + k] * r->B[j];
-        y_end[k] = y[k] + hh * a;
-    }
+    combine(y, hh, r->K, n2, r->B, ns, y_end);
     if (st == ST_ERROR_NORM) {
         *h_next = hh * fmax(r->min_factor, r->safety * pow(err, r->exponent));
         return 0;

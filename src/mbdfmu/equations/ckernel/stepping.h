@@ -23,6 +23,25 @@ static int rhs_projected(const Model *M, Scratch *s, const double *y, const doub
     return accelerations_at(M, s, y, y + n, motion, motion + 2 * m, uf, f + n, lam, s->kept);
 }
 
+/* out (n2) = sum_j c[j] K[j] over j < terms (K: rows of n2), each entry summed in j's
+ * order as a loop over j inside would, but with the loop over the entries inside, so the
+ * compiler vectorises it (the same additions in the same order: the same doubles). */
+static void weighted_sum(const double *restrict K, I n2, const double *restrict c, I terms,
+                         double *restrict out) {
+    for (I k = 0; k < n2; k++) out[k] = 0.0;
+    for (I j = 0; j < terms; j++) {
+        const double *Kj = K + j * n2, cj = c[j];
+        for (I k = 0; k < n2; k++) out[k] += Kj[k] * cj;
+    }
+}
+
+/* out (n2) = y + h sum_j c[j] K[j] over j < terms: a stage's state. */
+static void combine(const double *y, double h, const double *K, I n2, const double *c,
+                    I terms, double *out) {
+    weighted_sum(K, n2, c, terms, out);
+    for (I k = 0; k < n2; k++) out[k] = y[k] + h * out[k];
+}
+
 #define NEAR_ZONE_C 0.1          /* singular_zone.NEAR_ZONE */
 
 static int all_finite(const double *x, I k) {
@@ -41,19 +60,11 @@ static int rk4p_step(const Model *M, Scratch *s, double *y, double *f, double h,
     I n2 = 2 * M->n, m = M->m, nf = M->nf;
     memcpy(K, f, (size_t)n2 * sizeof(double));
     for (int st = 1; st < 4; st++) {
-        for (I k = 0; k < n2; k++) {
-            double a = 0.0;
-            for (int j = 0; j < st; j++) a += K[j * n2 + k] * A[st][j];
-            ys[k] = y[k] + h * a;
-        }
+        combine(y, h, K, n2, A[st], st, ys);
         int r = rhs(M, s, ys, motions + ROW[st] * 3 * m, ufs + ROW[st] * nf, K + st * n2, s->lam);
         if (r != ST_OK) return r;
     }
-    for (I k = 0; k < n2; k++) {
-        double a = 0.0;
-        for (int j = 0; j < 4; j++) a += K[j * n2 + k] * B[j];
-        ys[k] = y[k] + h * a;
-    }
+    combine(y, h, K, n2, B, 4, ys);
     if (!all_finite(ys, n2)) return ST_NOT_FINITE;
     int r = project(M, s, ys, ys + M->n, motions + 6 * m, tol, max_iter);
     if (r != ST_OK) return r;
@@ -144,12 +155,9 @@ static int error_norm(const Model *M, Scratch *s, I ns, const double *E, const d
                       double rtol, double atol, int tangent, double *ev, double *err) {
     I n2 = 2 * M->n;
     double *e5 = ev, *e3 = ev + n2, s5 = 0.0, s3 = 0.0;
-    for (I k = 0; k < n2; k++) {
-        double a = 0.0, b = 0.0;
-        for (I j = 0; j <= ns; j++) { a += K[j * n2 + k] * E[j]; if (E3) b += K[j * n2 + k] * E3[j]; }
-        e5[k] = E3 ? a : h * a;
-        e3[k] = b;
-    }
+    weighted_sum(K, n2, E, ns + 1, e5);
+    if (E3) weighted_sum(K, n2, E3, ns + 1, e3);
+    else for (I k = 0; k < n2; k++) { e5[k] *= h; e3[k] = 0.0; }
     if (tangent) {
         int r = tangent_part(M, s, e5, 1);
         if (r == ST_OK && E3) r = tangent_part(M, s, e3, 0);
@@ -189,19 +197,11 @@ static int prk_trial(const Model *M, I ns, const double *A, const double *B, con
     double *ys = s.qv;
     memcpy(K, f0, (size_t)n2 * sizeof(double));
     for (I st = 1; st < ns; st++) {
-        for (I k = 0; k < n2; k++) {
-            double a = 0.0;
-            for (I j = 0; j < st; j++) a += K[j * n2 + k] * A[st * ns + j];
-            ys[k] = y[k] + h * a;
-        }
+        combine(y, h, K, n2, A + st * ns, st, ys);
         int r = rhs(M, &s, ys, motions + st * 3 * m, ufs + st * nf, K + st * n2, s.lam);
         if (r != ST_OK) return r;
     }
-    for (I k = 0; k < n2; k++) {
-        double a = 0.0;
-        for (I j = 0; j < ns; j++) a += K[j * n2 + k] * B[j];
-        y_new[k] = y[k] + h * a;
-    }
+    combine(y, h, K, n2, B, ns, y_new);
     int r = rhs(M, &s, y_new, motions + ns * 3 * m, ufs + ns * nf, K + ns * n2, s.lam);
     if (r == ST_SINGULAR || r == ST_SPRING) return r;
     if (r != ST_OK || !all_finite(y_new, n2) || !all_finite(K + ns * n2, n2)) return ST_NOT_FINITE;
