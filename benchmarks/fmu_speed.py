@@ -15,7 +15,11 @@ and with rk4p in place of its scene's dop853p (``VARIANTS``), and P1 (the pendul
   every output (+ setReal of the input where there is one): wall and CPU time per
   communication step, and the real-time factor (simulated s per wall s); then doStep
   alone and getReal alone, to show each call's cost.
-- warm, libcosimpy: ``execution.step(n)`` with a time-series observer on every output.
+- warm, libcosimpy: ``execution.step(n)`` with a time-series observer on every output;
+  then the same with the process held to one core while the execution is made (its
+  worker threads inherit that): libcosim's fixed-step algorithm hands every step to a
+  worker thread, and on an idle machine with a free core each handoff waits for that
+  core's thread to wake, a cost of libcosim's own that one core does not have.
 - direct: ``Simulation.advance`` + ``output_vector`` per communication step, kernel "c"
   (the FMU's) and "numpy" (what FMUs ran before).
 - Exudyn (every case, ``exudyn_compare.exudyn_model``): CPU time per 1 ms step of
@@ -233,8 +237,23 @@ def c_master_run(binary: Path, fmu: Path, case: str, h: float, n: int) -> float:
                         input_vr=names[input_of(case)] if input_of(case) else None)
 
 
-def cosim_run(fmu: Path, case: str, h: float, n: int) -> tuple[float, float]:
-    """(wall s, CPU s) per communication step of libcosim's ``execution.step``."""
+def cosim_run(fmu: Path, case: str, h: float, n: int, *,
+              one_core: bool = False) -> tuple[float, float]:
+    """(wall s, CPU s) per communication step of libcosim's ``execution.step``;
+    ``one_core``: the process held to its first allowed core while the execution (and its
+    worker threads) is made and run (Linux; elsewhere as without)."""
+    held = one_core and hasattr(os, "sched_setaffinity")
+    allowed = os.sched_getaffinity(0) if held else None
+    if held:
+        os.sched_setaffinity(0, {min(allowed)})
+    try:
+        return _cosim_steps(fmu, case, h, n)
+    finally:
+        if held:
+            os.sched_setaffinity(0, allowed)
+
+
+def _cosim_steps(fmu: Path, case: str, h: float, n: int) -> tuple[float, float]:
     from libcosimpy.CosimEnums import CosimVariableType
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
@@ -341,6 +360,7 @@ def measure(case: str, scene_path: Path, fmu: Path, h: float, args) -> dict:
         if h == 1e-3:
             samples.setdefault("c_master", []).append(c_master_run(args.c_master, fmu, case, h, n))
         samples.setdefault("cosim", []).append(cosim_run(fmu, case, h, n))
+        samples.setdefault("cosim_one_core", []).append(cosim_run(fmu, case, h, n, one_core=True))
         for kernel in ("c", "numpy"):
             samples.setdefault(f"direct_{kernel}", []).append(
                 direct_run(scene_path, case, h, n if kernel == "c" else max(1, n // 5), kernel))
@@ -355,6 +375,7 @@ def measure(case: str, scene_path: Path, fmu: Path, h: float, args) -> dict:
         row["c_master_cpu_best_us"] = min(samples["c_master"]) * 1e6
     row["rtf_fmpy"] = h / (row["fmpy_wall_us"] * 1e-6)
     row["rtf_cosim"] = h / (row["cosim_wall_us"] * 1e-6)
+    row["rtf_cosim_one_core"] = h / (row["cosim_one_core_wall_us"] * 1e-6)
     sim = mbdfmu.Simulation(mbdfmu.load_scene(scene_path))
     row["method"] = sim.method_name
     if h == 1e-3:
@@ -366,10 +387,11 @@ def markdown(rows: list[dict], header: str) -> str:
     lines = [header, "",
              "| case | method | h (ms) | cold fmpy: instantiate + 1st doStep (s) | cold libcosim (s) "
              "| fmpy µs/step (RTF) | doStep µs | getReal µs (outputs) | libcosim µs/step (RTF) "
+             "| libcosim on one core µs/step (RTF) "
              "| direct, kernel c µs | direct, numpy µs | fmpy CPU µs per 1 ms, best "
              "| ctypes master CPU µs per 1 ms, best | C master CPU µs per 1 ms, best "
              "| Exudyn CPU µs per 1 ms, best |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
     def cold_text(prefix, r):
         if f"{prefix}_error" in r:
@@ -386,7 +408,9 @@ def markdown(rows: list[dict], header: str) -> str:
             f"| {r['case']} | {r['method']} | {r['step_ms']:g} | {cold_text('cold_fmpy', r)} | "
             f"{cold_text('cold_cosim', r)} | {r['fmpy_wall_us']:.1f} ({r['rtf_fmpy']:.1f}) | "
             f"{r['doStep_wall_us']:.1f} | {r['getReal_wall_us']:.1f} ({r['outputs']}) | "
-            f"{r['cosim_wall_us']:.1f} ({r['rtf_cosim']:.1f}) | {r['direct_c_wall_us']:.1f} | "
+            f"{r['cosim_wall_us']:.1f} ({r['rtf_cosim']:.1f}) | "
+            f"{r['cosim_one_core_wall_us']:.1f} ({r['rtf_cosim_one_core']:.1f}) | "
+            f"{r['direct_c_wall_us']:.1f} | "
             f"{r['direct_numpy_wall_us']:.1f} | {best} | {bare} | {in_c} | {exu} |")
     return "\n".join(lines) + "\n"
 
@@ -397,12 +421,13 @@ def chart(rows: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
     ms = [r for r in rows if r["step_ms"] == 1.0]
     keys = [("fmpy_wall_us", "FMU in fmpy"), ("cosim_wall_us", "FMU in libcosim"),
+            ("cosim_one_core_wall_us", "FMU in libcosim, one core"),
             ("direct_c_wall_us", "solver directly (kernel c)"), ("exudyn_cpu_us", "Exudyn")]
     fig, ax = plt.subplots(figsize=(8, 3.8))
-    width = 0.2
+    width = 0.16
     for k, (key, label) in enumerate(keys):
         values = [r.get(key) if r.get(key) not in ("", None) else np.nan for r in ms]
-        ax.bar(np.arange(len(ms)) + (k - 1.5) * width, values, width, label=label)
+        ax.bar(np.arange(len(ms)) + (k - 2) * width, values, width, label=label)
     ax.axhline(50.0, color="k", lw=0.8, ls="--", label="real-time factor 20 (50 µs)")
     ax.set_xticks(np.arange(len(ms)), [r["case"] for r in ms])
     ax.set_ylabel("µs per 1 ms communication step")
