@@ -25,7 +25,7 @@ import numpy as np
 
 from ..result import Result
 from .ecco_config import FILE_NAME, check_scenario_table, find_bond, write_structure
-from .libcosim_runner import NS, _ns
+from .libcosim_runner import NS, _ns, one_core
 from .scenario import Scenario, check_variables
 from .settings import CosimError
 
@@ -59,6 +59,15 @@ def energy_residual(times, values: dict, bonds: dict) -> np.ndarray:
     out = np.zeros_like(t)
     out[1:] = np.cumsum(np.diff(t) * (power[1:] + power[:-1]) / 2)
     return out
+
+
+def _load(structure: Path):
+    """libcosim's execution of the OspSystemStructure.xml at ``structure``."""
+    from libcosimpy.CosimExecution import CosimExecution, get_last_error_message
+    try:
+        return CosimExecution.from_osp_config_file(str(structure))
+    except AssertionError:
+        raise CosimError(f"libcosim cannot load {structure}: {get_last_error_message()}") from None
 
 
 def _simulate(execution, index, vr, names, t_end, capacity):
@@ -98,7 +107,6 @@ def run_ecco(scenario: Scenario, fmus, step: float | None = None, t_end: float |
     ``step``): libcosim's controller takes its first two steps at it, whatever the
     tolerance, and then changes each step by a factor from ``MIN_CHANGE`` to ``MAX_CHANGE``."""
     from fmpy import read_model_description
-    from libcosimpy.CosimExecution import CosimExecution, get_last_error_message
     from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
 
     h = float(step or scenario.step)
@@ -126,18 +134,17 @@ def run_ecco(scenario: Scenario, fmus, step: float | None = None, t_end: float |
     structure = Path(structure or Path(next(iter(fmus.values()))).parent / FILE_NAME)
     write_structure(scenario, fmus, bond, structure, step=h, params=params, types=types)
     log_output_level(CosimLogLevel.WARNING)
-    try:
-        execution = CosimExecution.from_osp_config_file(str(structure))
-    except AssertionError:
-        raise CosimError(f"libcosim cannot load {structure}: {get_last_error_message()}") from None
-    index = {i.name: execution.slave_index_from_instance_name(i.name) for i in scenario.instances}
     names = list(dict.fromkeys(list(record if record is not None else scenario.recorded())
                                + bond_variables(bonds)))
-    times, columns = _simulate(execution, index, vr, names, t_end,
-                               int(10 * t_end / params["MinimumStepSize"]) + 16)
+    with one_core():        # as run_libcosim: libcosim's worker threads on this core
+        execution = _load(structure)
+        index = {i.name: execution.slave_index_from_instance_name(i.name)
+                 for i in scenario.instances}
+        times, columns = _simulate(execution, index, vr, names, t_end,
+                                   int(10 * t_end / params["MinimumStepSize"]) + 16)
+        del execution
     columns[RESIDUAL] = energy_residual(times, columns, bonds)
     n = len(times)
-    del execution
     out_names = names + [RESIDUAL]
     units = {nm: unit[nm.split(".", 1)[0]].get(nm.split(".", 1)[1], "") for nm in names}
     units[RESIDUAL] = "J"

@@ -7,10 +7,19 @@ inputs start at the upstream outputs of t = 0, as the fmpy master's ``start="exc
 Times are integers in nanoseconds: the step must be a whole number of nanoseconds.
 
 The slaves run in-process (``CosimLocalSlave``): mbdfmu FMUs use the host's Python.
+
+An execution is made and run with the calling thread held to one core (``one_core``):
+libcosim hands every step of every slave to worker threads, which inherit that, and on
+an idle machine a handoff to a thread on another core waits for that core to wake. The
+slaves here are light (a step costs microseconds) and mostly share the host's Python,
+so they gain nothing from a second core and lose that wait at every step
+(docs/performance.md, "libcosim's step on an idle machine").
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +36,21 @@ def _ns(seconds: float, what: str) -> int:
     if ns <= 0 or abs(ns - seconds * NS) > 1e-6 * max(1.0, seconds * NS):
         raise CosimError(f"libcosim counts time in whole nanoseconds: {what} {seconds!r} s is not")
     return ns
+
+
+@contextlib.contextmanager
+def one_core():
+    """The calling thread (and the threads it starts) held to the first core it may use,
+    its affinity given back on leaving; nothing where the platform cannot (not Linux)."""
+    if not hasattr(os, "sched_setaffinity"):
+        yield
+        return
+    allowed = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, {min(allowed)})
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, allowed)
 
 
 def _build_from_description(scenario: Scenario, fmus, h_ns: int, vr: dict, execution=None):
@@ -129,10 +153,11 @@ def run_libcosim(scenario: Scenario, fmus: dict[str, Path], step: float | None =
             for inst, md in descriptions.items()}
     names = list(record if record is not None else scenario.recorded())
     log_output_level(CosimLogLevel.WARNING)  # its debug messages would flood the console
-    execution, index = (_build_from_ssp(scenario, ssp_path, h_ns) if ssp_path is not None
-                        else _build_from_description(scenario, fmus, h_ns, vr))
-    times, values = _record(execution, index, vr, names, n)
-    del execution  # frees the slaves
+    with one_core():
+        execution, index = (_build_from_ssp(scenario, ssp_path, h_ns) if ssp_path is not None
+                            else _build_from_description(scenario, fmus, h_ns, vr))
+        times, values = _record(execution, index, vr, names, n)
+        del execution  # frees the slaves
     return Result(time=times * (1.0 / NS), names=names, values=values,
                   units={nm: unit[nm.split(".", 1)[0]][nm.split(".", 1)[1]] for nm in names},
                   method="libcosim jacobi" + (" (from the SSP)" if ssp_path else ""),
