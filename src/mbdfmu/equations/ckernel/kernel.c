@@ -4,9 +4,10 @@
  *
  *   terms()          constraints.py ConstraintSet._values_numpy (joints.py's three row
  *                    primitives, rows summing weighted terms, formulation.md eqs. 5-7, 24)
- *   forces()         forces.py AppliedForces.__call__ (eq. 12)
+ *   forces()         forces.py AppliedForces.__call__ (eq. 12; a spring's length by sqrt
+ *                    where numpy takes hypot: the same to an ulp)
  *   schur_solve()    sparsity.py JacobianPattern.schur_solve's Cholesky branch (eq. 15),
- *                    the banded factorisation of compiled.py
+ *                    the band factorised as L D L^T (solve.h): the same to round-off
  *   accelerations()  dynamics.py Equations.accelerations (eq. 14)
  *   project_*()      projection.py project_positions / project_velocities (eqs. 18-19)
  *   mbd_rk4p_steps   rk4p.py's step (rk4_step, _project, the next q'') for runs of steps,
