@@ -16,8 +16,8 @@ and with rk4p in place of its scene's dop853p (``VARIANTS``), and P1 (the pendul
   communication step, and the real-time factor (simulated s per wall s); then doStep
   alone and getReal alone, to show each call's cost.
 - warm, libcosimpy: ``execution.step(n)`` with a time-series observer on every output;
-  then the same with the process held to one core while the execution is made (its
-  worker threads inherit that): libcosim's fixed-step algorithm hands every step to a
+  then the same with the thread held to one core while the execution is made (its
+  worker threads inherit that; ``libcosim_runner.one_core``): libcosim's fixed-step algorithm hands every step to a
   worker thread, and on an idle machine with a free core each handoff waits for that
   core's thread to wake, a cost of libcosim's own that one core does not have.
 - direct: ``Simulation.advance`` + ``output_vector`` per communication step, kernel "c"
@@ -240,17 +240,13 @@ def c_master_run(binary: Path, fmu: Path, case: str, h: float, n: int) -> float:
 def cosim_run(fmu: Path, case: str, h: float, n: int, *,
               one_core: bool = False) -> tuple[float, float]:
     """(wall s, CPU s) per communication step of libcosim's ``execution.step``;
-    ``one_core``: the process held to its first allowed core while the execution (and its
-    worker threads) is made and run (Linux; elsewhere as without)."""
-    held = one_core and hasattr(os, "sched_setaffinity")
-    allowed = os.sched_getaffinity(0) if held else None
-    if held:
-        os.sched_setaffinity(0, {min(allowed)})
-    try:
+    ``one_core``: this thread held to one core while the execution (and its worker
+    threads) is made and run, as ``mbdfmu cosim --master libcosim`` runs it."""
+    from mbdfmu.cosim.libcosim_runner import one_core as held_to_one_core
+    if not one_core:
         return _cosim_steps(fmu, case, h, n)
-    finally:
-        if held:
-            os.sched_setaffinity(0, allowed)
+    with held_to_one_core():
+        return _cosim_steps(fmu, case, h, n)
 
 
 def _cosim_steps(fmu: Path, case: str, h: float, n: int) -> tuple[float, float]:

@@ -8,7 +8,6 @@ scenario's ``reference.py``. Runs are kept short (a few hundred steps at most).
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -18,7 +17,7 @@ import pytest
 fmpy = pytest.importorskip("fmpy")
 
 from mbdfmu.cli import main  # noqa: E402
-from mbdfmu.cosim import fmpy_master, libcosim_runner, ssp_runner  # noqa: E402
+from mbdfmu.cosim import fmpy_master, ssp_runner  # noqa: E402
 from mbdfmu.cosim.fmpy_master import run_fmpy  # noqa: E402
 from mbdfmu.cosim.libcosim_runner import run_libcosim  # noqa: E402
 from mbdfmu.cosim.scenario import (SCENARIOS, ScenarioError, check_variables,  # noqa: E402
@@ -166,32 +165,6 @@ def test_cli_runs_a_scenario_in_ecos(tmp_path, capsys):
                  "-o", str(tmp_path)]) == 0
     assert (tmp_path / "dc_motor_slider_crank_ecos_jacobi.csv").is_file()
     assert "max |error| against the reference" in capsys.readouterr().out
-
-
-@pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2,
-                    reason="needs thread affinity and two cores")
-def test_libcosim_runs_on_one_core_and_gives_the_cores_back(built, monkeypatch):
-    """libcosim's worker threads inherit the caller's affinity: the runner holds the thread
-    to one core while the execution is made and run (docs/performance.md, "libcosim's step
-    on an idle machine") and gives every core back afterwards, also when it fails."""
-    scenario, fmus = built("dc_motor_slider_crank")
-    before = os.sched_getaffinity(0)
-    seen = []
-    record = libcosim_runner._record
-
-    def watched(*args, **kwargs):
-        seen.append(os.sched_getaffinity(0))
-        return record(*args, **kwargs)
-    monkeypatch.setattr(libcosim_runner, "_record", watched)
-    run_libcosim(scenario, fmus, step=1e-3, t_end=5e-3)
-    assert seen == [{min(before)}] and os.sched_getaffinity(0) == before
-
-    def failing(*args, **kwargs):
-        raise CosimError("stopped")
-    monkeypatch.setattr(libcosim_runner, "_record", failing)
-    with pytest.raises(CosimError, match="stopped"):
-        run_libcosim(scenario, fmus, step=1e-3, t_end=5e-3)
-    assert os.sched_getaffinity(0) == before
 
 
 def test_the_untouched_ssp_runner_cannot_start_the_crane(built, tmp_path):

@@ -40,13 +40,16 @@ def _ns(seconds: float, what: str) -> int:
 
 @contextlib.contextmanager
 def one_core():
-    """The calling thread (and the threads it starts) held to the first core it may use,
-    its affinity given back on leaving; nothing where the platform cannot (not Linux)."""
+    """The calling thread (and the threads it starts) held to one of the cores it may use,
+    its affinity given back on leaving; nothing where the platform cannot (not Linux).
+    The core is chosen by the process id, so runs in parallel processes spread over the
+    cores instead of sharing the first."""
     if not hasattr(os, "sched_setaffinity"):
         yield
         return
     allowed = os.sched_getaffinity(0)
-    os.sched_setaffinity(0, {min(allowed)})
+    cores = sorted(allowed)
+    os.sched_setaffinity(0, {cores[os.getpid() % len(cores)]})
     try:
         yield
     finally:
