@@ -17,7 +17,7 @@ and with rk4p in place of its scene's dop853p (``VARIANTS``), and P1 (the pendul
   alone and getReal alone, to show each call's cost.
 - warm, libcosimpy: ``execution.step(n)`` with a time-series observer on every output;
   then the same with the thread held to one core while the execution is made (its
-  worker threads inherit that; ``libcosim_runner.one_core``): libcosim's fixed-step algorithm hands every step to a
+  worker threads inherit that; ``mbdfmu.cosim.threads.one_core``): libcosim's fixed-step algorithm hands every step to a
   worker thread, and on an idle machine with a free core each handoff waits for that
   core's thread to wake, a cost of libcosim's own that one core does not have.
 - direct: ``Simulation.advance`` + ``output_vector`` per communication step, kernel "c"
@@ -242,7 +242,7 @@ def cosim_run(fmu: Path, case: str, h: float, n: int, *,
     """(wall s, CPU s) per communication step of libcosim's ``execution.step``;
     ``one_core``: this thread held to one core while the execution (and its worker
     threads) is made and run, as ``mbdfmu cosim --master libcosim`` runs it."""
-    from mbdfmu.cosim.libcosim_runner import one_core as held_to_one_core
+    from mbdfmu.cosim.threads import one_core as held_to_one_core
     if not one_core:
         return _cosim_steps(fmu, case, h, n)
     with held_to_one_core():

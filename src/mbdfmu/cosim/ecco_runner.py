@@ -25,9 +25,10 @@ import numpy as np
 
 from ..result import Result
 from .ecco_config import FILE_NAME, check_scenario_table, find_bond, write_structure
-from .libcosim_runner import NS, _ns, one_core
+from .libcosim_runner import NS, _ns
 from .scenario import Scenario, check_variables
 from .settings import CosimError
+from .threads import one_core
 
 # ECCO's tolerances on the bond's energy residual (J), its step limits (relative to the
 # initial step h) and the bounds of one step change (the PI controller's gain).

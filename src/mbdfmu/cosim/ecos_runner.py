@@ -29,6 +29,7 @@ from ..result import Result
 from .scenario import Scenario
 from .settings import CosimError, fixed_steps
 from .ssp_runner import PARAMETER_SET, export_ssp
+from .threads import one_core
 
 
 def _ecospy():
@@ -59,6 +60,28 @@ def _read(simulation, names: list[str]) -> list[float]:
     return row
 
 
+def _run(EcosSimulation, path: Path, h: float, n: int, identifiers) -> list[list[float]]:
+    """Load the SSP file in Ecos, initialize with the start values, take n steps of h; the
+    rows of ``identifiers`` at t = 0, h, ..., n h."""
+    try:
+        simulation = EcosSimulation(ssp_path=str(path), step_size=h)
+    except Exception as exc:  # noqa: BLE001
+        raise CosimError(f"Ecos cannot load {path}: {exc}") from None
+    try:
+        if simulation.init(parameter_set=PARAMETER_SET) is False:
+            raise CosimError(f"Ecos could not initialize {path}")
+        rows = [_read(simulation, identifiers)]
+        for k in range(1, n + 1):
+            simulation.step(1)
+            if abs(simulation.get_time() - k * h) > 1e-9 * max(1.0, k * h):
+                raise CosimError("Ecos stopped stepping (an FMU refused a step)", t=(k - 1) * h)
+            rows.append(_read(simulation, identifiers))
+        simulation.terminate()
+    finally:
+        simulation.free()
+    return rows
+
+
 def run_ecos(scenario: Scenario, fmus: dict[str, Path], ssp_path: str | Path,
              step: float | None = None, t_end: float | None = None,
              record: list[str] | None = None, algorithm: str | None = None) -> Result:
@@ -70,23 +93,8 @@ def run_ecos(scenario: Scenario, fmus: dict[str, Path], ssp_path: str | Path,
     h, t_end, n = fixed_steps(scenario, step, t_end, algorithm, "Ecos' fixed-step algorithm")
     names = list(record if record is not None else scenario.recorded())
     path = export_ssp(scenario, fmus, ssp_path, h, t_end, names)
-    try:
-        simulation = EcosSimulation(ssp_path=str(path), step_size=h)
-    except Exception as exc:  # noqa: BLE001
-        raise CosimError(f"Ecos cannot load {path}: {exc}") from None
-    try:
-        if simulation.init(parameter_set=PARAMETER_SET) is False:
-            raise CosimError(f"Ecos could not initialize {path}")
-        identifiers = _identifiers(scenario, names)
-        rows = [_read(simulation, identifiers)]
-        for k in range(1, n + 1):
-            simulation.step(1)
-            if abs(simulation.get_time() - k * h) > 1e-9 * max(1.0, k * h):
-                raise CosimError("Ecos stopped stepping (an FMU refused a step)", t=(k - 1) * h)
-            rows.append(_read(simulation, identifiers))
-        simulation.terminate()
-    finally:
-        simulation.free()
+    with one_core():        # Ecos' TBB threads on this core (threads.py)
+        rows = _run(EcosSimulation, path, h, n, _identifiers(scenario, names))
     units = {}
     for inst in scenario.instances:
         md = read_model_description(str(fmus[inst.name]))

@@ -8,25 +8,20 @@ Times are integers in nanoseconds: the step must be a whole number of nanosecond
 
 The slaves run in-process (``CosimLocalSlave``): mbdfmu FMUs use the host's Python.
 
-An execution is made and run with the calling thread held to one core (``one_core``):
-libcosim hands every step of every slave to worker threads, which inherit that, and on
-an idle machine a handoff to a thread on another core waits for that core to wake. The
-slaves here are light (a step costs microseconds) and mostly share the host's Python,
-so they gain nothing from a second core and lose that wait at every step
-(docs/performance.md, "libcosim's step on an idle machine").
+An execution is made and run with the calling thread held to one core
+(``threads.one_core``): libcosim's worker threads inherit that.
 """
 
 from __future__ import annotations
 
-import contextlib
-import os
 from pathlib import Path
 
 import numpy as np
 
 from ..result import Result
-from .settings import CosimError, fixed_steps
 from .scenario import Scenario, check_variables
+from .settings import CosimError, fixed_steps
+from .threads import one_core
 
 NS = 1_000_000_000
 
@@ -36,24 +31,6 @@ def _ns(seconds: float, what: str) -> int:
     if ns <= 0 or abs(ns - seconds * NS) > 1e-6 * max(1.0, seconds * NS):
         raise CosimError(f"libcosim counts time in whole nanoseconds: {what} {seconds!r} s is not")
     return ns
-
-
-@contextlib.contextmanager
-def one_core():
-    """The calling thread (and the threads it starts) held to one of the cores it may use,
-    its affinity given back on leaving; nothing where the platform cannot (not Linux).
-    The core is chosen by the process id, so runs in parallel processes spread over the
-    cores instead of sharing the first."""
-    if not hasattr(os, "sched_setaffinity"):
-        yield
-        return
-    allowed = os.sched_getaffinity(0)
-    cores = sorted(allowed)
-    os.sched_setaffinity(0, {cores[os.getpid() % len(cores)]})
-    try:
-        yield
-    finally:
-        os.sched_setaffinity(0, allowed)
 
 
 def _build_from_description(scenario: Scenario, fmus, h_ns: int, vr: dict, execution=None):
