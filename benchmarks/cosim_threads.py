@@ -110,11 +110,18 @@ def main(argv=None) -> int:
         return 0
     if args.repeat < 1:
         parser.error("--repeat must be at least 1")
+    from mbdfmu.errors import MbdfmuError
     rows = []
     with tempfile.TemporaryDirectory() as work_dir:
         for scenario in args.scenarios.split(","):
             for master in MASTERS:
-                rows.append(measure(scenario, master, args.repeat, work_dir))
+                try:
+                    rows.append(measure(scenario, master, args.repeat, work_dir))
+                except (MbdfmuError, subprocess.CalledProcessError) as exc:
+                    why = exc.stderr.strip().splitlines()[-1] if isinstance(
+                        exc, subprocess.CalledProcessError) and exc.stderr else exc
+                    print(f"cosim_threads: {scenario} in {master}: {why}", file=sys.stderr)
+                    return 1
     text = markdown(rows, args.repeat)
     print(text)
     out = Path(args.output)
