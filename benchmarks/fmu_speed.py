@@ -17,9 +17,10 @@ and with rk4p in place of its scene's dop853p (``VARIANTS``), and P1 (the pendul
   alone and getReal alone, to show each call's cost.
 - warm, libcosimpy: ``execution.step(n)`` with a time-series observer on every output;
   then the same with the thread held to one core while the execution is made (its
-  worker threads inherit that; ``mbdfmu.cosim.threads.one_core``): libcosim's fixed-step algorithm hands every step to a
-  worker thread, and on an idle machine with a free core each handoff waits for that
-  core's thread to wake, a cost of libcosim's own that one core does not have.
+  worker threads inherit that; ``mbdfmu.cosim.threads.one_core``): libcosim's fixed-step
+  algorithm hands every step to a worker thread, and on an idle machine with a free core
+  each handoff waits for that core's thread to wake, a cost of libcosim's own that one
+  core does not have.
 - direct: ``Simulation.advance`` + ``output_vector`` per communication step, kernel "c"
   (the FMU's) and "numpy" (what FMUs ran before).
 - Exudyn (every case, ``exudyn_compare.exudyn_model``): CPU time per 1 ms step of
@@ -47,6 +48,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import contextlib  # noqa: E402
 import csv  # noqa: E402
 import ctypes  # noqa: E402
 import json  # noqa: E402
@@ -243,9 +245,7 @@ def cosim_run(fmu: Path, case: str, h: float, n: int, *,
     ``one_core``: this thread held to one core while the execution (and its worker
     threads) is made and run, as ``mbdfmu cosim --master libcosim`` runs it."""
     from mbdfmu.cosim.threads import one_core as held_to_one_core
-    if not one_core:
-        return _cosim_steps(fmu, case, h, n)
-    with held_to_one_core():
+    with held_to_one_core() if one_core else contextlib.nullcontext():
         return _cosim_steps(fmu, case, h, n)
 
 
