@@ -143,13 +143,18 @@ def test_auto_switches_to_genalpha_when_stability_holds_dop853p(reference_rtol):
     reference = alone if reference_rtol is None else mbdfmu.simulate(
         stiff_pendulum(), t_end, output_interval=t_end / 20, method="dop853p",
         rtol=reference_rtol)
-    assert alone.method == "dop853p" and res.method == "auto->dop853p->genalpha"
-    (t, old, new, why), = res.switches
+    assert alone.method == "dop853p" and res.method.startswith("auto->dop853p->genalpha")
+    (t, old, new, why), *later = res.switches
     assert 0.0 < t < 0.05 and "Hairer" in why
+    # a switch early in the stretch's decay hands genalpha a large stiff acceleration, and
+    # its step-doubling estimate may then call on ali3p, with the reason
+    assert all(to == "ali3p" and "estimated error" in reason for _, _, to, reason in later)
     err = np.hypot(res["bob.x"] - reference["bob.x"], res["bob.y"] - reference["bob.y"])
     assert err.max() < 10 * 1e-6
-    work = res.stats["nsteps"] + res.stats["nrejected"]
-    assert work < 0.5 * (alone.stats["nsteps"] + alone.stats["nrejected"])
+    # work in evaluations of the equations (of eq. (14), or of the residual in a Newton
+    # iteration), since an implicit step and an explicit one are not the same work
+    work = res.stats["naccel"] + res.stats["nnewton"]
+    assert work < 0.5 * alone.stats["naccel"]
 
 
 def test_cli_says_when_auto_switched(tmp_path, capsys):

@@ -8,6 +8,14 @@ change the run at all. Otherwise it lands on the output time with a step cut sho
 equal steps instead of a tiny last one, and then goes on with the step size its
 controller proposed before the cut (the cut says nothing about the next step), as
 SUNDIALS' ``tstop`` and the "tstops" of DifferentialEquations.jl do.
+
+The embedded pairs' step control is a PI controller (Gustafsson 1991; the "stabilised"
+control of Hairer's DOPRI5 and DOP853 codes, Solving ODEs I sec. IV.2): the factor of an
+accepted step is safety err^-alpha err_old^beta, with err_old the error of the last step
+whose proposal the loop kept. It damps the growth that otherwise runs into a rejection
+where the error rises step after step; beta = 0 is the I controller. A step cut short to
+land on an output time keeps neither its proposal nor its error, for the same reason as
+above.
 """
 
 from __future__ import annotations
@@ -23,6 +31,22 @@ LAND_STRETCH = 1.01
 # ... and when less than this factor of the proposed step would be left after a full step,
 # the rest is taken as two equal steps (no tiny last step).
 LAND_SPLIT = 1.5
+# The PI controller's memory starts at this error (Hairer's FACOLD) and never goes below it.
+ERR_OLD_MIN = 1e-4
+
+
+def accepted_step(h: float, err: float, err_old: float, alpha: float, beta: float,
+                  safety: float, max_factor: float) -> float:
+    """The step proposed after an accepted step of size h with error norm err (PI)."""
+    if err == 0:
+        return h * max_factor
+    return h * min(max_factor, safety * err ** -alpha * err_old ** beta)
+
+
+def rejected_step(h: float, err: float, alpha: float, safety: float,
+                  min_factor: float) -> float:
+    """The step to retry with after a step of size h rejected with error norm err."""
+    return h * max(min_factor, safety * err ** -alpha)
 
 
 class AdaptiveStepping:
@@ -66,7 +90,10 @@ class AdaptiveStepping:
                 self.stats.nsteps += 1
                 self.t = t_target if lands else self.t + h
                 # a step cut short (to land, or by the plan) says nothing about the next one
-                self.h = proposal if (h < proposal and h_next >= h) else h_next
+                cut = h < proposal and h_next >= h
+                self.h = proposal if cut else h_next
+                if not cut:
+                    self._error_kept()
                 self._after_step()
             else:
                 rejections += 1
@@ -78,6 +105,9 @@ class AdaptiveStepping:
                 self.limit.check(self.stats, self.t, t_target)
         if self.t > t_target:
             self.out = self._output_at(t_target)   # from dense output
+
+    def _error_kept(self) -> None:
+        """The accepted step's error becomes the controller's memory (PI controllers)."""
 
     def _step_size_failed(self):
         raise SolverError(f"{self.name}: step size fell to {self.h:.3g} s without meeting "

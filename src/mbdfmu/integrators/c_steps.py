@@ -20,6 +20,7 @@ from ..equations.ckernel.adaptive import RUN_ENERGY, RUN_FAILED, RUN_PYTHON  # n
 from ..equations.ckernel.adaptive import prk_run as ckernel_prk_run
 from ..equations.projection import PROJECTION_MAX_ITER
 from . import singular_zone
+from .adaptive import accepted_step, rejected_step
 from .base import STEP_COUNT_SLACK, Integrator
 from .dense_output import DenseStep
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF, ENERGY_STEP_FACTOR
@@ -163,20 +164,20 @@ def prk_attempt(rk, h: float, c0: float, safety: float, min_factor: float,
     y = np.concatenate((rk.q, rk.qd))
     K = rk.equations.ckernel.buf.K[:(ns + 1) * 2 * n].reshape(ns + 1, 2 * n).copy()
     y_end = y + h * (K[:-1].T @ rk.B)           # the step's end before the projection
-    exponent = -1.0 / (rk.order + 1)
     rk.stats.naccel += ns
     if status == ckernel.NOT_FINITE:
         return False, h * min_factor, None
     if status == ckernel.ERROR_NORM:
-        return False, h * max(min_factor, safety * err ** exponent), None
+        return False, rejected_step(h, err, rk.alpha, safety, min_factor), None
     rk.stats.nprojections += 1
     q, qd = y_new[:n], y_new[n:]
     rejected = rk._energy_rejects(t + h, q, qd, h)
     if rejected is not None:
         return False, rejected, None
     rk.stats.naccel += 1
-    factor = max_factor if err == 0 else min(max_factor, safety * err ** exponent)
-    return True, h * factor, (q, qd, f_new, c1, DenseStep(t, h, y, y_end, K))
+    rk.err_step = err
+    return True, accepted_step(h, err, rk.err_old, rk.alpha, rk.beta, safety, max_factor), \
+        (q, qd, f_new, c1, DenseStep(t, h, y, y_end, K))
 
 
 def decide(rk, h, status, err, y_new, f_new, safety, min_factor, max_factor,
@@ -187,11 +188,10 @@ def decide(rk, h, status, err, y_new, f_new, safety, min_factor, max_factor,
     t, n = rk.t, rk.q.size
     rk.trial_status = status
     rk.stats.naccel += rk.n_stages
-    exponent = -1.0 / (rk.order + 1)
     if status == ckernel.NOT_FINITE:
         return False, h * min_factor
     if status == ckernel.ERROR_NORM:
-        return False, h * max(min_factor, safety * err ** exponent)
+        return False, rejected_step(h, err, rk.alpha, safety, min_factor)
     if status == ckernel.PROJECTION:
         return False, h * 0.5
     rk.stats.nprojections += 1
@@ -201,10 +201,11 @@ def decide(rk, h, status, err, y_new, f_new, safety, min_factor, max_factor,
         last, rk.energy_rejected = rk.energy_rejected, None
         if not energy_err <= 1.0 and (last is None or energy_err < energy_min_gain * last):
             rk.energy_rejected = energy_err
-            return False, h * max(min_factor, safety * energy_err ** exponent)
+            return False, rejected_step(h, energy_err, rk.alpha, safety, min_factor)
     rk.q, rk.qd, rk.f = q, qd, f_new
     rk.stats.naccel += 0 if end_evaluated else 1
-    return True, h * (max_factor if err == 0 else min(max_factor, safety * err ** exponent))
+    rk.err_step = err
+    return True, accepted_step(h, err, rk.err_old, rk.alpha, rk.beta, safety, max_factor)
 
 
 def mc_step(rk, h: float, safety: float, min_factor: float, max_factor: float,
@@ -292,10 +293,10 @@ def fast_prk_run(rk, limit, time_tol: float, factors: tuple,
     if max_work is None:
         return None
     return dict(t_now=rk.t, time_tol=time_tol, h=rk.h, max_step=rk.max_step,
-                exponent=-1.0 / (rk.order + 1), safety=factors[0], min_factor=factors[1],
-                max_factor=factors[2], rtol=rk.local_tolerance * rk.rtol,
-                atol=rk.local_tolerance * rk.atol, tol=rk._projection_tol(),
-                max_iter=PROJECTION_MAX_ITER, indicator=rk.zone.indicator,
+                exponent=-rk.alpha, safety=factors[0], min_factor=factors[1],
+                max_factor=factors[2], beta=rk.beta, err_old=rk.err_old,
+                rtol=rk.local_tolerance * rk.rtol, atol=rk.local_tolerance * rk.atol,
+                tol=rk._projection_tol(), max_iter=PROJECTION_MAX_ITER, indicator=rk.zone.indicator,
                 landing=int(rk.zone.landing), max_work=max_work, stiff_limit=stiff_limit or 0.0,
                 y=np.concatenate((rk.q, rk.qd)), f=rk.f)
 
@@ -307,6 +308,7 @@ def adopt_prk_run(rk, state: dict) -> None:
     n = rk.q.size
     y = state["y"]
     rk.q, rk.qd, rk.f, rk.t, rk.h = y[:n].copy(), y[n:].copy(), state["f"], state["t"], state["h"]
+    rk.err_old = state["err_old"]
     rk.out = rk.dense = rk.energy_rejected = None
     rk.zone.indicator, rk.zone.crossing, rk.zone.landing = state["indicator"], False, \
         state["landing"]
@@ -348,8 +350,8 @@ def prk_run(rk, t_target: float, dense: bool, rejections: int, factors: tuple,
     if rk.limit is not None and rk.limit.max_steps is not None:
         used = rk.stats.nsteps + rk.stats.nrejected - rk.limit.first
         attempts = max(1, min(attempts, rk.limit.max_steps - used))
-    run = dict(h=rk.h, max_step=rk.max_step, exponent=-1.0 / (rk.order + 1),
-               safety=factors[0], min_factor=factors[1], max_factor=factors[2],
+    run = dict(h=rk.h, max_step=rk.max_step, exponent=-rk.alpha, safety=factors[0],
+               min_factor=factors[1], max_factor=factors[2], beta=rk.beta, err_old=rk.err_old,
                rtol=rk.local_tolerance * rk.rtol, atol=rk.local_tolerance * rk.atol,
                tol=rk._projection_tol(), max_iter=PROJECTION_MAX_ITER,
                indicator=rk.zone.indicator, landing=int(rk.zone.landing), max_work=attempts)
@@ -371,7 +373,7 @@ def prk_run(rk, t_target: float, dense: bool, rejections: int, factors: tuple,
         if status == RUN_ENERGY:               # _after_step checks this state again
             rk.audit.checks -= 1
     rk.energy_rejected = None if np.isnan(p.energy_rejected) else float(p.energy_rejected)
-    rk.h, rk.zone.indicator = float(r.h), float(r.indicator)
+    rk.h, rk.zone.indicator, rk.err_old = float(r.h), float(r.indicator), float(r.err_old)
     rk.zone.crossing, rk.zone.landing = False, bool(r.landing)
     if p.stepped:
         rk.t = float(p.t)

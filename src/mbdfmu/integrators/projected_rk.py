@@ -35,13 +35,17 @@ from ..equations.projection import PROJECTION_MAX_ITER, project_positions, proje
 from ..equations.sparsity import schur_solve
 from ..errors import SolverError
 from . import c_steps, dense_output, singular_zone
-from .adaptive import AdaptiveStepping
+from .adaptive import ERR_OLD_MIN, AdaptiveStepping, accepted_step, rejected_step
 from .base import Integrator, OutputPoint
 from .energy_audit import ENERGY_STEP_FACTOR, ENERGY_TOL_FACTOR
 
 SAFETY = 0.9       # Multiply the optimal step by this, to be likely accepted.
 MIN_FACTOR = 0.2   # Minimum allowed decrease of the step after a rejection.
 MAX_FACTOR = 10.0  # Maximum allowed increase of the step after an acceptance.
+# The PI controller's beta (adaptive.py), Hairer's stabilisation parameter: his DOPRI5
+# code's default; his DOP853 code defaults to 0 (the I controller), but with 0.04 dop853p
+# takes fewer evaluations for the same error on the bench's long runs (docs/performance.md).
+PI_BETA = 0.04
 # Projection tolerance, relative to atol and to the mechanism's size, with a floor near
 # rounding so that Newton always converges; atol above PROJECTION_ATOL_MAX (a loose
 # fixed-step accuracy) does not loosen it: a loose projection near a singular configuration
@@ -85,7 +89,11 @@ class ProjectedRK(AdaptiveStepping, Integrator):
     dense_output = True
     local_tolerance = 1e-2   # the step control's target, times rtol and atol, per step
     interpolant: str | None = None     # dense output: a key of ckernel.DENSE_KINDS
-    state_fields = ("f", "energy_rejected", "dense", "zone")
+    state_fields = ("f", "energy_rejected", "dense", "zone", "err_old")
+    beta = PI_BETA
+    alpha: float          # the PI controller's exponent of the error (Hairer's)
+    err_old = ERR_OLD_MIN   # the controller's memory: the last kept accepted step's error
+    err_step = 0.0        # the error of the step just accepted
     A: np.ndarray
     B: np.ndarray
     C: np.ndarray
@@ -100,6 +108,10 @@ class ProjectedRK(AdaptiveStepping, Integrator):
         self.zone.indicator = singular_zone.indicator(self, self.t, self.q)
         if self.h is None:
             self.h = self._initial_step()
+            self.err_old = ERR_OLD_MIN
+
+    def _error_kept(self):
+        self.err_old = max(self.err_step, ERR_OLD_MIN)
 
     def _rhs(self, t, q, qd):
         qdd, _ = self.accelerations(t, q, qd)
@@ -211,7 +223,7 @@ class ProjectedRK(AdaptiveStepping, Integrator):
         err = self._error_norm(K, h, self._scale(y, y_new),
                                self._tangent(t_new, y_new[:n]) if near else None)
         if not err < 1.0:
-            return False, h * max(MIN_FACTOR, SAFETY * err ** (-1.0 / (self.order + 1))), None
+            return False, rejected_step(h, err, self.alpha, SAFETY, MIN_FACTOR), None
         try:
             q, qd = self._project(t_new, y_new)
         except SolverError:
@@ -220,9 +232,10 @@ class ProjectedRK(AdaptiveStepping, Integrator):
         if rejected is not None:
             return False, rejected, None
         f = self._rhs(t_new, q, qd)
-        factor = MAX_FACTOR if err == 0 else min(MAX_FACTOR, SAFETY * err ** (-1.0 / (self.order + 1)))
         dense = dense_output.DenseStep(t, h, y, y_new, K)
-        return True, h * factor, (q, qd, f, c1, dense)
+        self.err_step = err
+        return True, accepted_step(h, err, self.err_old, self.alpha, self.beta, SAFETY,
+                                   MAX_FACTOR), (q, qd, f, c1, dense)
 
     def _energy_rejects(self, t_new, q, qd, h) -> float | None:
         """The step's energy change as a second error estimate: None to accept, else the
@@ -235,7 +248,7 @@ class ProjectedRK(AdaptiveStepping, Integrator):
             return None
         if last is None or energy_err < ENERGY_MIN_GAIN * last:
             self.energy_rejected = energy_err
-            return h * max(MIN_FACTOR, SAFETY * energy_err ** (-1.0 / (self.order + 1)))
+            return rejected_step(h, energy_err, self.alpha, SAFETY, MIN_FACTOR)
         if energy_err <= ENERGY_JUMP_LIMIT:
             return None
         jump = abs(self.equations.total_energy(q, qd) - self.audit.last_energy)
@@ -296,6 +309,11 @@ class RK45P(ProjectedRK):
     name = "rk45p"
     summary = "index-1, Dormand-Prince 5(4), adaptive, mass-weighted coordinate projection"
     A, B, C, E, P, n_stages, order = RK45.A, RK45.B, RK45.C, RK45.E, RK45.P, RK45.n_stages, 4
+    # the I controller: with PI_BETA and Hairer's DOPRI5 alpha, more evaluations for the
+    # same error at tight tolerances, and P2 N = 2 stopping at rtol 1e-8 next to a
+    # singular crossing (docs/performance.md)
+    beta = 0.0
+    alpha = 1.0 / (order + 1)
     interpolant = "rk45"
 
     def _error_norm(self, K, h, scale, tangent=None):
@@ -317,6 +335,7 @@ class DOP853P(ProjectedRK):
     name = "dop853p"
     summary = "index-1, Dormand-Prince 8(5,3), adaptive, mass-weighted coordinate projection"
     A, B, C, n_stages, order = DOP853.A, DOP853.B, DOP853.C, DOP853.n_stages, 7
+    alpha = 1.0 / (order + 1) - 0.2 * PI_BETA       # Hairer's DOP853
     E3, E5 = DOP853.E3, DOP853.E5
     interpolant = "dop853"
 

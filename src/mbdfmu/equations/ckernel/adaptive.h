@@ -22,12 +22,14 @@
 #define MAX_REJECTIONS_IN_A_ROW 60
 #define LAND_STRETCH 1.01
 #define LAND_SPLIT 1.5
+#define ERR_OLD_MIN 1e-4              /* adaptive.py */
 
 typedef struct {
     double t_now, time_tol;
     double h, max_step;            /* Integrator.h (the controller's proposal), max_step */
     I ns; const double *A, *B, *E, *E3;   /* the pair (c_steps.tableau) */
-    double exponent, safety, min_factor, max_factor;
+    double exponent, safety, min_factor, max_factor;   /* exponent: -alpha */
+    double beta, err_old;          /* the PI controller's (adaptive.py), its memory */
     double rtol, atol;             /* local_tolerance times the method's */
     double tol; I max_iter;        /* the projection after a step */
     double indicator;              /* zone.indicator at t_now */
@@ -85,10 +87,18 @@ static double landing_step(double proposal, double remaining, I *lands) {
     return proposal;
 }
 
+/* adaptive.accepted_step: the PI controller's step after an accepted one */
+static double accepted_step(const PrkRun *r, double hh, double err, double err_old) {
+    if (err == 0.0) return hh * r->max_factor;
+    return hh * fmin(r->max_factor, r->safety * pow(err, r->exponent) * pow(err_old, r->beta));
+}
+
 /* One trial step from (y, f) (prk_attempt): 1 accepted, 0 rejected, -1 Python's case;
- * *h_next the controller's next step, *c1 the indicator at the step's end. */
+ * err_old the PI controller's memory, *h_next its next step, *c1 the indicator at the
+ * step's end, *err_out the error norm. */
 static int prk_try(const Model *M, PrkRun *r, Scratch *s, const double *y, const double *f,
-                   double hh, double *h_next, double *c1, I *naccel, I *nproj) {
+                   double hh, double err_old, double *h_next, double *c1, double *err_out,
+                   I *naccel, I *nproj) {
     I ns = r->ns;
     double err = 0.0;
     int kept = 0;
@@ -107,7 +117,8 @@ static int prk_try(const Model *M, PrkRun *r, Scratch *s, const double *y, const
     }
     *nproj += 1;
     *naccel += 1;
-    *h_next = hh * (err == 0.0 ? r->max_factor : fmin(r->max_factor, r->safety * pow(err, r->exponent)));
+    *h_next = accepted_step(r, hh, err, err_old);
+    *err_out = err;
     s->kept = kept;         /* the trial's scratch is this one: keep what a restart needs */
     keep_end(M, r->kept, r->y_new, r->motions + ns * 3 * M->m, s);
     return 1;
@@ -117,7 +128,7 @@ static int prk_try(const Model *M, PrkRun *r, Scratch *s, const double *y, const
 int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *values) {
     I n = M->n, n2 = 2 * n, m = M->m, nf = M->nf;
     if (!(fabs(t - r->t_now) <= r->time_tol * fmax(fabs(t), fabs(r->t_now)))) return ST_ERROR_NORM;
-    double end = t + hc, tt = r->t_now, h_ctl = r->h, c0 = r->indicator;
+    double end = t + hc, tt = r->t_now, h_ctl = r->h, c0 = r->indicator, err_old = r->err_old;
     if (!(end > tt)) return ST_ERROR_NORM;
     double *y = r->y1, *f = r->f1;
     I naccel = 0, nsteps = 0, nrej = 0, nproj = 0, landing = r->landing, rejections = 0;
@@ -143,11 +154,11 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
     while (tt < end) {
         if (nsteps + nrej >= r->max_work) return ST_ERROR_NORM;      /* the work limit */
         double h_min = MIN_STEP_RELATIVE * fmax(1.0, fabs(tt));
-        double proposal = fmin(h_ctl, r->max_step), h_next = 0.0, c1 = 0.0;
+        double proposal = fmin(h_ctl, r->max_step), h_next = 0.0, c1 = 0.0, err = 0.0;
         I lands;
         double hh = landing_step(proposal, end - tt, &lands);
         if (!(c0 >= NEAR_ZONE)) return ST_SINGULAR;        /* singular_zone.plan's case */
-        int ok = prk_try(M, r, &s, y, f, hh, &h_next, &c1, &naccel, &nproj);
+        int ok = prk_try(M, r, &s, y, f, hh, err_old, &h_next, &c1, &err, &naccel, &nproj);
         if (ok < 0) return ST_SINGULAR;
         if (ok && r->stiff_limit > 0.0 &&
                 mbd_stiff_h_lambda(r->ns, r->A, r->B, n2, r->K, y, hh) > r->stiff_limit)
@@ -160,7 +171,9 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
             c0 = c1;
             landing = lands;
             tt = lands ? end : tt + hh;
-            h_ctl = (hh < proposal && h_next >= hh) ? proposal : h_next;
+            int cut = hh < proposal && h_next >= hh;
+            h_ctl = cut ? proposal : h_next;
+            if (!cut) err_old = fmax(err, ERR_OLD_MIN);
         } else {
             rejections++;
             nrej++;
@@ -176,6 +189,7 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
     memcpy(r->f, f, (size_t)n2 * sizeof(double));
     r->t_now = end;
     r->h = h_ctl;
+    r->err_old = err_old;
     r->indicator = c0;
     r->landing = landing;
     r->changed = 0;
@@ -270,9 +284,11 @@ static double zone_plan(const Model *M, PrkPy *p, const double *y, double h, dou
 
 /* prk_try with the trial that also works next to a singular configuration (the error
  * estimate along the constraints there: c_steps.prk_attempt): 1 accepted, 0 rejected, -1
- * a case the kernel hands back; *c1 the indicator at the step's end. */
+ * a case the kernel hands back; *c1 the indicator at the step's end, *err_out the error
+ * norm. */
 static int near_try(const Model *M, PrkRun *r, Scratch *s, const double *y, const double *f,
-                    double hh, double *h_next, double *c1, I *naccel, I *nproj) {
+                    double hh, double *h_next, double *c1, double *err_out, I *naccel,
+                    I *nproj) {
     I n2 = 2 * M->n, ns = r->ns;
     double err = 0.0;
     int st = prk_trial(M, ns, r->A, r->B, r->E, r->E3, hh, y, f, r->motions, r->ufs, r->rtol,
@@ -289,7 +305,8 @@ static int near_try(const Model *M, PrkRun *r, Scratch *s, const double *y, cons
     }
     *nproj += 1;
     *naccel += 1;
-    *h_next = hh * (err == 0.0 ? r->max_factor : fmin(r->max_factor, r->safety * pow(err, r->exponent)));
+    *h_next = accepted_step(r, hh, err, r->err_old);
+    *err_out = err;
     return 1;
 }
 
@@ -344,6 +361,7 @@ int mbd_prk_run(const Model *M, PrkPy *p) {
         if (attempts >= r->max_work) return RUN_WORK;
         double h_min = MIN_STEP_RELATIVE * fmax(1.0, fabs(p->t));
         double proposal = fmin(r->h, r->max_step), h_next = 0.0, c1 = 0.0, hh = proposal;
+        double err = 0.0;
         I lands = 0, naccel = 0, nproj = 0;
         int crossing = 0;
         if (!p->dense) hh = landing_step(proposal, p->t_target - p->t, &lands);
@@ -351,7 +369,7 @@ int mbd_prk_run(const Model *M, PrkPy *p) {
         double planned = zone_plan(M, p, y, hh, proposal, &crossing), c0 = r->indicator;
         lands = lands && planned == hh;
         hh = planned;
-        int ok = near_try(M, r, &s, y, f, hh, &h_next, &c1, &naccel, &nproj);
+        int ok = near_try(M, r, &s, y, f, hh, &h_next, &c1, &err, &naccel, &nproj);
         if (ok < 0) return RUN_PYTHON;
         if (ok > 0) {
             int e = energy_decides(M, p, r->y_new, hh, &h_next);
@@ -385,7 +403,9 @@ int mbd_prk_run(const Model *M, PrkPy *p) {
         memcpy(f, r->f_new, (size_t)n2 * sizeof(double));
         r->indicator = c1;
         p->t = lands ? p->t_target : p->t + hh;
-        r->h = (hh < proposal && h_next >= hh) ? proposal : h_next;
+        int cut = hh < proposal && h_next >= hh;
+        r->h = cut ? proposal : h_next;
+        if (!cut) r->err_old = fmax(err, ERR_OLD_MIN);
         if (p->audit && p->audit[A_ACTIVE] != 0.0 &&
                 !energy_check(M, y, y + n, p->audit, p->divergence, p->roundoff))
             return RUN_ENERGY;

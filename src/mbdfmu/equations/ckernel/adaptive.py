@@ -23,8 +23,8 @@ class PrkRun(ctypes.Structure):
 
     _fields_ = [("t_now", _D), ("time_tol", _D), ("h", _D), ("max_step", _D), ("ns", _I),
                 ("A", _P), ("B", _P), ("E", _P), ("E3", _P), ("exponent", _D), ("safety", _D),
-                ("min_factor", _D), ("max_factor", _D), ("rtol", _D), ("atol", _D),
-                ("tol", _D), ("max_iter", _I), ("indicator", _D),
+                ("min_factor", _D), ("max_factor", _D), ("beta", _D), ("err_old", _D),
+                ("rtol", _D), ("atol", _D), ("tol", _D), ("max_iter", _I), ("indicator", _D),
                 ("landing", _I), ("max_work", _I), ("motion", _P), ("motions", _P),
                 ("ufs", _P), ("uf", _P), ("nvr", _I), ("vrs", _P), ("slots", _P), ("set", _P),
                 ("changed", _I), ("uf_step", _P), ("y", _P), ("f", _P), ("y1", _P),
@@ -112,7 +112,8 @@ class PrkSteps:
         a["set"][:] = 0
         if r.steps == 0:
             return 0, None, pending
-        state = dict(t=float(r.t_now), h=float(r.h), indicator=float(r.indicator),
+        state = dict(t=float(r.t_now), h=float(r.h), err_old=float(r.err_old),
+                     indicator=float(r.indicator),
                      landing=bool(r.landing), y=a["states"][:n2].copy(),
                      f=a["states"][n2:2 * n2].copy(), uf=a["uf"][nf:nf + self.nf].copy(),
                      counters={k: int(getattr(r, k)) for k in COUNTERS})
