@@ -192,3 +192,17 @@ def test_cpu_budget_ends_a_run_inside_one_long_point():
                                                    1e-5, 0.2)
     assert "CPU budget of 0.2 s per run used up" in reason
     assert reached == 0.0 and stats["nsteps"] < 10 ** 6
+
+
+def test_a_later_csv_replaces_each_part_it_reruns(tmp_path):
+    """--from-csv a.csv b.csv: b's rows replace a's for each scene, method and sweep b
+    has (the whole part, whatever its settings), and keep the parts b does not rerun."""
+    old = [_row("a", 1e-3, 1.0, 1e-3), _row("a", 1e-6, 2.0, 1e-6), _row("b", 1e-3, 1.0, 1e-4),
+           dict(_row("a", 1e-6, 3.0, 1e-6), comm_step=0.01)]
+    new = [_row("a", 1e-4, 0.5, 1e-5)]
+    paths = []
+    for name, rows in (("old.csv", old), ("new.csv", new)):
+        paths.append(sweep.write_csv([{"comm_step": "", **r} for r in rows], tmp_path / name))
+    merged = sweep.redraw(paths, tmp_path / "out")["rows"]
+    kept = sorted((r["method"], r["setting"], math.isnan(r["comm_step"])) for r in merged)
+    assert kept == [("a", 1e-6, False), ("a", 1e-4, True), ("b", 1e-3, True)]

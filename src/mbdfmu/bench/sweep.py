@@ -287,9 +287,25 @@ def _run_note(scheduler, quick, wall, n):
             f"mbdfmu methods: {', '.join(METHOD_NAMES)}.")
 
 
+def _part(row: dict) -> tuple:
+    """The part of the bench a row belongs to: its scene, method and sweep."""
+    comm_step = row.get("comm_step")
+    settings = comm_step is None or comm_step == "" or (
+        isinstance(comm_step, float) and math.isnan(comm_step))
+    return row["scene"], row["method"], "settings" if settings else "comm"
+
+
+def merged_rows(earlier: list[dict], later: list[dict]) -> list[dict]:
+    """``earlier``'s rows with those of every part (scene, method, sweep) that ``later``
+    has replaced by ``later``'s: a rerun of a part supersedes it as a whole."""
+    rerun = {_part(r) for r in later}
+    return [r for r in earlier if _part(r) not in rerun] + list(later)
+
+
 def redraw(csv_paths, output=None) -> dict:
     """Charts and summary again from existing results.csv files (no runs). Several CSVs
-    (e.g. the two sweeps run apart) are merged into ``output``/results.csv first."""
+    (e.g. the two sweeps run apart) are merged into ``output``/results.csv first, a later
+    file's rows replacing an earlier one's for the same scene, method and sweep."""
     from . import charts
 
     paths = [Path(p) for p in ([csv_paths] if isinstance(csv_paths, (str, Path)) else csv_paths)]
@@ -299,7 +315,7 @@ def redraw(csv_paths, output=None) -> dict:
     for p in paths:
         if not p.is_file():
             raise BenchError(f"--from-csv: {p}: no such file")
-        rows += read_rows(p)
+        rows = merged_rows(rows, read_rows(p))
     csv_path = paths[0]
     if len(paths) > 1:
         csv_path = write_csv(rows, out / "results.csv")
@@ -311,4 +327,4 @@ def redraw(csv_paths, output=None) -> dict:
 
 
 __all__ = ["CASES", "Case", "BenchError", "run_bench", "run_task", "run_tasks", "make_tasks",
-           "reference_for", "classify", "read_rows", "write_csv", "redraw"]
+           "reference_for", "classify", "read_rows", "write_csv", "merged_rows", "redraw"]
