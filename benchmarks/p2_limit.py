@@ -9,8 +9,8 @@ mechanism can be: what is left between it and mbdfmu is the cost of the full (ab
 coordinates, the constraints and their projections.
 
 Every method runs with the C kernel (what FMUs run) from t = 0 to ``--t-end``; fixed-step
-methods over a sweep of steps, adaptive ones over a sweep of rtol (decades, and 5e-6 and
-2e-6; atol = rtol x 1e-2 x the mechanism's size, as ``mbdfmu bench``); error: B0's
+methods over a sweep of steps, adaptive ones over a sweep of rtol (decades, and 5e-5,
+2e-5, 5e-6 and 2e-6; atol = rtol x 1e-2 x the mechanism's size, as ``mbdfmu bench``); error: B0's
 position at t_end against the DOP853 reduction at 1e-13 (m). CPU time (process), the
 median of ``--repeat`` for runs under 0.5 s (``advance`` alone: the median of each run's
 time after ``Simulation()``). Target: the cheapest run reaching 1e-6 within 20 times the
@@ -51,10 +51,11 @@ ROOT = Path(__file__).resolve().parents[1]
 N, LEVEL, TARGET = 2, 1e-6, 20.0
 FIXED = {"rk4p": (2e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4),
          "genalpha": (1e-2, 5e-3, 2e-3, 1e-3, 5e-4), "ali3p": (1e-2, 5e-3, 2e-3, 1e-3, 5e-4)}
-# rtol in decades, and 5e-6 and 2e-6 between the two around the 1e-6 level: the error
-# falls about tenfold a decade, so decades alone can pick a run tenfold more accurate than
-# needed (dop853p at 1e-6 reaches about 1e-7) while a run between would reach the level
-DENSER = (5e-6, 2e-6)
+# rtol in decades, and 1-2-5 steps over the two decades where runs reach the 1e-6 level
+# (rtol 1e-6 to 1e-4, by method and step controller): the error falls about tenfold a
+# decade, so decades alone can pick a run tenfold more accurate than needed while a run
+# between would reach the level
+DENSER = (5e-5, 2e-5, 5e-6, 2e-6)
 
 
 def _sweep(first: int, last: int) -> tuple[float, ...]:
