@@ -6,8 +6,11 @@ Python inside). The hosts without Python run from a clean environment (no PYTHON
 LD_PRELOAD, no virtual environment on PATH). Each run is its own process, so a cell records:
 the FMU loads (instantiates), simulates (every communication point), the process exits
 cleanly (status 0) and the results agree with ``mbdfmu simulate`` at the same points
-(numpy kernel, as in the FMU): the largest difference relative to max(1, |value|) over all
-outputs, 1e-9 required (Ecos' command line writes 6 decimals: 1e-6 there).
+(the C kernel, as in the FMU): the largest difference relative to max(1, |value|) over all
+outputs, 1e-9 required (Ecos' command line writes 6 decimals: 1e-6 there). The numpy
+kernel parts from the C kernel at round-off, which an adaptive method's step decisions can
+carry further than 1e-9 (Andrews' mechanism: 4e-9); the tests hold the two kernels to each
+other within a fraction of the tolerance.
 
     python benchmarks/fmu_hosts_matrix.py [-o DIR] [--scenes a,b] [--fmi-version 3] [--write-docs]
 
@@ -185,7 +188,7 @@ def main(argv=None) -> int:
         t_end = STEPS * h
         fmu = build_fmu(ROOT / "scenes" / f"{stem}.toml", out / f"{stem}.fmu",
                         fmi_version=args.fmi_version)
-        expected = mbdfmu.simulate(scene, t_end=t_end, output_interval=h, kernel="numpy")
+        expected = mbdfmu.simulate(scene, t_end=t_end, output_interval=h, kernel="c")
         row = {"scene": stem, "T": t_end, "h": h}
         for host in host_names:
             r = cell(host, fmu, t_end, h, out / stem / host.replace(" ", "_"), expected)
