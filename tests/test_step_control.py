@@ -87,3 +87,31 @@ def test_a_saved_state_carries_the_controllers_memory():
     state["integrator"]["err_old"] = adaptive.ERR_OLD_MIN
     forgot.set_state(state)
     assert not np.array_equal(run(forgot, 2.0), ahead)
+
+
+def test_the_pairs_tableaux_are_scipys_to_the_last_bit():
+    from scipy.integrate import DOP853, RK45
+
+    from mbdfmu.integrators import tableaux
+    for name in ("A", "B", "C", "E3", "E5", "A_EXTRA", "C_EXTRA", "D"):
+        np.testing.assert_array_equal(getattr(tableaux, "DOP853_" + name), getattr(DOP853, name))
+    for name in ("A", "B", "C", "E", "P"):
+        np.testing.assert_array_equal(getattr(tableaux, "RK45_" + name), getattr(RK45, name))
+    assert (tableaux.DOP853_STAGES, tableaux.RK45_STAGES) == (DOP853.n_stages, RK45.n_stages)
+
+
+def test_a_simulation_imports_neither_scipy_integrate_nor_interpolate():
+    """What an FMU imports at load (every shipped module) and runs: scipy.integrate and
+    scipy.interpolate, a large share of its cold start, are imported only where needed."""
+    import subprocess
+    import sys
+    code = ("import pkgutil, importlib, sys, mbdfmu\n"
+            "for m in ('model', 'equations', 'integrators'):\n"
+            "    p = importlib.import_module('mbdfmu.' + m)\n"
+            "    for i in pkgutil.walk_packages(p.__path__, p.__name__ + '.'):\n"
+            "        if 'compiled' not in i.name: importlib.import_module(i.name)\n"
+            "import mbdfmu.fast_steps\n"
+            "mbdfmu.Simulation('n_four_bar_2', kernel='c').advance(0.5)\n"
+            "print(sorted(m for m in ('scipy.integrate', 'scipy.interpolate') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["[]"]

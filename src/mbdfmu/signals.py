@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.polynomial import polynomial as P
-from scipy.interpolate import BPoly, CubicSpline
 
 from .errors import InputError
 from .plain import Plain
@@ -81,6 +80,8 @@ class DriverTable(Plain):
     @property
     def curve(self):
         if getattr(self, "_curve", None) is None:   # built on first use (not part of the state)
+            # scipy.interpolate imported here: a large share of an FMU's cold start otherwise
+            from scipy.interpolate import BPoly, CubicSpline
             if self.velocities is not None and self.accelerations is not None:
                 derivs = np.stack([self.positions, self.velocities, self.accelerations], axis=1)
                 self._curve = BPoly.from_derivatives(self.times, derivs)

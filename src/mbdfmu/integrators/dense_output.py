@@ -11,9 +11,9 @@ so that they are part of a run's state.
 from __future__ import annotations
 
 import numpy as np
-from scipy.integrate import DOP853
 
 from ..plain import Plain
+from .tableaux import DOP853_A_EXTRA, DOP853_C_EXTRA, DOP853_D
 
 
 class DenseStep(Plain):
@@ -48,17 +48,17 @@ def dop853_interpolant(step: DenseStep, rhs) -> np.ndarray:
     """Coefficients F (7, n) of DOP853's interpolant; ``rhs(t, y)`` gives the three extra
     stages (scipy's ``DOP853._dense_output_impl``)."""
     first = step.K.shape[0]                       # n_stages + 1 (the last: f at y_new)
-    K = np.empty((first + len(DOP853.C_EXTRA), step.y_old.size))
+    K = np.empty((first + len(DOP853_C_EXTRA), step.y_old.size))
     K[:first] = step.K
     h = step.h
-    for s, (a, node) in enumerate(zip(DOP853.A_EXTRA, DOP853.C_EXTRA), start=first):
+    for s, (a, node) in enumerate(zip(DOP853_A_EXTRA, DOP853_C_EXTRA), start=first):
         K[s] = rhs(step.t_old + node * h, step.y_old + h * (K[:s].T @ a[:s]))
     delta = step.y_new - step.y_old
-    F = np.empty((3 + DOP853.D.shape[0], delta.size))
+    F = np.empty((3 + DOP853_D.shape[0], delta.size))
     F[0] = delta
     F[1] = h * K[0] - delta
     F[2] = 2.0 * delta - h * (step.K[-1] + K[0])
-    F[3:] = h * (DOP853.D @ K)
+    F[3:] = h * (DOP853_D @ K)
     return F
 
 

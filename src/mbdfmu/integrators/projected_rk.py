@@ -4,7 +4,8 @@ The state y = (q, q') follows y' = (q', q''(t, q, q')) with q'' from eq. (14) (t
 form). After every accepted step, q is projected onto Psi(q, t) = 0 and q' onto
 Psi_q q' = nu, each with the smallest mass-weighted change (``equations.projection``), which
 removes the drift of the index-1 form without changing its order. The Butcher tableaux and
-interpolants are scipy's (``scipy.integrate.RK45`` and ``DOP853``): a method here is a
+interpolants are scipy's (``scipy.integrate.RK45`` and ``DOP853``; the tableaux as data in
+``tableaux.py``, which an FMU imports without scipy.integrate): a method here is a
 tableau, its error estimate, its dense output and a name.
 
 Step control (Hairer, Norsett and Wanner, Solving ODEs I, sec. II.4) with two additions:
@@ -29,7 +30,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.integrate import DOP853, RK45
 
 from ..equations.projection import PROJECTION_MAX_ITER, project_positions, project_velocities
 from ..equations.sparsity import schur_solve
@@ -37,6 +37,7 @@ from ..errors import SolverError
 from . import c_steps, dense_output, singular_zone
 from .adaptive import ERR_OLD_MIN, AdaptiveStepping, accepted_step, rejected_step
 from .base import Integrator, OutputPoint
+from . import tableaux
 from .energy_audit import ENERGY_STEP_FACTOR, ENERGY_TOL_FACTOR
 
 SAFETY = 0.9       # Multiply the optimal step by this, to be likely accepted.
@@ -308,7 +309,9 @@ class RK45P(ProjectedRK):
 
     name = "rk45p"
     summary = "index-1, Dormand-Prince 5(4), adaptive, mass-weighted coordinate projection"
-    A, B, C, E, P, n_stages, order = RK45.A, RK45.B, RK45.C, RK45.E, RK45.P, RK45.n_stages, 4
+    A, B, C, E, P = (tableaux.RK45_A, tableaux.RK45_B, tableaux.RK45_C, tableaux.RK45_E,
+                     tableaux.RK45_P)
+    n_stages, order = tableaux.RK45_STAGES, 4
     # the I controller: with PI_BETA and Hairer's DOPRI5 alpha, more evaluations for the
     # same error at tight tolerances, and P2 N = 2 stopping at rtol 1e-8 next to a
     # singular crossing (docs/performance.md)
@@ -334,9 +337,10 @@ class DOP853P(ProjectedRK):
 
     name = "dop853p"
     summary = "index-1, Dormand-Prince 8(5,3), adaptive, mass-weighted coordinate projection"
-    A, B, C, n_stages, order = DOP853.A, DOP853.B, DOP853.C, DOP853.n_stages, 7
+    A, B, C = tableaux.DOP853_A, tableaux.DOP853_B, tableaux.DOP853_C
+    n_stages, order = tableaux.DOP853_STAGES, 7
     alpha = 1.0 / (order + 1) - 0.2 * PI_BETA       # Hairer's DOP853
-    E3, E5 = DOP853.E3, DOP853.E5
+    E3, E5 = tableaux.DOP853_E3, tableaux.DOP853_E5
     interpolant = "dop853"
 
     def _error_norm(self, K, h, scale, tangent=None):
