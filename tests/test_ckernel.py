@@ -7,6 +7,7 @@ eq. 14 (test_kernel.augmented_solve), never the C kernel's own output.
 
 from __future__ import annotations
 
+import math
 import tomllib
 
 import numpy as np
@@ -15,9 +16,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import mbdfmu
-from mbdfmu.equations import Equations, ckernel
+from mbdfmu.bench.closed_forms import n_four_bar_B0
+from mbdfmu.equations import Equations, ckernel, dynamics
 from mbdfmu.equations.projection import assemble
-from mbdfmu.equations.singular import singularity_indicator
+from mbdfmu.equations.singular import nullspace_accelerations, singularity_indicator
 from mbdfmu.model import scene_from_dict
 
 from test_kernel import SCENES, augmented_solve, n_four_bar, scene
@@ -227,13 +229,71 @@ def test_minimum_norm_solves_are_the_numpy_kernels():
             np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-9 * max(1.0, np.abs(a).max()))
 
 
-def test_without_minimum_norm_in_c_the_numpy_path_answers(monkeypatch):
-    """MIN_NORM_IN_C off: every singular solve goes back to the numpy path, whose answers
-    then come out exactly (the outputs, computed in C from them, to round-off)."""
-    monkeypatch.setattr(ckernel, "MIN_NORM_IN_C", False)
-    plain, fast = (mbdfmu.simulate(scene("parallelogram"), t_end=0.05, method="rk4p", kernel=k)
-                   for k in ("numpy", "c"))
+def test_singular_accelerations_are_solved_in_c_as_numpy_solves_them(monkeypatch):
+    """Where S is singular at every state (the parallelogram's redundant row) eq. 14 is
+    solved in C in the null-space form (nullspace.h), never handed to the numpy path; the
+    run is the numpy kernel's (LAPACK's SVD) to round-off."""
+    plain = mbdfmu.simulate(scene("parallelogram"), t_end=0.05, method="rk4p", kernel="numpy")
+
+    def refused(*args):
+        raise AssertionError("the C kernel handed eq. 14 back to the numpy path")
+    monkeypatch.setattr(dynamics, "nullspace_accelerations", refused)
+    fast = mbdfmu.simulate(scene("parallelogram"), t_end=0.05, method="rk4p", kernel="c")
     for a, b in ((plain.q, fast.q), (plain.qd, fast.qd), (plain.qdd, fast.qdd),
                  (plain.lam, fast.lam)):
-        assert np.array_equal(a, b)
-    np.testing.assert_allclose(fast.values, plain.values, rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * max(1.0, np.abs(a).max()))
+
+
+def p2_state(system, theta: float, rate: float):
+    """P2's state with every crank at angle theta from the horizontal, turning at rate."""
+    q, qd = np.empty(system.n), np.empty(system.n)
+    c, s = math.cos(theta), math.sin(theta)
+    for k, body in enumerate(system.scene.bodies):
+        if body.name.startswith("crank"):
+            x0 = float(body.name[5:])
+            q[3 * k: 3 * k + 3] = (x0 + 0.5 * c, 0.5 * s, theta)
+            qd[3 * k: 3 * k + 3] = (-0.5 * s * rate, 0.5 * c * rate, rate)
+        else:
+            x0 = float(body.name[7:])
+            q[3 * k: 3 * k + 3] = (x0 + 0.5 + c, s, 0.0)
+            qd[3 * k: 3 * k + 3] = (-s * rate, c * rate, 0.0)
+    return q, qd
+
+
+@pytest.mark.parametrize("theta", [0.0, 1e-9, 1e-7, 1e-5])
+def test_c_null_space_solve_at_p2s_crossing_is_lapacks_svd(theta):
+    """P2 N = 2 at and next to its singular crossing (the cranks horizontal, Psi_q losing
+    rank 2), where S's Cholesky is refused: C's one-sided Jacobi SVD gives singular.py's
+    (LAPACK) q'' and lam within the problem's conditioning, eps / theta (exactly singular:
+    to round-off), and q'' meets the acceleration constraints Psi_q q'' = gamma."""
+    system = Equations(n_four_bar(2), kernel="c")
+    q, qd = p2_state(system, theta, -2.0)
+    _, J, _, gamma = system.constraints(0.0, q, qd)
+    F = system.forces(0.0, q, qd)
+    qdd_ref, lam_ref = nullspace_accelerations(J, system.minv, F, gamma)
+    qdd, lam = system.ckernel.accelerations(q, qd, system.motion_values(0.0),
+                                            system.no_inputs.forces)
+    conditioning = 1e-14 / theta if theta else 1e-14
+    np.testing.assert_allclose(qdd, qdd_ref, rtol=0, atol=conditioning * np.abs(qdd_ref).max())
+    np.testing.assert_allclose(lam, lam_ref, rtol=0,
+                               atol=10 * conditioning * np.abs(lam_ref).max())
+    np.testing.assert_allclose(J @ qdd, gamma, rtol=0, atol=1e-13 * max(1.0, np.abs(gamma).max()))
+
+
+def test_p2s_adaptive_run_crosses_in_c_and_reaches_the_reduction(monkeypatch):
+    """P2 N = 2 with dop853p at rtol 2e-5 over 10 s has a stage on the crossing where S is
+    singular (near t = 5.09 s): the C run solves it (it used to hand the whole step back
+    to Python) and B0 ends within the run's tolerance of the exact one-degree-of-freedom
+    reduction (its error there rides on the round-off of that stage's solve: 1.5e-7 m in C,
+    1.3e-6 m on the numpy kernel)."""
+    def refused(*args):
+        raise AssertionError("the C kernel handed eq. 14 back to the numpy path")
+    monkeypatch.setattr(dynamics, "nullspace_accelerations", refused)
+    sim = mbdfmu.Simulation("n_four_bar_2", kernel="c", method="dop853p", rtol=2e-5, atol=4e-7)
+    sim.advance(10.0)
+    out = sim.outputs()
+    b0 = n_four_bar_B0([10.0], 2)
+    phi = out["crank0.phi"]
+    error = math.hypot(out["crank0.x"] + 0.5 * math.cos(phi) - float(b0["x"][-1]),
+                       out["crank0.y"] + 0.5 * math.sin(phi) - float(b0["y"][-1]))
+    assert error < 2e-5

@@ -35,10 +35,11 @@ MAX_ROWS = 192
 ENV_LIBRARY = "MBDFMU_C_KERNEL"
 # Minimum-norm solves (singular configurations, redundant rows) in C, as sparsity.py does
 # them (lstsq's cut-off, iterated Tikhonov); False hands them to the numpy path instead,
-# which then follows whatever that path does. False: where the Schur complement is
-# ill-conditioned the numpy path solves eq. 14 in its null-space form
-# (equations/singular.py), whose q'' stays right next to a singular configuration where
-# the minimum-norm cut-off's does not.
+# which then follows whatever that path does. False: eq. 14 with an ill-conditioned Schur
+# complement is solved in its null-space form (equations/singular.py; in C by nullspace.h
+# for S's dense form), whose q'' stays right next to a singular configuration where the
+# minimum-norm cut-off's does not; the projections' and error estimates' rare singular
+# solves stay the numpy path's.
 MIN_NORM_IN_C = False
 
 _P, _I = ctypes.c_void_p, ctypes.c_int64

@@ -8,7 +8,8 @@
  *                    where numpy takes hypot: the same to an ulp)
  *   schur_solve()    sparsity.py JacobianPattern.schur_solve's Cholesky branch (eq. 15),
  *                    the band factorised as L D L^T (solve.h): the same to round-off
- *   accelerations()  dynamics.py Equations.accelerations (eq. 14)
+ *   accelerations()  dynamics.py Equations.accelerations (eq. 14), with singular.py's
+ *                    nullspace_accelerations where S is ill-conditioned (nullspace.h)
  *   project_*()      projection.py project_positions / project_velocities (eqs. 18-19)
  *   mbd_rk4p_steps   rk4p.py's step (rk4_step, _project, the next q'') for runs of steps,
  *                    with rk4p_compiled.py's energy check for constant forces
@@ -27,9 +28,12 @@
  *                    banded Schur complement (implicit.h), or a dense LU where K couples
  *                    bodies (implicit_dense.h)
  *
- * Where the numpy path has a minimum-norm fallback (a singular Schur complement) this
- * kernel returns ST_SINGULAR and the caller redoes the work on the numpy path; a spring of
- * zero length returns ST_SPRING and the numpy path raises its error. Nothing allocates:
+ * Eq. (14) with an ill-conditioned Schur complement (next to a singular configuration,
+ * redundant rows) is solved here in singular.py's null-space form (nullspace.h) for the
+ * dense form of S; elsewhere, where the numpy path has a minimum-norm fallback (a singular
+ * S in a projection or an error estimate, a banded scene's eq. (14)), this kernel returns
+ * ST_SINGULAR and the caller redoes the work on the numpy path; a spring of zero length
+ * returns ST_SPRING and the numpy path raises its error. Nothing allocates:
  * scratch space is the caller's `work` (mbd_work_size doubles).
  */
 #define _GNU_SOURCE      /* sincos */
@@ -175,6 +179,7 @@ static int all_finite_values(const double *x, I k) {
 }
 
 #include "solve.h"
+#include "nullspace.h"
 
 /* ---- applied forces (forces.py) --------------------------------------------------------- */
 
@@ -268,7 +273,7 @@ static I solve_size(const Model *M) {
 
 typedef struct {
     double *qe, *qde, *psi, *raw, *data, *values, *gamma, *rhs, *lam, *x, *band, *tmp, *F,
-           *Fm, *nv, *cs, *qv;
+           *Fm, *nv, *cs, *svd, *qv;
     int kept;     /* band holds the factor of S at the projected state (project_velocities) */
 } Scratch;
 
@@ -291,6 +296,7 @@ static Scratch scratch(const Model *M, double *w) {
     s.Fm = w; w += n;
     s.nv = w; w += n;
     s.cs = w; w += 2 * (M->nb + 1);
+    s.svd = w; w += nullspace_size(M);
     s.qv = w;
     s.kept = 0;
     return s;
@@ -300,7 +306,7 @@ static Scratch scratch(const Model *M, double *w) {
 I mbd_work_size(const Model *M, I stages) {
     I n = M->n, m = M->m;
     return 2 * (n + 3) + 9 * m + M->nraw + M->size + 1 + M->nkeep + solve_size(M) + 4 * n
-           + 2 * (M->nb + 1) + 16 + (stages + 4) * 2 * n + 14 * n + 3 * m;
+           + 2 * (M->nb + 1) + nullspace_size(M) + 16 + (stages + 4) * 2 * n + 14 * n + 3 * m;
 }
 
 static void extend(const Model *M, const double *q, double *qe) {
@@ -347,6 +353,10 @@ static int accelerations_at(const Model *M, Scratch *s, const double *q, const d
     jac_mul(M, s->values, s->Fm, s->rhs);
     for (I r = 0; r < m; r++) s->rhs[r] -= s->gamma[r] + cdd[r];
     st = schur_solve(M, s->values, s->rhs, lam, s->band, s->tmp);
+    if (st == ST_SINGULAR) {       /* S ill-conditioned: the null-space form (nullspace.h) */
+        for (I r = 0; r < m; r++) s->x[r] = s->gamma[r] + cdd[r];
+        return nullspace_accelerations(M, s->values, s->F, s->x, qdd, lam, s->svd);
+    }
     if (st != ST_OK) return st;
     jac_t_mul(M, s->values, lam, s->nv);
     for (I k = 0; k < n; k++) qdd[k] = M->minv[k] * (s->F[k] - s->nv[k]);
