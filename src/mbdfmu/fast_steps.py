@@ -6,7 +6,9 @@ Three kinds, each the same arithmetic as the Python step it replaces, so the val
 wrapper serves are Python's bit for bit (tests/test_fmu_fast.py):
 
 * ``dense``: a step that ends inside an adaptive method's last step reads its dense output
-  (``ckernel/dense.h``; ``Simulation.dense_reads_ahead``);
+  (``ckernel/dense.h``; ``Simulation.dense_reads_ahead``); with dop853p, one that ends past
+  it takes the next steps and their interpolant first (``ckernel/dense_run.h``,
+  ``integrators.dense_runs``);
 * ``fixed``: rk4p's steps, the drivers' motions evaluated in C (``ckernel/fixed.h``);
 * ``prk``: an embedded pair's steps landing on the communication point (``ckernel/adaptive.h``).
 
@@ -27,6 +29,7 @@ import numpy as np
 from .equations.ckernel.fixed import motion_table
 from .integrators.c_steps import adopt_fast_run, adopt_prk_run, fast_prk_run, fast_run, tableau
 from .integrators.auto_watch import STIFF_HLAMBDA
+from .integrators.dense_runs import adopt_dense_run, dense_run
 from .integrators.projected_rk import DOP853P, MAX_FACTOR, MIN_FACTOR, SAFETY
 from .model.scene import Body, SpringDamper
 from .model.variables import GLOBAL_OUTPUTS, TABLES
@@ -116,7 +119,9 @@ def arm(sim, limit, time_tol: float, inputs, published) -> tuple | None:
     places in (outputs, q, q', q'')) of the values each step writes."""
     kernel = sim.dense_reads_ahead()
     if kernel is not None:
-        return kernel.arm_dense_steps(sim.t, time_tol, *published)
+        armed = kernel.arm_dense_steps(sim.t, time_tol, *published)
+        run = dense_run_ahead(sim, limit)
+        return armed if run is None else kernel.arm_dense_run(*run)
     fast = fast_steps_ahead(sim, limit, time_tol, inputs)
     if fast is None:
         return None
@@ -124,6 +129,22 @@ def arm(sim, limit, time_tol: float, inputs, published) -> tuple | None:
     if kind == "fixed":
         return kernel.arm_fixed_steps(*arguments, *published, **keywords)
     return kernel.arm_prk_steps(*arguments, inputs, *published)
+
+
+def dense_run_ahead(sim, limit) -> tuple | None:
+    """The arguments of ``Kernel.arm_dense_run`` when the wrapper may also take the steps
+    past the step it reads (``integrators.dense_runs``: dop853p, auto's watcher at rest),
+    else None. ``sim.dense_reads_ahead()`` said yes: no drivers, inputs held."""
+    integrator = getattr(sim.integrator, "current", sim.integrator)
+    watcher = getattr(sim.integrator, "watcher", None)
+    run = dense_run(integrator, limit, auto_stiff_limit(integrator, watcher))
+    if run is None:
+        return None
+    u = sim.inputs_at(sim.t)
+    settings, tableau, gaps, audit, a_extra, D = run
+    return (settings, tableau[:5], gaps, np.concatenate((integrator.q, integrator.qd)),
+            integrator.f, np.concatenate(sim.equations.motion_values(sim.t, u)), u.forces,
+            audit, a_extra, D)
 
 
 def catch_up(sim, inputs) -> tuple[bool, list, list]:
@@ -142,12 +163,15 @@ def catch_up(sim, inputs) -> tuple[bool, list, list]:
         sim.integrator.stats.naccel += restarts       # each restart's f, as Python's
         if restarts:
             hold_forces(sim, uf)
+    run = kernel.dense_run_taken()
     if prk is not None:
         adopt_prk_run(sim.integrator, prk)
         hold_forces(sim, prk["uf"])
     elif fixed is not None:
         sim._cache = None
-    elif kernel.dense.t_now > sim.t:
+    elif run is not None or kernel.dense.t_now > sim.t:
+        if run is not None:     # past its step: the wrapper's steps, then the read inside
+            adopt_dense_run(sim.integrator, run)
         sim.advance(kernel.dense.t_now)
     else:
         return False, [], pending

@@ -163,7 +163,12 @@ def prk_attempt(rk, h: float, c0: float, safety: float, min_factor: float,
     ns = rk.n_stages
     y = np.concatenate((rk.q, rk.qd))
     K = rk.equations.ckernel.buf.K[:(ns + 1) * 2 * n].reshape(ns + 1, 2 * n).copy()
-    y_end = y + h * (K[:-1].T @ rk.B)           # the step's end before the projection
+    # the step's end before the projection, summed as the kernel's runs sum it (stepping.h
+    # weighted_sum), so that a dense output is the same whichever took the step
+    y_end = np.zeros(2 * n)
+    for j in range(ns):
+        y_end += K[j] * rk.B[j]
+    y_end = y + h * y_end
     rk.stats.naccel += ns
     if status == ckernel.NOT_FINITE:
         return False, h * min_factor, None
@@ -335,6 +340,20 @@ def prk_runs(rk) -> bool:
             (rk.audit is None or eq.applied.is_constant))
 
 
+def run_settings(rk, factors: tuple, energy: tuple, max_work: int) -> dict:
+    """PrkPy's fields (PrkRun's in "run") for a run of rk's steps from its state (``prk_run``
+    below; the wrapper's ``dense_runs``): ``factors`` and ``energy`` as ``prk_run``'s."""
+    run = dict(h=rk.h, max_step=rk.max_step, exponent=-rk.alpha, safety=factors[0],
+               min_factor=factors[1], max_factor=factors[2], beta=rk.beta, err_old=rk.err_old,
+               rtol=rk.local_tolerance * rk.rtol, atol=rk.local_tolerance * rk.atol,
+               tol=rk._projection_tol(), max_iter=PROJECTION_MAX_ITER,
+               indicator=rk.zone.indicator, landing=int(rk.zone.landing), max_work=max_work)
+    last = rk.energy_rejected
+    return dict(run=run, t=rk.t, energy_rejected=np.nan if last is None else last,
+                step_factor=ENERGY_STEP_FACTOR, min_gain=energy[0], jump_limit=energy[1],
+                divergence=ENERGY_DIVERGENCE_FRACTION, roundoff=ENERGY_ROUNDOFF)
+
+
 def prk_run(rk, t_target: float, dense: bool, rejections: int, factors: tuple,
             energy: tuple) -> tuple[int, int]:
     """Steps of ``_advance_adaptive`` in C (``ckernel/adaptive.h`` ``mbd_prk_run``) until
@@ -350,16 +369,8 @@ def prk_run(rk, t_target: float, dense: bool, rejections: int, factors: tuple,
     if rk.limit is not None and rk.limit.max_steps is not None:
         used = rk.stats.nsteps + rk.stats.nrejected - rk.limit.first
         attempts = max(1, min(attempts, rk.limit.max_steps - used))
-    run = dict(h=rk.h, max_step=rk.max_step, exponent=-rk.alpha, safety=factors[0],
-               min_factor=factors[1], max_factor=factors[2], beta=rk.beta, err_old=rk.err_old,
-               rtol=rk.local_tolerance * rk.rtol, atol=rk.local_tolerance * rk.atol,
-               tol=rk._projection_tol(), max_iter=PROJECTION_MAX_ITER,
-               indicator=rk.zone.indicator, landing=int(rk.zone.landing), max_work=attempts)
-    last = rk.energy_rejected
-    settings = dict(run=run, t=rk.t, t_target=t_target, dense=int(dense), rejections=rejections,
-                    energy_rejected=np.nan if last is None else last,
-                    step_factor=ENERGY_STEP_FACTOR, min_gain=energy[0], jump_limit=energy[1],
-                    divergence=ENERGY_DIVERGENCE_FRACTION, roundoff=ENERGY_ROUNDOFF)
+    settings = run_settings(rk, factors, energy, attempts)
+    settings.update(t_target=t_target, dense=int(dense), rejections=rejections)
     audit = audit_state(rk.audit) if rk.audit is not None else None
     motion = np.concatenate(eq.motion_values(rk.t))
     gaps = singular_zone.gaps(rk.C[:rk.n_stages])

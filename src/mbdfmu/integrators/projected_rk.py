@@ -355,6 +355,18 @@ class DOP853P(ProjectedRK):
         return float(abs(h) * err5 / math.sqrt((err5 + 0.01 * err3) * scale.size))
 
     def _interpolant(self, step):
+        kernel = self.equations.ckernel
+        if kernel is not None:      # the wrapper's dense runs build it by the same function
+            times = step.t_old + tableaux.DOP853_C_EXTRA * step.h
+            us = [self.inputs(t) for t in times]
+            motions = [np.concatenate(self.equations.motion_values(t, u))
+                       for t, u in zip(times, us)]
+            F = kernel.dop853_dense(step.K, step.y_old, step.y_new, step.h,
+                                    tableaux.DOP853_A_EXTRA, tableaux.DOP853_D, motions,
+                                    [u.forces if len(u.forces) else [0.0] for u in us])
+            if F is not None:
+                self.stats.naccel += len(times)
+                return F
         return dense_output.dop853_interpolant(step, self._rhs_y)
 
     def _interpolated(self, step, x):

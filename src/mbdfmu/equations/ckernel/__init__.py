@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from ...model.scene import PointForce, RotationalSpringDamper, SpringDamper, Torque
-from .dense import DENSE_KINDS, DenseRead, DenseReads  # noqa: F401 (DENSE_KINDS: public here)
+from .dense import DENSE_KINDS, DenseReads  # noqa: F401 (DENSE_KINDS: public here)
 from .adaptive import PrkSteps
+from .dense_run import DenseRun, DenseRuns
 from .fixed import FixedSteps
 from .implicit import ImplicitCalls, declare_implicit
 
@@ -225,7 +226,7 @@ class Buffers:
         self.p_done = self.done.ctypes.data
 
 
-class Kernel(DenseReads, FixedSteps, PrkSteps, ImplicitCalls):
+class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
     """The C kernel bound to one scene's ``Equations``; every method returns None where
     kernel.c hands the case back to the numpy path (a singular Schur complement, a spring
     of zero length), which then says or does what it always does."""
@@ -249,7 +250,9 @@ class Kernel(DenseReads, FixedSteps, PrkSteps, ImplicitCalls):
         self.buf = Buffers(self.n, self.m, self.nf, self.nout)
         self._tableaus: dict = {}
         self.static_rows = 0          # rows of buf.motions holding a driverless scene's block
-        self.dense, self._dense_arrays, self._publish = DenseRead(), (), None
+        # the dense read (dense.h) heads the dense run (dense_run.h): one address for both
+        self.run = DenseRun()
+        self.dense, self._dense_arrays, self._publish = self.run.d, (), None
         self._dense_scratch = np.zeros(self.nout + 3 * self.n + max(self.m, 1))
         self.dense.V = self._dense_scratch.ctypes.data
         self.library = lib

@@ -391,6 +391,9 @@ int mbd_prk_run(const Model *M, PrkPy *p) {
             if (h_next < h_min || p->rejections > MAX_REJECTIONS_IN_A_ROW) return RUN_FAILED;
             continue;
         }
+        if (r->stiff_limit > 0.0 &&
+                mbd_stiff_h_lambda(ns, r->A, r->B, n2, r->K, y, hh) > r->stiff_limit)
+            return RUN_PYTHON;            /* auto's watch counts this step: Python's */
         p->rejections = 0;
         r->nsteps++;
         p->t_old = p->t;

@@ -145,6 +145,20 @@ class PrkRunBuffers:
         self.audit = np.zeros(13)
 
 
+def point_run(p: PrkPy, b: PrkRunBuffers, tableau, gaps) -> None:
+    """Point p at the arrays of b, the pair ``tableau`` (``Kernel.tableau``) and the gaps
+    between its nodes (``singular_zone.gaps``, kept in b)."""
+    r = p.r
+    r.ns, r.A, r.B, r.E, r.E3 = tableau[0], *(x or 0 for x in tableau[1:5])
+    for name in ("y", "f", "K", "y_new", "f_new", "motions", "ufs"):
+        setattr(r, name, getattr(b, name).ctypes.data)
+    r.motion = b.motions.ctypes.data
+    for name in ("y_old", "y_end", "K_old"):
+        setattr(p, name, getattr(b, name).ctypes.data)
+    b.gaps = [np.ascontiguousarray(a, dtype=float) for a in gaps]
+    p.ngaps, p.gap_mid, p.gap_width = b.gaps[0].size, *(a.ctypes.data for a in b.gaps)
+
+
 def prk_run(kernel, tableau, gaps, settings: dict, y, f, motion, audit):
     """Steps of an embedded pair in one call of ``mbd_prk_run`` (adaptive.h) from (y, f) at
     ``settings["t"]``: PrkPy's scalar fields (and PrkRun's, ``settings["run"]``), the
@@ -157,15 +171,7 @@ def prk_run(kernel, tableau, gaps, settings: dict, y, f, motion, audit):
     if key not in cache:
         p = PrkPy()
         b = PrkRunBuffers(kernel.n, kernel.m, kernel.nf, key)
-        r = p.r
-        r.ns, r.A, r.B, r.E, r.E3 = tableau[0], *(x or 0 for x in tableau[1:5])
-        for name in ("y", "f", "K", "y_new", "f_new", "motions", "ufs"):
-            setattr(r, name, getattr(b, name).ctypes.data)
-        r.motion = b.motions.ctypes.data
-        for name in ("y_old", "y_end", "K_old"):
-            setattr(p, name, getattr(b, name).ctypes.data)
-        b.gaps = [np.ascontiguousarray(a, dtype=float) for a in gaps]
-        p.ngaps, p.gap_mid, p.gap_width = b.gaps[0].size, *(a.ctypes.data for a in b.gaps)
+        point_run(p, b, tableau, gaps)
         function = kernel.library.mbd_prk_run
         function.argtypes, function.restype = [_P, _P], ctypes.c_int
         cache[key] = (p, b, function)

@@ -24,6 +24,8 @@
  *   mbd_fixed_step   an FMU's communication step of rk4p with the drivers' motions (fixed.h)
  *   mbd_prk_fast_step  an FMU's communication step of an embedded pair after inputs were
  *                    set (mbd_prk_set), landing on the communication point (adaptive.h)
+ *   mbd_dense_run_step  an FMU's communication step past the step it reads: the pair's
+ *                    next steps and their interpolant (dense_run.h)
  *   mbd_implicit_*   genalpha.py / ali3p.py steps with newton.py's iteration on the
  *                    banded Schur complement (implicit.h), or a dense LU where K couples
  *                    bodies (implicit_dense.h)
@@ -554,4 +556,5 @@ int mbd_singularity_indicator(const Model *M, const double *q, const double *cva
 #include "dense.h"
 #include "fixed.h"
 #include "adaptive.h"
+#include "dense_run.h"
 #include "implicit.h"

@@ -1,0 +1,150 @@
+/*
+ * dense_run.h (part of kernel.c): an FMU's communication step past the end of the adaptive
+ * step whose dense output the wrapper reads (dense.h), taken by the wrapper without Python:
+ * the pair's next steps with mbd_prk_run's decisions in dense mode (the steps go past the
+ * communication point, as AdaptiveStepping._advance_adaptive's do with dense output), the
+ * last one's DOP853 interpolant (dop853_dense below), then the read at the point. For a
+ * scene without drivers whose inputs are held; under auto (stiff_limit) a step auto's
+ * stiffness rule would count goes to Python. Anything mbd_prk_run hands back, a failed
+ * evaluation or read, and a point that is the last step's end leave everything as it was
+ * (the state is kept before the run and put back) and the wrapper calls Python, which
+ * takes the same steps and says why.
+ *
+ * Python's own interpolant (DOP853P._interpolant with the C kernel) calls dop853_dense
+ * too, so a value read here is the one Python reads, bit for bit.
+ */
+
+#define DENSE_STAGES 16          /* DOP853's 12 stages, f at the end and 3 more */
+#define DENSE_ROWS 7             /* rows of its interpolant F */
+
+/* The three extra stages and F (7 x n2) of scipy's Dop853DenseOutput for the step from
+ * y_old over h whose stages are K (13 rows: the last f at the unprojected end y_end):
+ * dense_output.dop853_interpolant's arithmetic. a_extra (3 x 16), c_extra (3), D (4 x 16):
+ * the tableau; motions, ufs: the inputs at the three extra nodes (3 rows each); Kx
+ * (16 x n2) and ys (n2): scratch. */
+static int dop853_dense(const Model *M, Scratch *s, const double *K, const double *y_old,
+                        const double *y_end, double h, const double *a_extra,
+                        const double *D, const double *motions, const double *ufs, double *F,
+                        double *Kx, double *ys) {
+    I n2 = 2 * M->n, m = M->m, nf = M->nf, first = DENSE_STAGES - 3;
+    memcpy(Kx, K, (size_t)(first * n2) * sizeof(double));
+    for (I e = 0; e < 3; e++) {
+        I row = first + e;
+        combine(y_old, h, Kx, n2, a_extra + e * DENSE_STAGES, row, ys);
+        int st = rhs(M, s, ys, motions + e * 3 * m, ufs + e * nf, Kx + row * n2, s->lam);
+        if (st != ST_OK) return st;
+        if (!all_finite(Kx + row * n2, n2)) return ST_NOT_FINITE;
+    }
+    const double *f_end = K + (first - 1) * n2;
+    for (I k = 0; k < n2; k++) {
+        double delta = y_end[k] - y_old[k];
+        F[k] = delta;
+        F[n2 + k] = h * Kx[k] - delta;
+        F[2 * n2 + k] = 2.0 * delta - h * (f_end[k] + Kx[k]);
+    }
+    for (I r = 0; r < 4; r++) {
+        weighted_sum(Kx, n2, D + r * DENSE_STAGES, DENSE_STAGES, ys);
+        for (I k = 0; k < n2; k++) F[(3 + r) * n2 + k] = h * ys[k];
+    }
+    return ST_OK;
+}
+
+/* Python's DOP853P._interpolant with the C kernel: F (7 x n2) as dop853_dense. */
+int mbd_dop853_dense(const Model *M, const double *K, const double *y_old, const double *y_end,
+                     double h, const double *a_extra, const double *D, const double *motions,
+                     const double *ufs, double *F, double *Kx, double *ys) {
+    Scratch s = scratch(M, M->work);
+    return dop853_dense(M, &s, K, y_old, y_end, h, a_extra, D, motions, ufs, F, Kx, ys);
+}
+
+typedef struct {
+    DenseRead d;                 /* the step being read (dense.h): first, the wrapper's context */
+    PrkPy p;                     /* the pair's state and decisions (adaptive.h), dense mode */
+    const double *a_extra, *D;   /* DOP853's dense output tableau (3 x 16, 4 x 16) */
+    double *motions, *ufs;       /* the inputs at its three extra nodes (held: all alike) */
+    double *coef[2], *y_old[2];  /* F and y_old of the steps taken here: the one read, the next */
+    I which;                     /* the one read (when d.coef is one of them) */
+    double *Kx, *ys;             /* dop853_dense's scratch */
+    double *saved;               /* the state before a run (save_run) */
+    I taken;                     /* steps were taken since armed: Python adopts them */
+} DenseRun;
+
+/* doubles of saved: y, f, y_old, y_end (2n each), K_old (13 x 2n), the audit (13), the
+ * scalars below */
+#define RUN_SCALARS 16
+
+static void save_run(const Model *M, const DenseRun *R, double *b) {
+    const PrkPy *p = &R->p;
+    const PrkRun *r = &p->r;
+    I n2 = 2 * M->n, rows = r->ns + 1;
+    memcpy(b, r->y, (size_t)n2 * sizeof(double)); b += n2;
+    memcpy(b, r->f, (size_t)n2 * sizeof(double)); b += n2;
+    memcpy(b, p->y_old, (size_t)n2 * sizeof(double)); b += n2;
+    memcpy(b, p->y_end, (size_t)n2 * sizeof(double)); b += n2;
+    memcpy(b, p->K_old, (size_t)(rows * n2) * sizeof(double)); b += rows * n2;
+    if (p->audit) memcpy(b, p->audit, 13 * sizeof(double));
+    b += 13;
+    double scalars[RUN_SCALARS] = {
+        r->h, r->err_old, r->indicator, (double)r->landing, p->t, p->energy_rejected,
+        p->t_old, p->h_old, (double)p->stepped, (double)r->nsteps, (double)r->nrejected,
+        (double)r->naccel, (double)r->nprojections, R->d.t_old, R->d.h, (double)R->taken};
+    memcpy(b, scalars, sizeof scalars);
+}
+
+static void restore_run(const Model *M, DenseRun *R, const double *b) {
+    PrkPy *p = &R->p;
+    PrkRun *r = &p->r;
+    I n2 = 2 * M->n, rows = r->ns + 1;
+    memcpy(r->y, b, (size_t)n2 * sizeof(double)); b += n2;
+    memcpy(r->f, b, (size_t)n2 * sizeof(double)); b += n2;
+    memcpy(p->y_old, b, (size_t)n2 * sizeof(double)); b += n2;
+    memcpy(p->y_end, b, (size_t)n2 * sizeof(double)); b += n2;
+    memcpy(p->K_old, b, (size_t)(rows * n2) * sizeof(double)); b += rows * n2;
+    if (p->audit) memcpy(p->audit, b, 13 * sizeof(double));
+    b += 13;
+    r->h = b[0]; r->err_old = b[1]; r->indicator = b[2]; r->landing = (I)b[3];
+    p->t = b[4]; p->energy_rejected = b[5]; p->t_old = b[6]; p->h_old = b[7];
+    p->stepped = (I)b[8]; r->nsteps = (I)b[9]; r->nrejected = (I)b[10]; r->naccel = (I)b[11];
+    r->nprojections = (I)b[12]; R->d.t_old = b[13]; R->d.h = b[14]; R->taken = (I)b[15];
+}
+
+/* The wrapper's doStep from t over h (dense.h's mbd_dense_step inside the step read; past
+ * its end, the steps described above); values filled, or non-zero with nothing changed. */
+int mbd_dense_run_step(const Model *M, DenseRun *R, double t, double h, double *values) {
+    DenseRead *d = &R->d;
+    PrkPy *p = &R->p;
+    if (!(fabs(t - d->t_now) <= d->time_tol * fmax(fabs(t), fabs(d->t_now)))) return ST_ERROR_NORM;
+    double end = t + h;
+    if (end < d->t_old + d->h) return mbd_dense_step(M, d, t, h, values);
+    const double *coef = d->coef, *y_old = d->y_old;
+    save_run(M, R, R->saved);
+    p->t_target = end;
+    p->rejections = 0;              /* _advance_adaptive counts them per call */
+    p->stepped = 0;
+    int st = mbd_prk_run(M, p) == RUN_DONE && p->stepped && end < p->t_old + p->h_old ? ST_OK
+             : ST_ERROR_NORM;
+    I w = d->coef == R->coef[R->which] ? !R->which : R->which;
+    if (st == ST_OK) {
+        Scratch s = scratch(M, M->work);
+        st = dop853_dense(M, &s, p->K_old, p->y_old, p->y_end, p->h_old, R->a_extra, R->D,
+                          R->motions, R->ufs, R->coef[w], R->Kx, R->ys);
+    }
+    if (st == ST_OK) {
+        memcpy(R->y_old[w], p->y_old, (size_t)(2 * M->n) * sizeof(double));
+        d->t_old = p->t_old;
+        d->h = p->h_old;
+        d->coef = R->coef[w];
+        d->y_old = R->y_old[w];
+        st = mbd_dense_step(M, d, t, h, values);
+    }
+    if (st != ST_OK) {
+        restore_run(M, R, R->saved);
+        d->coef = coef;
+        d->y_old = y_old;
+        return st;
+    }
+    p->r.naccel += 3;               /* the interpolant's stages, as Python counts them */
+    R->which = w;
+    R->taken = 1;
+    return ST_OK;
+}

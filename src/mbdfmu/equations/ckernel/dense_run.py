@@ -1,0 +1,134 @@
+"""An FMU's communication step past the end of the adaptive step its wrapper reads
+(dense_run.h): the pair's next steps in dense mode, their DOP853 interpolant and the read
+at the communication point, all by the wrapper without Python; and the interpolant alone
+for Python's own dense output (``DOP853P._interpolant``).
+
+``DenseRuns`` is a mixin of ``Kernel``: it uses the kernel's ``run`` (a ``DenseRun``,
+whose first field is the kernel's ``dense``), ``n``, ``m``, ``nf``, ``address`` and
+``library``.
+"""
+
+from __future__ import annotations
+
+import ctypes
+
+import numpy as np
+
+from .adaptive import PrkPy, PrkRunBuffers, point_run
+from .dense import DenseRead
+
+_P, _I = ctypes.c_void_p, ctypes.c_int64
+ST_OK = 0                               # kernel.c's ST_OK
+DENSE_STAGES, DENSE_ROWS = 16, 7        # dense_run.h: DOP853's stages with the extra three
+RUN_SCALARS = 16                        # dense_run.h: the scalars save_run keeps
+COUNTERS = ("nsteps", "nrejected", "naccel", "nprojections")
+
+
+class DenseRun(ctypes.Structure):
+    """dense_run.h's ``DenseRun``."""
+
+    _fields_ = [("d", DenseRead), ("p", PrkPy), ("a_extra", _P), ("D", _P), ("motions", _P),
+                ("ufs", _P), ("coef", _P * 2), ("y_old", _P * 2), ("which", _I), ("Kx", _P),
+                ("ys", _P), ("saved", _P), ("taken", _I)]
+
+
+class RunBuffers(PrkRunBuffers):
+    """The arrays a ``DenseRun`` points at, for a pair of ``ns`` stages: its PrkPy's, and
+    the interpolant's."""
+
+    def __init__(self, n: int, m: int, nf: int, ns: int):
+        super().__init__(n, m, nf, ns)
+        n2 = 2 * n
+        self.node_motions, self.node_ufs = np.zeros((3, 3 * m)), np.zeros((3, max(nf, 1)))
+        self.coef, self.coef_y_old = np.zeros((2, DENSE_ROWS, n2)), np.zeros((2, n2))
+        self.Kx, self.ys = np.zeros((DENSE_STAGES, n2)), np.zeros(n2)
+        self.saved = np.zeros(4 * n2 + (ns + 1) * n2 + 13 + RUN_SCALARS)
+
+
+class DenseRuns:
+    """The dense runs of ``Kernel`` (see the module docstring)."""
+
+    run_buffers: RunBuffers | None = None
+
+    def dop853_dense(self, K, y_old, y_end, h: float, a_extra, D, motions, ufs):
+        """F (7, 2n) of DOP853's interpolant of the step from y_old over h with stages K
+        (13 rows, the last f at the unprojected end y_end): ``mbd_dop853_dense``, with the
+        inputs at the three extra nodes (motions: 3 rows of (c, c', c''); ufs: 3 rows of
+        force inputs); None where an evaluation fails (the numpy path then says why)."""
+        n2 = 2 * self.n
+        F, Kx, ys = np.zeros((DENSE_ROWS, n2)), np.zeros((DENSE_STAGES, n2)), np.zeros(n2)
+        arrays = [np.ascontiguousarray(a, dtype=float) for a in
+                  (K, y_old, y_end, a_extra, D, motions, ufs)]
+        function = self.library.mbd_dop853_dense
+        function.argtypes = [_P] * 4 + [ctypes.c_double] + [_P] * 7
+        function.restype = ctypes.c_int
+        status = function(self.address, *(a.ctypes.data for a in arrays[:3]), h,
+                          *(a.ctypes.data for a in arrays[3:]), F.ctypes.data,
+                          Kx.ctypes.data, ys.ctypes.data)
+        return F if status == ST_OK else None
+
+    def arm_dense_run(self, settings: dict, tableau, gaps, y, f, motion, uf, audit,
+                      a_extra, D) -> tuple:
+        """Let an FMU's wrapper also take the communication steps past the step
+        ``load_dense`` put in ``dense`` (armed by ``arm_dense_steps`` first): the pair
+        ``tableau`` (``Kernel.tableau``) from (y, f) with ``settings`` (PrkPy's scalar
+        fields, PrkRun's in ``settings["run"]``: c_steps.run_settings), the gaps between
+        its nodes, the held inputs (motion: (c, c', c''), uf), the energy audit's state
+        (13 values) or None, DOP853's dense tableau (a_extra, D). Returns (the addresses of
+        ``mbd_dense_run_step``, of the model, of the DenseRun)."""
+        run, ns = self.run, tableau[0]
+        b = self.run_buffers
+        if b is None or b.K.shape[0] != ns + 1:
+            b = self.run_buffers = RunBuffers(self.n, self.m, self.nf, ns)
+            point_run(run.p, b, tableau, gaps)
+            self._point_interpolant(run, b, a_extra, D)
+        b.y[:], b.f[:] = y, f
+        b.motions[:], b.node_motions[:] = motion, motion
+        b.ufs[:, :self.nf], b.node_ufs[:, :self.nf] = uf, uf
+        p = run.p
+        for name, value in settings.pop("run").items():
+            setattr(p.r, name, value)
+        for name, value in settings.items():
+            setattr(p, name, value)
+        for name in COUNTERS:
+            setattr(p.r, name, 0)
+        p.stepped, run.taken = 0, 0
+        if audit is None:
+            p.audit = None
+        else:
+            b.audit[:] = audit
+            p.audit = b.audit.ctypes.data
+        function = ctypes.cast(self.library.mbd_dense_run_step, ctypes.c_void_p).value
+        return function, self.address, ctypes.addressof(run)
+
+    @staticmethod
+    def _point_interpolant(run: DenseRun, b: RunBuffers, a_extra, D) -> None:
+        b.tableau = [np.ascontiguousarray(a, dtype=float) for a in (a_extra, D)]
+        run.a_extra, run.D = (a.ctypes.data for a in b.tableau)
+        run.motions, run.ufs = b.node_motions.ctypes.data, b.node_ufs.ctypes.data
+        run.coef[0], run.coef[1] = b.coef[0].ctypes.data, b.coef[1].ctypes.data
+        run.y_old[0], run.y_old[1] = b.coef_y_old[0].ctypes.data, b.coef_y_old[1].ctypes.data
+        run.Kx, run.ys, run.saved = b.Kx.ctypes.data, b.ys.ctypes.data, b.saved.ctypes.data
+
+    def dense_run_taken(self) -> dict | None:
+        """What the wrapper's dense run did since it was armed: None without steps, else the
+        state for ``c_dense_run.adopt_dense_run`` (copies). The run is then disarmed until
+        armed anew."""
+        run, b = self.run, self.run_buffers
+        if b is None or not run.taken:
+            return None
+        p, r = run.p, run.p.r
+        which = int(run.which)
+        state = dict(t=float(p.t), h=float(r.h), err_old=float(r.err_old),
+                     indicator=float(r.indicator), landing=bool(r.landing),
+                     energy_rejected=None if np.isnan(p.energy_rejected) else
+                     float(p.energy_rejected), y=b.y.copy(), f=b.f.copy(),
+                     t_old=float(p.t_old), h_old=float(p.h_old), y_old=b.y_old.copy(),
+                     y_end=b.y_end.copy(), K_old=b.K_old.copy(),
+                     coefficients=b.coef[which].copy(),
+                     audit=b.audit.copy() if p.audit else None,
+                     counters={k: int(getattr(r, k)) for k in COUNTERS})
+        run.taken = 0
+        for name in COUNTERS:
+            setattr(r, name, 0)
+        return state

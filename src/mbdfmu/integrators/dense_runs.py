@@ -1,0 +1,62 @@
+"""An FMU's communication steps past the end of the step its wrapper reads, taken in C
+(``equations/ckernel/dense_run.h``), seen from the integrator: the settings they start
+from (``dense_run``) and the state to take over after them (``adopt_dense_run``).
+
+The wrapper reads dop853p's dense output inside a step without Python (``ckernel/dense.h``);
+a read past the step's end needed Python's next step and its interpolant. The C run takes
+those steps with ``prk_run``'s decisions and builds the interpolant with the function
+``DOP853P._interpolant`` calls, so the values it serves are Python's bit for bit.
+"""
+
+from __future__ import annotations
+
+from . import c_steps
+from .singular_zone import gaps
+from .dense_output import DenseStep
+from .projected_rk import (DOP853P, ENERGY_JUMP_LIMIT, ENERGY_MIN_GAIN, MAX_FACTOR, MIN_FACTOR,
+                           SAFETY)
+from .tableaux import DOP853_A_EXTRA, DOP853_D
+
+
+def dense_run(rk, limit, stiff_limit: float | None) -> tuple | None:
+    """The arguments of ``Kernel.arm_dense_run`` after (y, f, motion, uf) are added by the
+    caller, for rk's coming steps past the step the wrapper reads, or None when they must
+    go through Python: another method than dop853p, a watch after each step that is not
+    auto's at rest (``stiff_limit`` None), an energy audit of forces that are not constant
+    (the kernel checks constant ones), no interpolant loaded, a short CPU limit."""
+    eq = rk.equations
+    if type(rk) is not DOP853P or stiff_limit is None or eq.ckernel is None or eq.m == 0 or \
+            (rk.audit is not None and not eq.applied.is_constant) or rk.dense is None or \
+            rk.dense.coefficients is None:
+        return None
+    max_work = c_steps.wrapper_steps(limit)
+    if max_work is None:
+        return None
+    settings = c_steps.run_settings(rk, (SAFETY, MIN_FACTOR, MAX_FACTOR),
+                                    (ENERGY_MIN_GAIN, ENERGY_JUMP_LIMIT), max_work)
+    settings["run"]["stiff_limit"] = stiff_limit
+    settings.update(t_target=rk.t, dense=1, rejections=0)
+    audit = c_steps.audit_state(rk.audit) if rk.audit is not None else None
+    return (settings, c_steps.tableau(rk), gaps(rk.C[:rk.n_stages]), audit,
+            DOP853_A_EXTRA, DOP853_D)
+
+
+def adopt_dense_run(rk, state: dict) -> None:
+    """The state, counters, audit and last step (with its interpolant) after the wrapper's
+    dense run (``Kernel.dense_run_taken``), as ``_advance_adaptive`` with ``prk_run``
+    leaves them."""
+    n = rk.q.size
+    y = state["y"]
+    rk.q, rk.qd, rk.f, rk.t, rk.h = y[:n].copy(), y[n:].copy(), state["f"], state["t"], state["h"]
+    rk.err_old, rk.energy_rejected = state["err_old"], state["energy_rejected"]
+    rk.zone.indicator, rk.zone.crossing, rk.zone.landing = state["indicator"], False, \
+        state["landing"]
+    rk.dense = DenseStep(state["t_old"], state["h_old"], state["y_old"], state["y_end"],
+                         state["K_old"])
+    rk.dense.coefficients = state["coefficients"]
+    # rk.out stays the output the run was armed at (before the new step): the caller's
+    # advance to the wrapper's time then reads it from the new step's dense output
+    if rk.audit is not None:
+        c_steps.audit_back(rk.audit, state["audit"])
+    for name, count in state["counters"].items():
+        setattr(rk.stats, name, getattr(rk.stats, name) + count)

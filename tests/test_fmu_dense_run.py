@@ -1,0 +1,124 @@
+"""The FMU's steps past the solver's step its wrapper reads (ckernel/dense_run.h): the
+wrapper takes dop853p's next steps, builds their interpolant and reads it, without Python,
+and every value it serves is the one Python computes when the same doSteps go through it
+(fmi2SetDebugLogging after each step sends the next one there). References: the slow
+instance (Python's step loop and interpolant) and scipy's DOP853 interpolant formula in
+numpy (dense_output.dop853_interpolant), never the C run's own output."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import mbdfmu  # noqa: E402
+from mbdfmu.equations import ckernel  # noqa: E402
+from mbdfmu.integrators import dense_output  # noqa: E402
+from mbdfmu.integrators.tableaux import DOP853_D  # noqa: E402
+from fmu_models.harness import DISCARD, OK, get_state  # noqa: E402
+from fmu_models.scenes import scene_fmu, scene_host  # noqa: E402,F401
+
+pytestmark = pytest.mark.skipif(not ckernel.available(), reason="no C compiler for the kernel")
+H = 1e-3
+
+
+def taken_by_wrapper(h) -> int:
+    return sum(int(m.split(": ")[1].split()[0]) for _, _, m in h.messages
+               if "taken by the wrapper" in m)
+
+
+def python_steps(h) -> int:
+    """doSteps that went through Python: each catch-up after the wrapper's steps logs one
+    line, and so does every doStep after it until the wrapper is armed again."""
+    return sum("taken by the wrapper" in m for _, _, m in h.messages)
+
+
+def test_steps_past_the_solvers_step_are_the_wrappers_and_pythons_values(scene_fmu,
+                                                                          scene_host):
+    """P2 N = 2 (auto -> dop853p, energy audit on) over 1.2 s at 1 ms, through the cranks'
+    first horizontal crossing (t = 0.79 s): bit for bit Python's values at every doStep,
+    and Python entered for a few doSteps only (before, at the end of every solver step:
+    about one doStep in 80)."""
+    path = scene_fmu("n_four_bar_2")
+    fast, slow = scene_host(path, "fast").init(), scene_host(path, "slow").init()
+    names = fast.outputs
+    for k in range(1200):
+        assert fast.step(H) == OK and slow.step(H) == OK, (fast.messages[-3:],
+                                                           slow.messages[-3:])
+        assert fast.real(*names) == slow.real(*names), k
+        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+        if k in (400, 800):         # Python catches up, takes the state over, arms again
+            assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK
+    assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK    # the slave catches up
+    assert taken_by_wrapper(fast) >= 1190
+    assert fast.real(*names) == slow.real(*names)
+
+
+def test_a_restored_state_goes_on_with_the_wrappers_steps_bit_for_bit(scene_fmu, scene_host):
+    """A state saved between the wrapper's runs (Python catches up, then the wrapper is
+    armed again) and restored repeats the same values."""
+    h = scene_host(scene_fmu("n_four_bar_2"), "saved").init()
+    names = h.outputs
+    for _ in range(150):
+        assert h.step(H) == OK
+    state, t0 = get_state(h), h.t
+
+    def run():
+        return [h.real(*names) for _ in range(300) if h.step(H) == OK]
+    first = run()
+    assert h.status("fmi2SetFMUstate", state) == OK
+    h.t = t0
+    assert run() == first and len(first) == 300
+
+
+def test_a_run_the_wrapper_cannot_finish_is_pythons_unchanged(scene_fmu, scene_host):
+    """A doStep needing more solver steps than solver.max_steps_per_communication_step
+    allows: the wrapper's run puts everything back and Python discards the step, saying
+    why; the FMU stays where it was and goes on with the slow instance's values."""
+    path = scene_fmu("n_four_bar_2")
+    fast, slow = scene_host(path, "fast"), scene_host(path, "slow")
+    for h in (fast, slow):
+        assert h.set_int("solver.max_steps_per_communication_step", 2) == OK
+        h.init()
+    names = fast.outputs
+    for _ in range(50):
+        assert fast.step(H) == OK and slow.step(H) == OK
+        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+    before = fast.real(*names)
+    assert fast.status("fmi2DoStep", fast.t, 0.5, 1) == DISCARD
+    assert "solver.max_steps_per_communication_step" in fast.messages[-1][2]
+    assert fast.real(*names) == before
+    for _ in range(200):
+        assert fast.step(H) == OK and slow.step(H) == OK
+        assert fast.real(*names) == slow.real(*names)
+        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+
+
+def test_the_c_interpolant_is_scipys_dop853_formula():
+    """DOP853's interpolant as the kernel builds it (mbd_dop853_dense, which the FMU's
+    wrapper and Python's reads share) against dense_output.dop853_interpolant, scipy's
+    formula in numpy, with the same evaluations of eq. 14, at the steps of a P2 run: equal
+    to round-off, and the interpolant meets both ends of its step."""
+    sim = mbdfmu.Simulation("n_four_bar_2", kernel="c", method="dop853p", rtol=1e-8,
+                            atol=1e-10)
+    rk = sim.integrator
+    for k in range(40):
+        sim.advance(0.05 * (k + 1))
+        step = rk.dense
+        F = rk._interpolant(step)
+
+        def rhs(t, y):
+            qdd, _ = sim.equations.accelerations(t, y[:15], y[15:])
+            return np.concatenate((y[15:], qdd))
+        reference = dense_output.dop853_interpolant(step, rhs)
+        # each row is h times sums of stages, weighted up to DOP853_D's (cancelling) ones
+        scale = step.h * np.abs(step.K).max() * np.abs(DOP853_D).sum(axis=1).max()
+        np.testing.assert_allclose(F, reference, rtol=0, atol=1e-14 * scale)
+        step.coefficients = F
+        np.testing.assert_array_equal(dense_output.dop853_value(step, 0.0), step.y_old)
+        np.testing.assert_allclose(dense_output.dop853_value(step, 1.0), step.y_new,
+                                   rtol=0, atol=1e-14 * np.abs(step.y_new).max())
