@@ -1,0 +1,165 @@
+"""The time each communication step takes: the scene FMUs stepped by fmpy at 1 ms, every
+doStep (with fmi2SetReal of the crane's cylinder force before it, and fmi2GetReal of every
+output after it) timed on its own, for the distribution a real-time master sees: median,
+mean, the 99th and 99.9th percentiles, the largest, and how many steps took over 100 µs
+(where Python took the step instead of the FMU's C wrapper, the slow tail).
+
+CPU time of the stepping thread (``time.thread_time``), so that another process's load on
+this shared machine does not count. ``--python`` builds the FMUs with another checkout's
+interpreter too (label=path), for a before/after in one run: each build's rows are
+measured alternately, ``--repeat`` rounds, and the round with the lowest mean kept.
+
+    python benchmarks/fmu_step_times.py [--t-end 10] [--repeat 3] [--python base=/path/python]
+
+Writes ``fmu_step_times.md``, ``.csv`` and ``.png`` into ``-o`` (default
+docs/figures/performance).
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import csv  # noqa: E402
+import math  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+from fmpy import extract, read_model_description  # noqa: E402
+from fmpy.fmi2 import FMU2Slave  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+CASES = {"slider-crank (P4)": (ROOT / "scenes" / "slider_crank.toml", None),
+         "P2 N = 2": (ROOT / "scenes" / "n_four_bar_2.toml", None),
+         "crane mechanism": (ROOT / "scenarios" / "hydraulic_crane" / "crane.toml",
+                             "cylinder.actuator")}
+H = 1e-3
+SLOW_US = 100.0
+HOLD, SWING = 8420.0, 0.05     # the crane's cylinder force (N) as fmu_speed.py sets it
+
+
+def build(python: str, scene: Path, target: Path) -> Path:
+    run = subprocess.run([python, "-m", "mbdfmu", "build", str(scene), "-o", str(target)],
+                         capture_output=True, text=True)
+    if run.returncode != 0:
+        raise SystemExit(f"building {scene.name} with {python}: {run.stderr.strip()[-300:]}")
+    return target
+
+
+def step_times(fmu: Path, input_name: str | None, t_end: float) -> np.ndarray:
+    """CPU µs of each doStep (with its set and get) over t_end at H."""
+    md = read_model_description(fmu)
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(fmu), instanceName="times",
+                      modelIdentifier=md.coSimulation.modelIdentifier)
+    outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+    vr = {v.name: v.valueReference for v in md.modelVariables}.get(input_name)
+    slave.instantiate()
+    slave.setupExperiment(startTime=0.0)
+    slave.enterInitializationMode()
+    slave.exitInitializationMode()
+    n = int(round(t_end / H))
+    times, t = np.empty(n), 0.0
+    for k in range(n):
+        start = time.thread_time()
+        if vr is not None:
+            slave.setReal([vr], [HOLD * (1.0 + SWING * math.sin(2.0 * math.pi * t))])
+        slave.doStep(t, H)
+        slave.getReal(outputs)
+        times[k] = time.thread_time() - start
+        t += H
+    slave.terminate()
+    slave.freeInstance()
+    return times * 1e6
+
+
+def summary(case: str, build_label: str, times: np.ndarray) -> dict:
+    slow = times > SLOW_US
+    return {"case": case, "build": build_label, "steps": times.size,
+            "median_us": float(np.median(times)), "mean_us": float(times.mean()),
+            "p99_us": float(np.quantile(times, 0.99)),
+            "p999_us": float(np.quantile(times, 0.999)), "max_us": float(times.max()),
+            "slow_steps": int(slow.sum()), "slow_share": float(times[slow].sum() / times.sum())}
+
+
+def markdown(rows: list[dict], header: str) -> str:
+    lines = [header, "", "| case | build | median µs | mean µs | p99 µs | p99.9 µs | largest µs "
+             f"| steps over {SLOW_US:g} µs | their share of the time |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['case']} | {r['build']} | {r['median_us']:.1f} | {r['mean_us']:.1f} "
+                     f"| {r['p99_us']:.1f} | {r['p999_us']:.1f} | {r['max_us']:.0f} "
+                     f"| {r['slow_steps']} of {r['steps']} | {100 * r['slow_share']:.0f} % |")
+    return "\n".join(lines) + "\n"
+
+
+def chart(samples: dict, path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(7.5, 4.5))
+    for (case, label), times in samples.items():
+        x = np.sort(times)
+        ax.semilogx(x, 1.0 - np.arange(x.size) / x.size, label=f"{case}, {label}")
+    ax.set_yscale("log")
+    ax.set_xlabel("CPU time of one 1 ms doStep in fmpy (µs)")
+    ax.set_ylabel("share of doSteps taking longer")
+    ax.set_title("Communication step times: the slow tail is Python's steps")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--t-end", type=float, default=10.0)
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--python", action="append", default=[], metavar="LABEL=PATH",
+                        help="also build the FMUs with this interpreter's mbdfmu")
+    parser.add_argument("-o", "--output", default=str(ROOT / "docs" / "figures" / "performance"))
+    args = parser.parse_args(argv)
+    builds = [("this checkout", sys.executable)]
+    for item in args.python:
+        label, _, python = item.partition("=")
+        if not python:
+            parser.error(f"--python {item!r}: give LABEL=PATH of a Python interpreter")
+        builds.append((label, python))
+    rows, samples = [], {}
+    with tempfile.TemporaryDirectory() as tmp:
+        fmus = {(case, label): build(python, scene, Path(tmp) / f"c{i}b{j}.fmu")
+                for i, (case, (scene, _)) in enumerate(CASES.items())
+                for j, (label, python) in enumerate(builds)}
+        for case, (_, input_name) in CASES.items():
+            for _ in range(args.repeat):
+                for label, _ in builds:
+                    times = step_times(fmus[case, label], input_name, args.t_end)
+                    best = samples.get((case, label))
+                    if best is None or times.mean() < best.mean():
+                        samples[case, label] = times
+            for label, _ in builds:
+                rows.append(summary(case, label, samples[case, label]))
+                print(rows[-1], flush=True)
+    header = (f"`python benchmarks/fmu_step_times.py --t-end {args.t_end:g} --repeat "
+              f"{args.repeat}`: CPU time of each 1 ms doStep in fmpy (set, step, get of every "
+              f"output), the round with the lowest mean of {args.repeat}.")
+    text = markdown(rows, header)
+    print(text)
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "fmu_step_times.md").write_text(text)
+    with open(out / "fmu_step_times.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    chart(samples, out / "fmu_step_times.png")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
