@@ -252,13 +252,16 @@ def _joint_output_plan(scene: Scene, c) -> np.ndarray:
     """Where each joint output sits in [reactions (nj, 3) raveled | coupler efforts]: the
     reaction columns Fx, Fy, Tz a joint type declares in the variable table, or its effort."""
     column = {"Fx": 0, "Fy": 1, "Tz": 2}
-    coupler = {int(k): i for i, k in enumerate(c.coupler_joints)}
+    coupler = {k: i for i, k in enumerate(c.coupler_joints.tolist())}
     nj = len(scene.joints)
     zero = 3 * nj + len(coupler)
-    plan = []
+    plan, declared = [], {}
     for k, j in enumerate(scene.joints):
-        for s in TABLES[type(j)].outputs:
-            if s.applies(j):
+        specs = declared.get(type(j))
+        if specs is None:        # each type's specs once: most apply to every joint
+            specs = declared[type(j)] = [(s, s.when is None) for s in TABLES[type(j)].outputs]
+        for s, always in specs:
+            if always or s.applies(j):
                 plan.append(3 * nj + coupler[k] if s.suffix == "effort" else
                             3 * k + column[s.suffix] if s.suffix in column else zero)
     return np.array(plan, dtype=int)

@@ -173,7 +173,9 @@ class JacobianPattern:
         order = np.argsort(self.cols, kind="stable")
         cols_sorted = self.cols[order]
         starts = np.flatnonzero(_first_of_runs(cols_sorted))
-        sizes = np.diff(np.append(starts, cols_sorted.size))
+        sizes = np.empty_like(starts)           # the runs' lengths (np.diff of an append)
+        sizes[:-1], sizes[-1:] = starts[1:], cols_sorted.size
+        sizes -= starts
         # each entry of a column pairs with every entry of it, in the order a per-column
         # meshgrid (i outer, j inner) would give, without a Python loop over columns
         group = np.repeat(np.arange(starts.size), sizes)          # column of each sorted entry
