@@ -16,7 +16,7 @@ from ..model.variables import TABLES, InputValues, input_layout
 from . import ckernel
 from .constraints import ConstraintSet, choose_kernel
 from .forces import AppliedForces
-from .planar import poses, rotate
+from .planar import poses, rotate, stacked
 from .singular import nullspace_accelerations
 from .sparsity import RANK_TOLERANCE, schur_solve_checked
 
@@ -35,7 +35,7 @@ class Equations:
         self.scene = scene
         self.nb = len(scene.bodies)
         self.n = 3 * self.nb
-        self.mass = np.array([[b.mass, b.mass, b.inertia] for b in scene.bodies]).ravel()
+        self.mass = stacked([(b.mass, b.mass, b.inertia) for b in scene.bodies], 3).ravel()
         self.minv = 1.0 / self.mass
         self.layout = input_layout(scene)
         self.has_events = has_events(scene)

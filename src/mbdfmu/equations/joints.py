@@ -27,6 +27,7 @@ import numpy as np
 
 from ..model.scene import (GROUND, CouplerJoint, Driver, RevoluteJoint, RollingJoint, Scene,
                            SlotJoint, TranslationalJoint)
+from .planar import stacked
 
 
 class Primitive:
@@ -44,9 +45,7 @@ class Primitive:
         self.rows = np.array(self.rows, dtype=int)
         self.bi = np.array(self.bi, dtype=int)
         self.bj = np.array(self.bj, dtype=int)
-        self.si = np.array(self.si, dtype=float).reshape(-1, 2)
-        self.sj = np.array(self.sj, dtype=float).reshape(-1, 2)
-        self.u = np.array(self.u, dtype=float).reshape(-1, 2)
+        self.si, self.sj, self.u = stacked(self.si, 2), stacked(self.sj, 2), stacked(self.u, 2)
         self.w = np.array(self.w, dtype=float)
         self.n = len(self.bi)
         flat = self.rows.ravel().tolist()
