@@ -258,10 +258,12 @@ def _joint_output_plan(scene: Scene, c) -> np.ndarray:
     plan, declared = [], {}
     for k, j in enumerate(scene.joints):
         specs = declared.get(type(j))
-        if specs is None:        # each type's specs once: most apply to every joint
-            specs = declared[type(j)] = [(s, s.when is None) for s in TABLES[type(j)].outputs]
-        for s, always in specs:
-            if always or s.applies(j):
-                plan.append(3 * nj + coupler[k] if s.suffix == "effort" else
-                            3 * k + column[s.suffix] if s.suffix in column else zero)
+        if specs is None:        # each type's outputs once: (place, Spec.applies's condition)
+            specs = declared[type(j)] = [
+                ("effort" if s.suffix == "effort" else column.get(s.suffix, "zero"), s.condition)
+                for s in TABLES[type(j)].outputs]
+        for place, condition in specs:
+            if condition is None or bool(getattr(j, condition[0])) != condition[1]:
+                plan.append(3 * nj + coupler[k] if place == "effort" else
+                            zero if place == "zero" else 3 * k + place)
     return np.array(plan, dtype=int)

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -52,10 +53,10 @@ class Primitive:
         self.repeats = len(set(flat)) < self.n   # a row with several terms
 
 
-@dataclass(frozen=True)
-class ReactionFrame:
+class ReactionFrame(NamedTuple):
     """The frame of a joint's reported reactions: ``body``'s frame turned by ``angle``;
-    ``point`` (body_j-fixed) is where the reaction force acts, for the torque."""
+    ``point`` (body_j-fixed) is where the reaction force acts, for the torque. (A named
+    tuple: one is made per joint at every setup, cheaper than a frozen dataclass.)"""
 
     body: int
     angle: float
