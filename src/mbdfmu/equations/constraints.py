@@ -122,12 +122,12 @@ class ConstraintSet:
         # in blocks: constants [r0, r1, r0, r1 | angle rows twice], coincidence phi
         # [r0, r1, r0, r1], line rows six times; their columns below, block by block
         rows = np.concatenate((pair, pair, a.rows, a.rows, pair, pair, *(l.rows,) * 6))
-        cols = np.concatenate((ij + np.repeat(_XYXY, c.n), 3 * a.bj + 2, 3 * a.bi + 2, ij + 2,
+        cols = np.concatenate((ij + _XYXY.repeat(c.n), 3 * a.bj + 2, 3 * a.bi + 2, ij + 2,
                                (3 * np.concatenate((l.bi, l.bi, l.bi, l.bj, l.bj, l.bj))
-                                + np.repeat(_XYPHI2, l.n))))
+                                + _XYPHI2.repeat(l.n))))
         self._constants = np.concatenate(
             [np.ones(2 * c.n), -np.ones(2 * c.n), a.w, -a.w])
-        self._line_weights = None if np.all(l.w == 1.0) else np.tile(l.w, 6)
+        self._line_weights = None if (l.w == 1.0).all() else np.tile(l.w, 6)
         self._nnz = 4 * c.n + 6 * l.n + self._constants.size
         self.pattern = p = JacobianPattern(rows, cols, self.m, self.n, minv)
         # every body-fixed vector that rotates with its body, rotated in one go:
