@@ -80,7 +80,8 @@ class Simulation(SimulationInputs):
             None, self.events.equations if self.events else self.equations, t0, q0, qd0,
             self.settings, inputs=self.inputs_at, watch=self.events is None,
             output_interval=self.settings.output_interval_for(scene.simulation.t_end))
-        check_method(self.integrator, scene)
+        if self.equations.has_events:       # check_method's condition, known already
+            check_method(self.integrator, scene)
         self._cache = None
 
     @property

@@ -24,7 +24,7 @@ from ..errors import InputError
 from ..model.scene import Scene
 from ..model.variables import InputValues
 from .joints import JOINT_ROWS, RowBuilder, driver_row
-from .planar import dot, poses, rot90, rotate, velocities
+from .planar import dot, poses, rot90, rotate, stacked, velocities
 from .sparsity import JacobianPattern
 
 KERNELS = ("numpy", "numba", "c")
@@ -92,12 +92,12 @@ class ConstraintSet:
         self.m, self.labels = b.m, b.labels
         self.offsets = np.array(b.offsets, dtype=float)
         self.reaction_joints = np.array([r[0] for r in reactions], dtype=int)
-        self.joint_rows = np.array([(r[1], r[1] + 1 if r[2] == 2 else self.m)
-                                    for r in reactions], dtype=int).reshape(-1, 2)
+        self.joint_rows = stacked([(r[1], r[1] + 1 if r[2] == 2 else self.m)
+                                   for r in reactions], 2, int)
         self.joint_bj = np.array([r[3] for r in reactions], dtype=int)
         self.frame_body = np.array([r[4].body for r in reactions], dtype=int)
         self.frame_angle = np.array([r[4].angle for r in reactions], dtype=float)
-        self.frame_point = np.array([r[4].point for r in reactions], dtype=float).reshape(-1, 2)
+        self.frame_point = stacked([r[4].point for r in reactions], 2)
         self.coupler_joints = np.array([c[0] for c in couplers], dtype=int)
         self.coupler_rows = np.array([c[1] for c in couplers], dtype=int)
         # which drivers take their motion from the inputs, and which evaluate it themselves
@@ -122,12 +122,12 @@ class ConstraintSet:
         # in blocks: constants [r0, r1, r0, r1 | angle rows twice], coincidence phi
         # [r0, r1, r0, r1], line rows six times; their columns below, block by block
         rows = np.concatenate((pair, pair, a.rows, a.rows, pair, pair, *(l.rows,) * 6))
-        cols = np.concatenate((ij + np.repeat(_XYXY, c.n), 3 * a.bj + 2, 3 * a.bi + 2, ij + 2,
+        cols = np.concatenate((ij + _XYXY.repeat(c.n), 3 * a.bj + 2, 3 * a.bi + 2, ij + 2,
                                (3 * np.concatenate((l.bi, l.bi, l.bi, l.bj, l.bj, l.bj))
-                                + np.repeat(_XYPHI2, l.n))))
+                                + _XYPHI2.repeat(l.n))))
         self._constants = np.concatenate(
             [np.ones(2 * c.n), -np.ones(2 * c.n), a.w, -a.w])
-        self._line_weights = None if np.all(l.w == 1.0) else np.tile(l.w, 6)
+        self._line_weights = None if (l.w == 1.0).all() else np.tile(l.w, 6)
         self._nnz = 4 * c.n + 6 * l.n + self._constants.size
         self.pattern = p = JacobianPattern(rows, cols, self.m, self.n, minv)
         # every body-fixed vector that rotates with its body, rotated in one go:

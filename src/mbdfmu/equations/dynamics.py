@@ -16,7 +16,7 @@ from ..model.variables import TABLES, InputValues, input_layout
 from . import ckernel
 from .constraints import ConstraintSet, choose_kernel
 from .forces import AppliedForces
-from .planar import poses, rotate
+from .planar import poses, rotate, stacked
 from .singular import nullspace_accelerations
 from .sparsity import RANK_TOLERANCE, schur_solve_checked
 
@@ -35,7 +35,7 @@ class Equations:
         self.scene = scene
         self.nb = len(scene.bodies)
         self.n = 3 * self.nb
-        self.mass = np.array([[b.mass, b.mass, b.inertia] for b in scene.bodies]).ravel()
+        self.mass = stacked([(b.mass, b.mass, b.inertia) for b in scene.bodies], 3).ravel()
         self.minv = 1.0 / self.mass
         self.layout = input_layout(scene)
         self.has_events = has_events(scene)
@@ -252,13 +252,18 @@ def _joint_output_plan(scene: Scene, c) -> np.ndarray:
     """Where each joint output sits in [reactions (nj, 3) raveled | coupler efforts]: the
     reaction columns Fx, Fy, Tz a joint type declares in the variable table, or its effort."""
     column = {"Fx": 0, "Fy": 1, "Tz": 2}
-    coupler = {int(k): i for i, k in enumerate(c.coupler_joints)}
+    coupler = {k: i for i, k in enumerate(c.coupler_joints.tolist())}
     nj = len(scene.joints)
     zero = 3 * nj + len(coupler)
-    plan = []
+    plan, declared = [], {}
     for k, j in enumerate(scene.joints):
-        for s in TABLES[type(j)].outputs:
-            if s.applies(j):
-                plan.append(3 * nj + coupler[k] if s.suffix == "effort" else
-                            3 * k + column[s.suffix] if s.suffix in column else zero)
+        specs = declared.get(type(j))
+        if specs is None:        # each type's outputs once: (place, Spec.applies's condition)
+            specs = declared[type(j)] = [
+                ("effort" if s.suffix == "effort" else column.get(s.suffix, "zero"), s.condition)
+                for s in TABLES[type(j)].outputs]
+        for place, condition in specs:
+            if condition is None or bool(getattr(j, condition[0])) != condition[1]:
+                plan.append(3 * nj + coupler[k] if place == "effort" else
+                            zero if place == "zero" else 3 * k + place)
     return np.array(plan, dtype=int)

@@ -22,11 +22,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from ..model.scene import (GROUND, CouplerJoint, Driver, RevoluteJoint, RollingJoint, Scene,
                            SlotJoint, TranslationalJoint)
+from .planar import stacked
 
 
 class Primitive:
@@ -44,19 +46,17 @@ class Primitive:
         self.rows = np.array(self.rows, dtype=int)
         self.bi = np.array(self.bi, dtype=int)
         self.bj = np.array(self.bj, dtype=int)
-        self.si = np.array(self.si, dtype=float).reshape(-1, 2)
-        self.sj = np.array(self.sj, dtype=float).reshape(-1, 2)
-        self.u = np.array(self.u, dtype=float).reshape(-1, 2)
+        self.si, self.sj, self.u = stacked(self.si, 2), stacked(self.sj, 2), stacked(self.u, 2)
         self.w = np.array(self.w, dtype=float)
         self.n = len(self.bi)
         flat = self.rows.ravel().tolist()
         self.repeats = len(set(flat)) < self.n   # a row with several terms
 
 
-@dataclass(frozen=True)
-class ReactionFrame:
+class ReactionFrame(NamedTuple):
     """The frame of a joint's reported reactions: ``body``'s frame turned by ``angle``;
-    ``point`` (body_j-fixed) is where the reaction force acts, for the torque."""
+    ``point`` (body_j-fixed) is where the reaction force acts, for the torque. (A named
+    tuple: one is made per joint at every setup, cheaper than a frozen dataclass.)"""
 
     body: int
     angle: float

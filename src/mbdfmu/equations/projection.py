@@ -17,6 +17,7 @@ import scipy.linalg
 from ..errors import AssemblyError, SolverError
 from ..model.variables import InputValues
 from .dynamics import Equations
+from .planar import stacked
 from .sparsity import RANK_TOLERANCE, schur_solve
 
 # Newton iterations allowed when assembling from rough estimates, and while projecting.
@@ -110,8 +111,8 @@ def rank_report(system: Equations, t: float, q: np.ndarray) -> RankReport:
 def initial_estimates(system: Equations) -> tuple[np.ndarray, np.ndarray]:
     """(q, q') as the scene gives them, before assembly."""
     bodies = system.scene.bodies
-    return (np.array([[*b.position, b.angle] for b in bodies], dtype=float).ravel(),
-            np.array([[*b.velocity, b.angular_velocity] for b in bodies], dtype=float).ravel())
+    return (stacked([(*b.position, b.angle) for b in bodies], 3).ravel(),
+            stacked([(*b.velocity, b.angular_velocity) for b in bodies], 3).ravel())
 
 
 def assemble(system: Equations, t: float = 0.0, u: InputValues | None = None, *,

@@ -121,7 +121,7 @@ class JacobianPattern:
         self.repeats = self.size < flat.size
         rows, cols = rows[first], cols[first]
         self.flat_with_ground = flat[first]
-        self.keep = np.flatnonzero(cols < n)
+        self.keep = (cols < n).nonzero()[0]
         self.rows, self.cols = rows[self.keep], cols[self.keep]
         self.m, self.n = m, n
         self.flat = self.rows * n + self.cols
@@ -155,8 +155,8 @@ class JacobianPattern:
         known = self.flat_with_ground                    # distinct: one match at most
         if known.size == 0:
             return np.zeros(flat.shape, dtype=np.intp)   # all read the appended zero
-        order = np.argsort(known)
-        hit = order[np.minimum(np.searchsorted(known, flat, sorter=order), known.size - 1)]
+        order = known.argsort()
+        hit = order[np.minimum(known.searchsorted(flat, sorter=order), known.size - 1)]
         return np.where(known[hit] == flat, hit, known.size).astype(np.intp)
 
     def jacobian(self, data: np.ndarray, sparse: bool):
@@ -170,16 +170,18 @@ class JacobianPattern:
     def _column_pairs(self):
         """Every pair (a, b) of kept entries in one column: S_ab = sum_k J_ak J_bk / M_k is a
         sum over exactly these pairs, so S can be assembled without forming J."""
-        order = np.argsort(self.cols, kind="stable")
+        order = self.cols.argsort(kind="stable")
         cols_sorted = self.cols[order]
-        starts = np.flatnonzero(_first_of_runs(cols_sorted))
-        sizes = np.diff(np.append(starts, cols_sorted.size))
+        starts = _first_of_runs(cols_sorted).nonzero()[0]
+        sizes = np.empty_like(starts)           # the runs' lengths (np.diff of an append)
+        sizes[:-1], sizes[-1:] = starts[1:], cols_sorted.size
+        sizes -= starts
         # each entry of a column pairs with every entry of it, in the order a per-column
         # meshgrid (i outer, j inner) would give, without a Python loop over columns
-        group = np.repeat(np.arange(starts.size), sizes)          # column of each sorted entry
+        group = np.arange(starts.size).repeat(sizes)              # column of each sorted entry
         count = sizes[group]                                       # pairs of each sorted entry
-        first = np.repeat(np.cumsum(count) - count, count)         # where its pairs begin
-        a = np.repeat(np.arange(cols_sorted.size), count)
+        first = (count.cumsum() - count).repeat(count)             # where its pairs begin
+        a = np.arange(cols_sorted.size).repeat(count)
         b = starts[group[a]] + np.arange(a.size) - first
         return order[a], order[b]
 
@@ -192,9 +194,10 @@ class JacobianPattern:
         ra, rb = self.rows[pa], self.rows[pb]
         # S's pattern straight in canonical CSR (sorted, no repeats): what coo's tocsr
         # gives, without its checks and conversions
-        flat = np.sort(ra * m + rb)
+        flat = ra * m + rb
+        flat.sort()
         flat = flat[_first_of_runs(flat)]
-        indptr = np.searchsorted(flat, np.arange(m + 1) * m)
+        indptr = flat.searchsorted(np.arange(m + 1) * m)
         perm = _rcm(flat % m, indptr, m)
         position = np.empty(m, dtype=np.intp)
         position[perm] = np.arange(m)
@@ -270,14 +273,14 @@ def _first_of_runs(values: np.ndarray) -> np.ndarray:
 def _first_use(flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The distinct values of ``flat`` in order of first use: where each first occurs, and
     each entry's number among them (np.unique's index and inverse, renumbered)."""
-    order = np.argsort(flat, kind="stable")          # stable: a value's first entry leads
+    order = flat.argsort(kind="stable")              # stable: a value's first entry leads
     new = _first_of_runs(flat[order])
     first = order[new]                               # in value order
-    by_use = np.argsort(first)
+    by_use = first.argsort()
     position = np.empty(by_use.size, dtype=np.intp)
     position[by_use] = np.arange(by_use.size)
     merge = np.empty(flat.size, dtype=np.intp)
-    merge[order] = position[np.cumsum(new) - 1]
+    merge[order] = position[new.cumsum() - 1]
     return first[by_use], merge
 
 

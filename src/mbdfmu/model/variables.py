@@ -60,11 +60,16 @@ class Spec:
     nonzero: bool = False
     when: str | None = None
 
+    @property
+    def condition(self) -> tuple[str, bool] | None:
+        """(the item attribute ``applies`` reads, whether negated); None: it always applies."""
+        return None if self.when is None else (self.when.lstrip("!"), self.when.startswith("!"))
+
     def applies(self, item) -> bool:
         if self.when is None:
             return True
-        negate = self.when.startswith("!")
-        return bool(getattr(item, self.when.lstrip("!"))) != negate
+        attribute, negate = self.condition
+        return bool(getattr(item, attribute)) != negate
 
 
 @dataclass(frozen=True)

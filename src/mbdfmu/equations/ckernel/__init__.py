@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ...model.scene import PointForce, RotationalSpringDamper, SpringDamper, Torque
+from ..sparsity import RANK_TOLERANCE
 from .dense import DENSE_KINDS, DenseReads  # noqa: F401 (DENSE_KINDS: public here)
 from .adaptive import PrkSteps
 from .dense_run import DenseRun, DenseRuns
@@ -34,13 +35,10 @@ MAX_STAGES = 13
 # Times whose inputs one call can take (a run of 64 rk4p steps evaluates 3 times each).
 MAX_ROWS = 192
 ENV_LIBRARY = "MBDFMU_C_KERNEL"
-# Minimum-norm solves (singular configurations, redundant rows) in C, as sparsity.py does
-# them (lstsq's cut-off, iterated Tikhonov); False hands them to the numpy path instead,
-# which then follows whatever that path does. False: eq. 14 with an ill-conditioned Schur
-# complement is solved in its null-space form (equations/singular.py; in C by nullspace.h
-# for S's dense form), whose q'' stays right next to a singular configuration where the
-# minimum-norm cut-off's does not; the projections' and error estimates' rare singular
-# solves stay the numpy path's.
+# Minimum-norm solves in C as sparsity.py does them (lstsq's cut-off, iterated Tikhonov);
+# False hands them to the numpy path. False: eq. 14 at an ill-conditioned S takes the
+# null-space form (singular.py; nullspace.h in C), whose q'' stays right next to a singular
+# configuration where the minimum-norm cut-off's does not.
 MIN_NORM_IN_C = False
 
 _P, _I = ctypes.c_void_p, ctypes.c_int64
@@ -188,17 +186,19 @@ def _packed(arrays: dict) -> tuple[dict, list]:
     one int64 or one float64 block (as ``_ints`` / ``_floats`` would give it) and given by
     its address there; and the two blocks, which must live as long as the model."""
     values = {name: arrays[name] for name in _COUNTS}
-    given = [np.asarray(arrays[name]) for name in _POINTERS]
-    integer = [a.dtype.kind in "iu" for a in given]
+    integer, real = [], []
+    for name in _POINTERS:
+        a = np.asarray(arrays[name])
+        (integer if a.dtype.kind in "iu" else real).append((name, a))
     blocks = []
-    for kind, dtype in ((True, np.int64), (False, np.float64)):
-        names = [name for name, k in zip(_POINTERS, integer) if k is kind]
-        part = [a for a, k in zip(given, integer) if k is kind]
+    for part, dtype in ((integer, np.int64), (real, np.float64)):
         # one element more: never of size 0
-        block = np.concatenate(part + [np.zeros(1, dtype)], axis=None, dtype=dtype)
-        base = block.ctypes.data
-        values.update((name, base + 8 * start) for name, start in
-                      zip(names, itertools.accumulate((a.size for a in part), initial=0)))
+        block = np.concatenate([a for _, a in part] + [np.zeros(1, dtype)], axis=None,
+                               dtype=dtype)
+        address = block.ctypes.data
+        for name, a in part:
+            values[name] = address
+            address += 8 * a.size
         blocks.append(block)
     return values, blocks
 
@@ -232,7 +232,6 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
     of zero length), which then says or does what it always does."""
 
     def __init__(self, eq):
-        from ..sparsity import RANK_TOLERANCE
         lib = library()
         self.n, self.m, self.nf = eq.n, eq.m, eq.layout.size
         arrays = model_arrays(eq)
@@ -244,17 +243,19 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
         values, self._arrays = _packed(arrays)
         model = Model(rank_tol=RANK_TOLERANCE, **values)
         self.model, self.address = model, ctypes.addressof(model)
-        self.work = np.zeros(lib.mbd_work_size(self.address, MAX_STAGES))
-        self.memo = np.zeros(lib.mbd_memo_size(self.address))
-        model.work, model.memo = self.work.ctypes.data, self.memo.ctypes.data
-        self.buf = Buffers(self.n, self.m, self.nf, self.nout)
-        self._tableaus: dict = {}
-        self.static_rows = 0          # rows of buf.motions holding a driverless scene's block
         # the dense read (dense.h) heads the dense run (dense_run.h): one address for both
         self.run = DenseRun()
         self.dense, self._dense_arrays, self._publish = self.run.d, (), None
-        self._dense_scratch = np.zeros(self.nout + 3 * self.n + max(self.m, 1))
-        self.dense.V = self._dense_scratch.ctypes.data
+        # the work space, the kept evaluation and the dense reads' scratch: one allocation
+        sizes = (lib.mbd_work_size(self.address, MAX_STAGES), lib.mbd_memo_size(self.address),
+                 self.nout + 3 * self.n + max(self.m, 1))
+        block, ends = np.zeros(sum(sizes)), tuple(itertools.accumulate(sizes, initial=0))
+        self.work, self.memo, self._dense_scratch = (block[a:b] for a, b in zip(ends, ends[1:]))
+        base = block.ctypes.data
+        model.work, model.memo, self.dense.V = base, base + 8 * ends[1], base + 8 * ends[2]
+        self.buf = Buffers(self.n, self.m, self.nf, self.nout)
+        self._tableaus: dict = {}
+        self.static_rows = 0          # rows of buf.motions holding a driverless scene's block
         self.library = lib
         self._bind(lib)
         self._bind_implicit(lib)

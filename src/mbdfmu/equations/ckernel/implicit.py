@@ -9,6 +9,7 @@ their fixed steps, and the kept iteration matrix's solve.
 from __future__ import annotations
 
 import ctypes
+import itertools
 
 import numpy as np
 
@@ -54,11 +55,13 @@ class ImplicitCalls:
     def _bind_implicit(self, lib) -> None:
         self._imp = lib          # its functions' types: declare_implicit, at loading
         n, m = self.n, self.m
-        self.imp_y = np.zeros(5 * n + max(m, 1))
-        self.imp_x = np.zeros(4 * n + max(m, 1))
-        self.imp_rhs, self.imp_out = np.zeros(n + max(m, 1)), np.zeros(n + max(m, 1))
-        self._imp_p = tuple(a.ctypes.data for a in (self.imp_y, self.imp_x, self.imp_rhs,
-                                                    self.imp_out))
+        sizes = (5 * n + max(m, 1), 4 * n + max(m, 1), n + max(m, 1), n + max(m, 1))
+        block = np.zeros(sum(sizes))        # one allocation, four parts
+        starts = tuple(itertools.accumulate(sizes, initial=0))
+        self.imp_y, self.imp_x, self.imp_rhs, self.imp_out = (
+            block[a:b] for a, b in zip(starts[:-1], starts[1:]))
+        base = block.ctypes.data
+        self._imp_p = tuple(base + 8 * a for a in starts[:-1])
 
     def implicit_settings(self, method: str, periodic, pattern=None, **values) -> Implicit:
         """An ``Implicit`` for ``method`` (a key of METHODS) with ``values`` by field name;
