@@ -35,10 +35,9 @@ MAX_STAGES = 13
 # Times whose inputs one call can take (a run of 64 rk4p steps evaluates 3 times each).
 MAX_ROWS = 192
 ENV_LIBRARY = "MBDFMU_C_KERNEL"
-# Minimum-norm solves in C as sparsity.py does them (lstsq's cut-off, iterated Tikhonov);
-# False hands them to the numpy path. False: eq. 14 at an ill-conditioned S takes the
-# null-space form (singular.py; nullspace.h in C), whose q'' stays right next to a singular
-# configuration where the minimum-norm cut-off's does not.
+# Minimum-norm solves in C as sparsity.py's (lstsq's cut-off, iterated Tikhonov), else the
+# numpy path's. Off: eq. 14 at an ill-conditioned S takes the null-space form (singular.py,
+# nullspace.h), whose q'' stays right next to a singular configuration; a cut-off's not.
 MIN_NORM_IN_C = False
 
 _P, _I = ctypes.c_void_p, ctypes.c_int64
