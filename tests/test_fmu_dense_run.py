@@ -136,3 +136,19 @@ def test_the_c_interpolant_is_scipys_dop853_formula():
         np.testing.assert_array_equal(dense_output.dop853_value(step, 0.0), step.y_old)
         np.testing.assert_allclose(dense_output.dop853_value(step, 1.0), step.y_new,
                                    rtol=0, atol=1e-14 * np.abs(step.y_new).max())
+
+
+def test_a_doStep_longer_than_a_cpu_checked_run_is_pythons(scene_fmu, scene_host):
+    """The wrapper's runs are not timed, and an FMU has a CPU limit per doStep by default:
+    a doStep that needs more solver attempts than Python takes between two checks of it
+    (8 s of P2, about 100 steps) goes to Python, with the same values."""
+    path = scene_fmu("n_four_bar_2")
+    fast, slow = scene_host(path, "fast").init(), scene_host(path, "slow").init()
+    names = fast.outputs
+    for _ in range(5):
+        assert fast.step(H) == OK and slow.step(H) == OK
+        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+    assert fast.step(8.0) == OK and slow.step(8.0) == OK
+    assert fast.real(*names) == slow.real(*names)
+    assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK
+    assert taken_by_wrapper(fast) == 4        # the first 1 ms doStep and the 8 s one: Python's

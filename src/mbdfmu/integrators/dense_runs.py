@@ -23,7 +23,8 @@ def dense_run(rk, limit, stiff_limit: float | None) -> tuple | None:
     caller, for rk's coming steps past the step the wrapper reads, or None when they must
     go through Python: another method than dop853p, a watch after each step that is not
     auto's at rest (``stiff_limit`` None), an energy audit of forces that are not constant
-    (the kernel checks constant ones), no interpolant loaded, a short CPU limit."""
+    (the kernel checks constant ones), no interpolant loaded, a short CPU limit (with a
+    longer one, at most PRK_RUN_LENGTH attempts a doStep)."""
     eq = rk.equations
     if type(rk) is not DOP853P or stiff_limit is None or eq.ckernel is None or eq.m == 0 or \
             (rk.audit is not None and not eq.applied.is_constant) or rk.dense is None or \
@@ -32,6 +33,10 @@ def dense_run(rk, limit, stiff_limit: float | None) -> tuple | None:
     max_work = c_steps.wrapper_steps(limit)
     if max_work is None:
         return None
+    if limit is not None and limit.max_cpu is not None:
+        # the wrapper's run is not timed: a doStep that needs more attempts than Python's
+        # runs take between two checks of the CPU limit goes to Python, which checks it
+        max_work = min(max_work, c_steps.PRK_RUN_LENGTH)
     settings = c_steps.run_settings(rk, (SAFETY, MIN_FACTOR, MAX_FACTOR),
                                     (ENERGY_MIN_GAIN, ENERGY_JUMP_LIMIT), max_work)
     settings["run"]["stiff_limit"] = stiff_limit
