@@ -244,6 +244,15 @@ def wrapper_steps(limit) -> int | None:
     return limit.max_steps or 2 ** 62
 
 
+def wrapper_attempts(limit) -> int | None:
+    """``wrapper_steps`` for an embedded pair's attempts in the (untimed) wrapper: under a
+    CPU limit at most PRK_RUN_LENGTH, what Python's runs take between two checks of it."""
+    attempts = wrapper_steps(limit)
+    if attempts is not None and limit is not None and limit.max_cpu is not None:
+        attempts = min(attempts, PRK_RUN_LENGTH)
+    return attempts
+
+
 def fast_run(rk, limit, time_tol: float) -> dict | None:
     """What ``ckernel/fixed.h`` needs to take rk4p's coming communication steps as
     ``_advance_fixed`` would (its grid, its step-doubling checks, its work limit), or None
@@ -294,7 +303,7 @@ def fast_prk_run(rk, limit, time_tol: float, factors: tuple,
             eq.nonconservative_reason() is None or eq.m == 0 or eq.ckernel is None or \
             rk.out is not None or rk.energy_rejected is not None:
         return None
-    max_work = wrapper_steps(limit)
+    max_work = wrapper_attempts(limit)
     if max_work is None:
         return None
     return dict(t_now=rk.t, time_tol=time_tol, h=rk.h, max_step=rk.max_step,
@@ -323,8 +332,7 @@ def adopt_prk_run(rk, state: dict) -> None:
 
 # Attempts per call of a run of an embedded pair's steps: the work limit is checked between.
 PRK_RUN_LENGTH = 64
-# ... and without a work limit: nothing to check between calls, so one call per output
-# time on most runs; still bounded so that an interrupt is seen between calls.
+# ... without one: one call per output time on most runs, bounded so that an interrupt is seen.
 PRK_RUN_LENGTH_FREE = 4096
 # Runs of an embedded pair's steps in C (``prk_run``); False: one C trial per Python step.
 PRK_RUNS = True
@@ -341,8 +349,7 @@ def prk_runs(rk) -> bool:
 
 
 def run_settings(rk, factors: tuple, energy: tuple, max_work: int) -> dict:
-    """PrkPy's fields (PrkRun's in "run") for a run of rk's steps from its state (``prk_run``
-    below; the wrapper's ``dense_runs``): ``factors`` and ``energy`` as ``prk_run``'s."""
+    """PrkPy's fields (PrkRun's in "run") for a run of rk's steps from its state."""
     run = dict(h=rk.h, max_step=rk.max_step, exponent=-rk.alpha, safety=factors[0],
                min_factor=factors[1], max_factor=factors[2], beta=rk.beta, err_old=rk.err_old,
                rtol=rk.local_tolerance * rk.rtol, atol=rk.local_tolerance * rk.atol,

@@ -30,13 +30,9 @@ def dense_run(rk, limit, stiff_limit: float | None) -> tuple | None:
             (rk.audit is not None and not eq.applied.is_constant) or rk.dense is None or \
             rk.dense.coefficients is None:
         return None
-    max_work = c_steps.wrapper_steps(limit)
+    max_work = c_steps.wrapper_attempts(limit)
     if max_work is None:
         return None
-    if limit is not None and limit.max_cpu is not None:
-        # the wrapper's run is not timed: a doStep that needs more attempts than Python's
-        # runs take between two checks of the CPU limit goes to Python, which checks it
-        max_work = min(max_work, c_steps.PRK_RUN_LENGTH)
     settings = c_steps.run_settings(rk, (SAFETY, MIN_FACTOR, MAX_FACTOR),
                                     (ENERGY_MIN_GAIN, ENERGY_JUMP_LIMIT), max_work)
     settings["run"]["stiff_limit"] = stiff_limit
