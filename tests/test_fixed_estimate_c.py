@@ -96,16 +96,14 @@ def test_a_p2_run_beyond_its_stated_accuracy_stops_where_pythons_does(monkeypatc
 def test_andrews_at_half_a_millisecond_stops_where_pythons_does(monkeypatch):
     """Andrews' mechanism at h = 0.5 ms, 1 ms advances: its local error peaks between checks
     (what the envelope is for); the run stops at t = 0.02 s, as tests/
-    test_fixed_step_estimate.py asserts of Python's loop, with the same estimate. Its
-    energy check (a spring's energy) is Python's and keeps its runs there: it is left
-    out of both runs here so that the C loop runs."""
+    test_fixed_step_estimate.py asserts of Python's loop, with the same estimate, with
+    and without its energy check (a spring's energy, which the kernel checks too:
+    stepping.h total_energy)."""
     times = np.arange(1, 31) * 1e-3
-    (python, c), taken = advance_both("andrews", 5e-4, times, monkeypatch, audit=False)
-    assert taken >= 5
-    assert c == python and c.startswith("t = 0.02 s: rk4p: estimated error 0.0109")
-    # with its energy check the run stays in Python, and stops there as before
-    (python, c), taken = advance_both("andrews", 5e-4, times, monkeypatch)
-    assert taken == 0 and c == python
+    for audit in (False, True):
+        (python, c), taken = advance_both("andrews", 5e-4, times, monkeypatch, audit=audit)
+        assert taken >= 5
+        assert c == python and c.startswith("t = 0.02 s: rk4p: estimated error 0.0109")
 
 
 def test_the_wrappers_rk4p_steps_keep_pythons_estimate():

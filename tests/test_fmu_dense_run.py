@@ -24,6 +24,24 @@ from fmu_models.scenes import scene_fmu, scene_host  # noqa: E402,F401
 
 pytestmark = pytest.mark.skipif(not ckernel.available(), reason="no C compiler for the kernel")
 H = 1e-3
+# A conservative mechanism with every force the kernel's energy audit sums: a spring, a
+# rotational spring, a constant torque and a constant force off the centre of mass.
+KITCHEN = mbdfmu.model.scene_from_dict({
+    "name": "ConservativeKitchen", "gravity": [0.0, -9.81],
+    "body": [{"name": "crank", "mass": 1.0, "inertia": 0.1, "position": [0.5, 0.0]},
+             {"name": "bob", "mass": 0.5, "inertia": 0.02, "position": [1.5, 0.0]}],
+    "joint": [{"name": "pin", "type": "revolute", "body_i": "ground", "body_j": "crank",
+               "point_j": [-0.5, 0.0]},
+              {"name": "hinge", "type": "revolute", "body_i": "crank", "point_i": [0.5, 0.0],
+               "body_j": "bob", "point_j": [-0.5, 0.0]}],
+    "force": [{"name": "spring", "type": "spring_damper", "body_i": "ground",
+               "point_i": [0.0, 1.0], "body_j": "bob", "point_j": [0.5, 0.0],
+               "stiffness": 300.0, "damping": 0.0, "rest_length": 1.0},
+              {"name": "tors", "type": "rotational_spring_damper", "joint": "hinge",
+               "stiffness": 4.0, "damping": 0.0, "rest_angle": 0.2},
+              {"name": "twist", "type": "torque", "body": "crank", "value": 1.5},
+              {"name": "push", "type": "force", "body": "bob", "point": [0.2, 0.05],
+               "value": [2.0, -1.0]}]}, source="kitchen")
 
 
 def taken_by_wrapper(h) -> int:
@@ -152,3 +170,41 @@ def test_a_doStep_longer_than_a_cpu_checked_run_is_pythons(scene_fmu, scene_host
     assert fast.real(*names) == slow.real(*names)
     assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK
     assert taken_by_wrapper(fast) == 4        # the first 1 ms doStep and the 8 s one: Python's
+
+
+def test_andrews_squeezer_runs_in_the_wrapper_with_its_springs_energy_audit(scene_fmu,
+                                                                           scene_host):
+    """Andrews' squeezer (a spring and a constant torque; auto -> dop853p, its energy
+    audited): the kernel checks the energy of springs and constant loads too
+    (stepping.h total_energy), so the wrapper takes its doSteps, bit for bit Python's; they
+    all went through Python before (several ms each)."""
+    path = scene_fmu("andrews")
+    fast, slow = scene_host(path, "fast").init(), scene_host(path, "slow").init()
+    names = fast.outputs
+    for k in range(100):
+        assert fast.step(H) == OK and slow.step(H) == OK
+        assert fast.real(*names) == slow.real(*names), k
+        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+    assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK
+    assert taken_by_wrapper(fast) >= 95, taken_by_wrapper(fast)
+
+
+@pytest.mark.parametrize("name", ["andrews", "kitchen"])
+def test_the_kernels_energy_audit_is_the_scenes_energy(name, monkeypatch):
+    """A run of steps in C with the energy audited (prk_run) takes every step there, with no
+    energy jump for Python to look at, and its audit's last energy is forces.py's total
+    energy (kinetic, gravity, springs, rotational springs, constant torques and forces off
+    a centre) at the state reached, to round-off."""
+    from mbdfmu.integrators.projected_rk import ProjectedRK
+    scene = KITCHEN if name == "kitchen" else name
+    sim = mbdfmu.Simulation(scene, kernel="c", method="dop853p", rtol=1e-8, atol=1e-10)
+    assert sim.integrator.audit is not None and sim.integrator.watch is None
+
+    def python_step(self, h):
+        raise AssertionError("the C run handed a step to Python")
+    monkeypatch.setattr(ProjectedRK, "_step_impl", python_step)
+    sim.advance(0.02)
+    rk = sim.integrator
+    energy = sim.equations.total_energy(rk.q, rk.qd)
+    assert rk.audit.checks > 3
+    assert abs(rk.audit.last_energy - energy) <= 1e-12 * max(1.0, rk.audit.magnitude)

@@ -78,11 +78,8 @@ def rk4p_run(rk, t0: float, h: float, k: int, stop: int, n: int, t_target: float
     """``RK4P._fixed_run`` with runs of steps in C (same grid, checks and counts): steps
     k + 1 .. stop of the grid t0 + j h (n steps to t_target); returns stop."""
     eq = rk.equations
-    # the kernel checks energies 1/2 q'M q' - F.q only: other conservative scenes step one
-    # at a time with the Python audit after each step
-    in_c = rk.audit is None or eq.applied.is_constant
-    while k < stop:
-        count = min(RUN_LENGTH, stop - k) if in_c else 1
+    while k < stop:            # the kernel checks the energy (stepping.h total_energy)
+        count = min(RUN_LENGTH, stop - k)
         done, status = _rk4p_run(rk, t0, h, k, count)
         k += done
         rk.t = t0 + k * h if k < n else t_target
@@ -91,8 +88,6 @@ def rk4p_run(rk, t0: float, h: float, k: int, stop: int, n: int, t_target: float
             rk._after_step()                         # says why
         elif status != ckernel.OK:                   # this step on the Python path
             k = Integrator._fixed_run(rk, t0, h, k, k + 1, n, t_target)
-        elif not in_c:
-            rk._after_step()
         if rk.limit is not None:
             rk.limit.check(rk.stats, rk.t, t_target)
     return stop
@@ -114,13 +109,12 @@ def _rk4p_run(rk, t0: float, h: float, k: int, count: int) -> tuple[int, int]:
     else:
         starts = t0 + h * np.arange(k, k + count)
         stage_inputs(rk, (starts[:, None] + np.array([0.0, 0.5 * h, h])).ravel())
-    constant = eq.applied.is_constant
-    audit = audit_state(rk.audit) if constant and rk.audit is not None else NO_AUDIT
+    audit = audit_state(rk.audit) if rk.audit is not None else NO_AUDIT
     n = rk.q.size
     q, qd, qdd, done, status = eq.ckernel.rk4p_steps(
         rk.q, rk.qd, rk.f[n:], h, count, rk._projection_tol(), PROJECTION_MAX_ITER,
         audit, ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF)
-    if rk.audit is not None and constant:
+    if rk.audit is not None:
         audit_back(rk.audit, eq.ckernel.buf.audit)
         if status == ckernel.ENERGY:      # _after_step checks this state again: count it once
             rk.audit.checks -= 1
@@ -341,11 +335,10 @@ PRK_RUNS = True
 def prk_runs(rk) -> bool:
     """Whether ``prk_run`` can take rk's coming steps (the caller checks that rk steps as
     ``ProjectedRK`` does): an embedded pair on a scene without drivers and force inputs, no
-    watch after each step (events, auto's), an energy audit only with constant forces."""
+    watch after each step (events, auto's)."""
     eq = rk.equations
     return (PRK_RUNS and rk.name in ("rk45p", "dop853p") and eq.ckernel is not None and
-            eq.m > 0 and rk.watch is None and not eq.scene.drivers and eq.ckernel.nf == 0 and
-            (rk.audit is None or eq.applied.is_constant))
+            eq.m > 0 and rk.watch is None and not eq.scene.drivers and eq.ckernel.nf == 0)
 
 
 def run_settings(rk, factors: tuple, energy: tuple, max_work: int) -> dict:

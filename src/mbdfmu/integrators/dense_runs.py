@@ -22,13 +22,11 @@ def dense_run(rk, limit, stiff_limit: float | None) -> tuple | None:
     """The arguments of ``Kernel.arm_dense_run`` after (y, f, motion, uf) are added by the
     caller, for rk's coming steps past the step the wrapper reads, or None when they must
     go through Python: another method than dop853p, a watch after each step that is not
-    auto's at rest (``stiff_limit`` None), an energy audit of forces that are not constant
-    (the kernel checks constant ones), no interpolant loaded, a short CPU limit (with a
+    auto's at rest (``stiff_limit`` None), no interpolant loaded, a short CPU limit (with a
     longer one, at most PRK_RUN_LENGTH attempts a doStep)."""
     eq = rk.equations
     if type(rk) is not DOP853P or stiff_limit is None or eq.ckernel is None or eq.m == 0 or \
-            (rk.audit is not None and not eq.applied.is_constant) or rk.dense is None or \
-            rk.dense.coefficients is None:
+            rk.dense is None or rk.dense.coefficients is None:
         return None
     max_work = c_steps.wrapper_attempts(limit)
     if max_work is None:

@@ -23,7 +23,7 @@ this method under the numba kernel when it can be compiled.
 
 What stays in Python: the decisions (halving a failed step, the step control's
 acceptance and step factor, the energy audit's verdict, work limits). A fixed-step run
-takes RUN_LENGTH steps per C call with the energy check of constant forces inside; a step
+takes RUN_LENGTH steps per C call with the energy check inside; a step
 whose Newton iteration fails there is halved by ``newton.advance_with_halving`` as always.
 """
 
@@ -259,9 +259,7 @@ class CompiledNewton:
         return stop
 
     def _run_steps(self, t0, h, k, stop, n, t_target):
-        eq = self.equations
-        if self.c_newton is None or self.watch is not None or \
-                (self.audit is not None and not eq.applied.is_constant):
+        if self.c_newton is None or self.watch is not None:
             return super()._fixed_run(t0, h, k, stop, n, t_target)
         while k < stop:
             count = min(RUN_LENGTH, stop - k)
@@ -280,8 +278,8 @@ class CompiledNewton:
         return stop
 
     def _c_run(self, ends, h: float, audited: bool) -> tuple[int, int]:
-        """Fixed steps of h ending at ``ends`` in one C call, the energy check of constant
-        forces inside when ``audited``: (status, steps done), the state taken."""
+        """Fixed steps of h ending at ``ends`` in one C call, the energy check inside when
+        ``audited``: (status, steps done), the state taken."""
         kn = self.c_newton
         stage_inputs(self, ends, kn.kernel)
         status, done, state = kn.kernel.implicit_steps(

@@ -37,10 +37,10 @@ def inputs_held(rk, t_target: float):
 def advance_fixed(rk, t_target: float) -> bool:
     """``_advance_fixed`` to t_target in C; False (nothing done) when Python's loop takes
     it: at most RUN_LENGTH steps and no check due on the way (one call of
-    ``c_steps.rk4p_run``, which costs less to make), no C kernel or constraints, an energy
-    check of non-constant forces, inputs the kernel does not hold."""
+    ``c_steps.rk4p_run``, which costs less to make), no C kernel or constraints, inputs
+    the kernel does not hold."""
     eq, accuracy = rk.equations, rk.accuracy
-    if eq.ckernel is None or eq.m == 0 or (rk.audit is not None and not eq.applied.is_constant):
+    if eq.ckernel is None or eq.m == 0:
         return False
     t0, n, h = rk.fixed_grid(t_target)
     if not accuracy.due() and n <= min(RUN_LENGTH, accuracy.every - accuracy.unchecked):

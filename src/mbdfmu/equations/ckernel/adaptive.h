@@ -208,9 +208,8 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
  * AdaptiveStepping._advance_adaptive's loop, ProjectedRK._step_impl and _energy_rejects and
  * Integrator._after_step's energy check, in the same order and arithmetic, for steps that
  * need nothing else: a scene without drivers and force inputs (the stage inputs are the same
- * at every time), no watch, an energy audited with constant forces (energies
- * 1/2 q'M q' - F.q, as energy_check) or not audited. The step decisions and prk_try are
- * those of the wrapper's landing steps above; with `dense` the steps go past the target (the
+ * at every time), no watch, its energy audited (total_energy, as energy_check) or not. The
+ * step decisions and prk_try are those of the wrapper's landing steps above; with `dense` the steps go past the target (the
  * last accepted step is kept for the dense output). It stops with the state and counters of
  * the decisions taken so far: RUN_DONE at the target; RUN_PYTHON before an attempt Python
  * takes (singular_zone.plan's case, a trial the kernel hands back, an energy jump Python
@@ -322,17 +321,13 @@ static double zone_retry(int crossing, int landing, double t0, double hh, double
     return 0.0;
 }
 
-/* EnergyAudit.step_error for constant forces. */
+/* EnergyAudit.step_error on total_energy and audit_joules (stepping.h). */
 static double energy_step_error(const Model *M, const PrkPy *p, const double *q, const double *qd) {
     const double *a = p->audit;
-    double kinetic = 0.0, fq = 0.0, joules = 0.0;
-    for (I k = 0; k < M->n; k++) { kinetic += M->mass[k] * qd[k] * qd[k]; fq += M->f_const[k] * q[k]; }
-    double change = fabs(0.5 * kinetic - fq - a[A_LAST_ENERGY]);
+    double kinetic;
+    double change = fabs(total_energy(M, q, qd, &kinetic) - a[A_LAST_ENERGY]);
     if (change <= 10.0 * p->roundoff * a[A_MAGNITUDE]) return 0.0;
-    for (I k = 0; k < M->n; k++)
-        joules += fabs(M->f_const[k]) * (a[A_ATOL] + a[A_RTOL] * fabs(q[k]))
-                  + fabs(M->mass[k] * qd[k]) * (a[A_ATOL] + a[A_RTOL] * fabs(qd[k]));
-    double allowed = p->step_factor * joules;
+    double allowed = p->step_factor * audit_joules(M, q, qd, a[A_RTOL], a[A_ATOL]);
     return allowed > 0.0 ? change / allowed : INFINITY;
 }
 

@@ -43,7 +43,7 @@ typedef struct {
     I restarts;              /* steps since armed that began with a restart */
     struct Estimate *est;    /* the step-doubling estimate (ErrorEstimate) */
     double *check;           /* a check's room: y and f saved (4n), then its one step (2n) */
-    double *audit;           /* the energy check's state (rk4p runs with constant forces) */
+    double *audit;           /* the energy check's state (rk4p runs) */
     double divergence, roundoff;  /* ... its ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF */
     double *kept;            /* the last step's end for the restart (keep_step_end) */
 } FixedRun;

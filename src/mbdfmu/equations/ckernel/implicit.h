@@ -475,7 +475,7 @@ static int commit(const Model *M, Implicit *p, Scratch *s, double *y, double *x,
 }
 
 /* Fixed steps over h from y: step k ends where motions[k] (3m) and ufs[k * uf_stride] hold.
- * The energy check after each step when audit[A_ACTIVE] (constant forces only). *done:
+ * The energy check after each step when audit[A_ACTIVE] (total_energy). *done:
  * steps taken. ST_NEWTON, ST_SINGULAR, ST_SPRING, ST_NOT_FINITE: at step *done, nothing of
  * it kept (the caller redoes it in Python: halving, or its error); ST_ENERGY: after it. */
 int mbd_implicit_steps(const Model *M, Implicit *p, double *kept, double *y, double h,

@@ -77,13 +77,62 @@ static int rk4p_step(const Model *M, Scratch *s, double *y, double *f, double h,
     return ST_OK;
 }
 
-/* rk4p_compiled._energy_check: energies 1/2 q'M q' - F.q for constant F. */
+/* Equations.total_energy of a conservative scene (forces.py potential_energy and
+ * load_potential): 1/2 q'M q' (*kinetic), the potential -F.q of the constant forces
+ * (gravity, constant torques, constant forces at a centre of mass), 1/2 k (l - l0)^2 of
+ * each spring, 1/2 k (phi_j - phi_i - phi0)^2 of each rotational spring and -F.(r + A s)
+ * of each constant force off a centre. A scene of constant forces only: 1/2 q'M q' - F.q,
+ * rk4p_compiled._energy_check's arithmetic. */
+static double total_energy(const Model *M, const double *q, const double *qd, double *kinetic) {
+    double kin = 0.0, fq = 0.0;
+    for (I k = 0; k < M->n; k++) { kin += M->mass[k] * qd[k] * qd[k]; fq += M->f_const[k] * q[k]; }
+    kin *= 0.5;
+    double energy = kin - fq;
+    for (I k = 0; k < M->nforce; k++) {
+        const I *fi = M->f_int + 4 * k;
+        const double *fr = M->f_real + 8 * k;
+        if (fi[0] == F_SPRING) {
+            double xi, yi, aix, aiy, xj, yj, ajx, ajy;
+            body_point(M, q, NULL, fi[1], fr[0], fr[1], &xi, &yi, &aix, &aiy);
+            body_point(M, q, NULL, fi[2], fr[2], fr[3], &xj, &yj, &ajx, &ajy);
+            double dx = xj + ajx - xi - aix, dy = yj + ajy - yi - aiy;
+            double stretch = sqrt(dx * dx + dy * dy) - fr[6];
+            energy += 0.5 * fr[4] * stretch * stretch;
+        } else if (fi[0] == F_TORSION) {
+            double phi_i = fi[1] < M->nb ? q[3 * fi[1] + 2] : 0.0;
+            double phi_j = fi[2] < M->nb ? q[3 * fi[2] + 2] : 0.0;
+            double twist = phi_j - phi_i - fr[2];
+            energy += 0.5 * fr[0] * twist * twist;
+        } else if (fi[0] == F_POINT && fi[3] < 0) {
+            double x, y, ax, ay;
+            body_point(M, q, NULL, fi[1], fr[0], fr[1], &x, &y, &ax, &ay);
+            energy -= fr[2] * (x + ax) + fr[3] * (y + ay);
+        }
+    }
+    *kinetic = kin;
+    return energy;
+}
+
+/* EnergyAudit.joules: sum |F| (atol + rtol |q|) + |M q'| (atol + rtol |q'|), F the applied
+ * forces at (q, q') (the constant ones alone when there are no others; a conservative
+ * scene has no inputs). */
+static double audit_joules(const Model *M, const double *q, const double *qd, double rtol,
+                           double atol) {
+    I n = M->n;
+    double F[M->nforce ? n : 1], none[1] = {0.0}, joules = 0.0;
+    const double *f = M->f_const;
+    if (M->nforce && forces(M, q, qd, none, F) == ST_OK) f = F;
+    for (I k = 0; k < n; k++)
+        joules += fabs(f[k]) * (atol + rtol * fabs(q[k]))
+                  + fabs(M->mass[k] * qd[k]) * (atol + rtol * fabs(qd[k]));
+    return joules;
+}
+
+/* rk4p_compiled._energy_check (EnergyAudit.check) on total_energy. */
 static int energy_check(const Model *M, const double *q, const double *qd, double *audit,
                         double divergence_fraction, double roundoff) {
-    double kinetic = 0.0, fq = 0.0;
-    for (I k = 0; k < M->n; k++) { kinetic += M->mass[k] * qd[k] * qd[k]; fq += M->f_const[k] * q[k]; }
-    kinetic *= 0.5;
-    double energy = kinetic - fq;
+    double kinetic;
+    double energy = total_energy(M, q, qd, &kinetic);
     audit[A_KINETIC_MAX] = fmax(audit[A_KINETIC_MAX], kinetic);
     audit[A_POTENTIAL_SWING] = fmax(audit[A_POTENTIAL_SWING], fabs(energy - kinetic - audit[A_V0]));
     audit[A_MAGNITUDE] = fmax(fmax(audit[A_MAGNITUDE], fabs(energy)), kinetic);
@@ -93,10 +142,7 @@ static int energy_check(const Model *M, const double *q, const double *qd, doubl
     if (error <= roundoff * audit[A_MAGNITUDE] * audit[A_CHECKS]) return 1;
     double allowance = divergence_fraction * fmax(audit[A_KINETIC_MAX], audit[A_POTENTIAL_SWING]);
     if (audit[A_FACTOR] != 0.0) {     /* a stated accuracy (EnergyAudit.check's budget) */
-        double rtol = audit[A_RTOL], atol = audit[A_ATOL], joules = 0.0;
-        for (I k = 0; k < M->n; k++)
-            joules += fabs(M->f_const[k]) * (atol + rtol * fabs(q[k]))
-                      + fabs(M->mass[k] * qd[k]) * (atol + rtol * fabs(qd[k]));
+        double joules = audit_joules(M, q, qd, audit[A_RTOL], audit[A_ATOL]);
         audit[A_TOLERANCE_JOULES] = fmax(audit[A_TOLERANCE_JOULES], joules);
         allowance = fmin(audit[A_FACTOR] * audit[A_TOLERANCE_JOULES], allowance);
     }
@@ -107,7 +153,7 @@ static int energy_check(const Model *M, const double *q, const double *qd, doubl
 
 /* Steps of rk4p: y (2n), f in place; step k uses motions[k] (3, 3m) and ufs[k] (3, nf)
  * (strides 0: the same for every step). The energy check after each step when
- * audit[A_ACTIVE] (constant forces only). *done: steps taken. ST_SINGULAR, ST_PROJECTION,
+ * audit[A_ACTIVE] (total_energy). *done: steps taken. ST_SINGULAR, ST_PROJECTION,
  * ST_SPRING: at step *done, nothing of it kept; ST_ENERGY, ST_NOT_FINITE: after it. */
 int mbd_rk4p_steps(const Model *M, double *y, double *f, double h, I nsteps,
                    const double *motions, I motion_stride, const double *ufs, I uf_stride,
