@@ -156,20 +156,36 @@ def test_the_c_interpolant_is_scipys_dop853_formula():
                                    rtol=0, atol=1e-14 * np.abs(step.y_new).max())
 
 
-def test_a_doStep_longer_than_a_cpu_checked_run_is_pythons(scene_fmu, scene_host):
-    """The wrapper's runs are not timed, and an FMU has a CPU limit per doStep by default:
-    a doStep that needs more solver attempts than Python takes between two checks of it
-    (8 s of P2, about 100 steps) goes to Python, with the same values."""
+def test_the_wrappers_run_checks_the_cpu_limit_and_python_discards(scene_fmu, scene_host):
+    """The wrapper's run checks the doStep's CPU limit on the thread's clock, as Python's
+    loop does: a long doStep (100 s of P2, thousands of solver steps) under a 10 ms limit
+    is given back with everything as it was, and Python discards it, saying why; the FMU
+    goes on with Python's values. A long doStep under the default limit is the wrapper's."""
     path = scene_fmu("n_four_bar_2")
-    fast, slow = scene_host(path, "fast").init(), scene_host(path, "slow").init()
+    fast, slow = scene_host(path, "fast"), scene_host(path, "slow").init()
+    assert fast.set_real([fast.vr["solver.max_cpu_per_communication_step"]], [0.01]) == OK
+    fast.init()
     names = fast.outputs
     for _ in range(5):
         assert fast.step(H) == OK and slow.step(H) == OK
         assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
-    assert fast.step(8.0) == OK and slow.step(8.0) == OK
-    assert fast.real(*names) == slow.real(*names)
-    assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK
-    assert taken_by_wrapper(fast) == 4        # the first 1 ms doStep and the 8 s one: Python's
+    before = fast.real(*names)
+    assert fast.status("fmi2DoStep", fast.t, 100.0, 1) == DISCARD
+    assert "solver.max_cpu_per_communication_step" in fast.messages[-1][2]
+    assert fast.real(*names) == before
+    for _ in range(20):
+        assert fast.step(H) == OK and slow.step(H) == OK
+        assert fast.real(*names) == slow.real(*names)
+        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+    assert slow.step(8.0) == OK                                 # default limits
+    assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+    other = scene_host(path, "other").init()
+    for _ in range(25):
+        assert other.step(H) == OK
+    assert other.step(8.0) == OK
+    assert other.real(*names) == slow.real(*names)
+    assert other.status("fmi2SetDebugLogging", True, 0, None) == OK
+    assert taken_by_wrapper(other) == 25      # the first 1 ms doStep was Python's
 
 
 def test_andrews_squeezer_runs_in_the_wrapper_with_its_springs_energy_audit(scene_fmu,

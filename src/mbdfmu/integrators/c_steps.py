@@ -239,8 +239,8 @@ def wrapper_steps(limit) -> int | None:
 
 
 def wrapper_attempts(limit) -> int | None:
-    """``wrapper_steps`` for an embedded pair's attempts in the (untimed) wrapper: under a
-    CPU limit at most PRK_RUN_LENGTH, what Python's runs take between two checks of it."""
+    """``wrapper_steps`` for the wrapper's landing steps, which are not timed: under a CPU
+    limit at most PRK_RUN_LENGTH, what Python's runs take between two checks of it."""
     attempts = wrapper_steps(limit)
     if attempts is not None and limit is not None and limit.max_cpu is not None:
         attempts = min(attempts, PRK_RUN_LENGTH)

@@ -22,19 +22,20 @@ def dense_run(rk, limit, stiff_limit: float | None) -> tuple | None:
     """The arguments of ``Kernel.arm_dense_run`` after (y, f, motion, uf) are added by the
     caller, for rk's coming steps past the step the wrapper reads, or None when they must
     go through Python: another method than dop853p, a watch after each step that is not
-    auto's at rest (``stiff_limit`` None), no interpolant loaded, a short CPU limit (with a
-    longer one, at most PRK_RUN_LENGTH attempts a doStep)."""
+    auto's at rest (``stiff_limit`` None), no interpolant loaded, a short CPU limit."""
     eq = rk.equations
     if type(rk) is not DOP853P or stiff_limit is None or eq.ckernel is None or eq.m == 0 or \
             rk.dense is None or rk.dense.coefficients is None:
         return None
-    max_work = c_steps.wrapper_attempts(limit)
+    max_work = c_steps.wrapper_steps(limit)
     if max_work is None:
         return None
     settings = c_steps.run_settings(rk, (SAFETY, MIN_FACTOR, MAX_FACTOR),
                                     (ENERGY_MIN_GAIN, ENERGY_JUMP_LIMIT), max_work)
     settings["run"]["stiff_limit"] = stiff_limit
-    settings.update(t_target=rk.t, dense=1, rejections=0)
+    # the run checks the doStep's CPU limit itself (PrkPy.cpu_limit), as Python's loop does
+    cpu_limit = limit.max_cpu if limit is not None and limit.max_cpu is not None else 0.0
+    settings.update(t_target=rk.t, dense=1, rejections=0, cpu_limit=cpu_limit)
     audit = c_steps.audit_state(rk.audit) if rk.audit is not None else None
     return (settings, c_steps.tableau(rk), gaps(rk.C[:rk.n_stages]), audit,
             DOP853_A_EXTRA, DOP853_D)

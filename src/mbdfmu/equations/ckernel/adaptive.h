@@ -213,7 +213,8 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
  * last accepted step is kept for the dense output). It stops with the state and counters of
  * the decisions taken so far: RUN_DONE at the target; RUN_PYTHON before an attempt Python
  * takes (singular_zone.plan's case, a trial the kernel hands back, an energy jump Python
- * raises on); RUN_WORK after max_work attempts (Python checks its work limit); RUN_ENERGY
+ * raises on); RUN_WORK after max_work attempts, or with cpu_limit when the thread's CPU
+ * time passes it (Python checks its work limit); RUN_ENERGY
  * after a step whose energy check failed (Python's check says why); RUN_FAILED when the
  * step size fell below its minimum or too many steps were rejected in a row. */
 
@@ -230,7 +231,16 @@ typedef struct {
     double *y_old, *y_end, *K_old;
     I stepped;                   /* ... kept when 1 */
     I ngaps; const double *gap_mid, *gap_width;   /* singular_zone.gaps of the nodes */
+    double cpu_limit, cpu_start; /* > 0: RUN_WORK once the thread's CPU time since cpu_start
+                                  * passes cpu_limit (s; WorkLimit's max_cpu), else unchecked */
 } PrkPy;
+
+/* The calling thread's CPU time (s): WorkLimit's clock (time.thread_time). */
+static double thread_cpu(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
 
 /* singular_zone.py's constants */
 #define ZONE 1e-2
@@ -354,6 +364,7 @@ int mbd_prk_run(const Model *M, PrkPy *p) {
     double *y = r->y, *f = r->f;
     while (p->t < p->t_target) {
         if (attempts >= r->max_work) return RUN_WORK;
+        if (p->cpu_limit > 0.0 && thread_cpu() - p->cpu_start > p->cpu_limit) return RUN_WORK;
         double h_min = MIN_STEP_RELATIVE * fmax(1.0, fabs(p->t));
         double proposal = fmin(r->h, r->max_step), h_next = 0.0, c1 = 0.0, hh = proposal;
         double err = 0.0;

@@ -8,7 +8,8 @@
  * stiffness rule would count goes to Python. Anything mbd_prk_run hands back, a failed
  * evaluation or read, and a point that is the last step's end leave everything as it was
  * (the state is kept before the run and put back) and the wrapper calls Python, which
- * takes the same steps and says why.
+ * takes the same steps and says why; so does a run that passes the doStep's CPU limit
+ * (PrkPy.cpu_limit), which Python then discards.
  *
  * Python's own interpolant (DOP853P._interpolant with the C kernel) calls dop853_dense
  * too, so a value read here is the one Python reads, bit for bit.
@@ -118,6 +119,7 @@ int mbd_dense_run_step(const Model *M, DenseRun *R, double t, double h, double *
     if (end < d->t_old + d->h) return mbd_dense_step(M, d, t, h, values);
     const double *coef = d->coef, *y_old = d->y_old;
     save_run(M, R, R->saved);
+    p->cpu_start = thread_cpu();    /* the doStep's CPU limit counts from here */
     p->t_target = end;
     p->rejections = 0;              /* _advance_adaptive counts them per call */
     p->stepped = 0;
