@@ -35,10 +35,10 @@ MAX_STAGES = 13
 # Times whose inputs one call can take (a run of 64 rk4p steps evaluates 3 times each).
 MAX_ROWS = 192
 ENV_LIBRARY = "MBDFMU_C_KERNEL"
-# Minimum-norm solves in C as sparsity.py's (lstsq's cut-off, iterated Tikhonov), else the
-# numpy path's. Off: eq. 14 at an ill-conditioned S takes the null-space form (singular.py,
+# Minimum-norm solves (projections, error estimates) in C as sparsity.py's, else the numpy
+# path's. Never eq. 14's: at an ill-conditioned S it takes the null-space form (singular.py,
 # nullspace.h), whose q'' stays right next to a singular configuration; a cut-off's not.
-MIN_NORM_IN_C = False
+MIN_NORM_IN_C = True
 
 _P, _I = ctypes.c_void_p, ctypes.c_int64
 _FIELDS = (

@@ -32,10 +32,11 @@
  *
  * Eq. (14) with an ill-conditioned Schur complement (next to a singular configuration,
  * redundant rows) is solved here in singular.py's null-space form (nullspace.h) for the
- * dense form of S; elsewhere, where the numpy path has a minimum-norm fallback (a singular
- * S in a projection or an error estimate, a banded scene's eq. (14)), this kernel returns
- * ST_SINGULAR and the caller redoes the work on the numpy path; a spring of zero length
- * returns ST_SPRING and the numpy path raises its error. Nothing allocates:
+ * dense form of S, and the projections' and error estimates' singular solves take
+ * sparsity.py's minimum-norm solutions (solve.h, Model.min_norm); a banded scene's
+ * eq. (14) at a singular S returns ST_SINGULAR and the caller redoes the work on the numpy
+ * path; a spring of zero length returns ST_SPRING and the numpy path raises its error.
+ * Nothing allocates:
  * scratch space is the caller's `work` (mbd_work_size doubles).
  */
 #define _GNU_SOURCE      /* sincos */
@@ -355,7 +356,8 @@ static int accelerations_at(const Model *M, Scratch *s, const double *q, const d
     for (I k = 0; k < n; k++) s->Fm[k] = M->minv[k] * s->F[k];
     jac_mul(M, s->values, s->Fm, s->rhs);
     for (I r = 0; r < m; r++) s->rhs[r] -= s->gamma[r] + cdd[r];
-    st = schur_solve(M, s->values, s->rhs, lam, s->band, s->tmp);
+    int kept;
+    st = schur_solve_mode(M, s->values, s->rhs, lam, s->band, s->tmp, &kept, 0);
     if (st == ST_SINGULAR) {       /* S ill-conditioned: the null-space form (nullspace.h) */
         for (I r = 0; r < m; r++) s->x[r] = s->gamma[r] + cdd[r];
         return nullspace_accelerations(M, s->values, s->F, s->x, qdd, lam, s->svd);

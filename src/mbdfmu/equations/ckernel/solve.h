@@ -177,7 +177,7 @@ static void jacobi_min_norm(const Model *M, double *S, I m, const double *b, dou
 }
 
 static int dense_solve(const Model *M, const double *values, const double *b, double *x,
-                       double *work) {
+                       double *work, I min_norm) {
     I m = M->m;
     double *S = work, *U = work + m * m;
     memset(S, 0, (size_t)(m * m) * sizeof(double));
@@ -203,13 +203,13 @@ static int dense_solve(const Model *M, const double *values, const double *b, do
         }
         return ST_OK;
     }
-    if (!M->min_norm || !all_finite_values(S, m * m) || !all_finite_values(b, m)) return ST_SINGULAR;
+    if (!min_norm || !all_finite_values(S, m * m) || !all_finite_values(b, m)) return ST_SINGULAR;
     jacobi_min_norm(M, S, m, b, x, U);
     return ST_OK;
 }
 
 static int banded_solve(const Model *M, const double *values, const double *b, double *x,
-                        double *work, double *tmp, int *kept) {
+                        double *work, double *tmp, int *kept, I min_norm) {
     I m = M->m, kd = M->kd, size = (kd + 1) * m;
     double *band = work, *L = work + size, dmin, dmax;
     memset(band, 0, (size_t)size * sizeof(double));
@@ -223,7 +223,7 @@ static int banded_solve(const Model *M, const double *values, const double *b, d
         *kept = 1;
         return ST_OK;
     }
-    if (!M->min_norm || !all_finite_values(band, size) || !all_finite_values(b, m)) return ST_SINGULAR;
+    if (!min_norm || !all_finite_values(band, size) || !all_finite_values(b, m)) return ST_SINGULAR;
     double eps = 0.0;                               /* iterated Tikhonov (_min_norm) */
     for (I j = 0; j < m; j++) eps = fmax(eps, fabs(band[j]));
     eps = M->rank_tol * (eps > 0.0 ? eps : 1.0);
@@ -251,10 +251,10 @@ static int banded_solve(const Model *M, const double *values, const double *b, d
 /* x with (J M^-1 J^T) x = b: ST_OK, or ST_SINGULAR where the numpy path must answer.
  * Below BANDED_MIN_ROWS the band (cheaper at any size) answers where its pivots are
  * well conditioned, and the dense form decides only where they are not. */
-static int schur_solve_keeping(const Model *M, const double *values, const double *b, double *x,
-                               double *work, double *tmp, int *kept) {
+static int schur_solve_mode(const Model *M, const double *values, const double *b, double *x,
+                            double *work, double *tmp, int *kept, I min_norm) {
     *kept = 0;
-    if (M->banded) return banded_solve(M, values, b, x, work, tmp, kept);
+    if (M->banded) return banded_solve(M, values, b, x, work, tmp, kept, min_norm);
     I m = M->m, kd = M->kd, size = (kd + 1) * m;
     double *L = work, dmin, dmax;
     memset(L, 0, (size_t)size * sizeof(double));
@@ -267,7 +267,14 @@ static int schur_solve_keeping(const Model *M, const double *values, const doubl
         *kept = 1;
         return ST_OK;
     }
-    return dense_solve(M, values, b, x, work);
+    return dense_solve(M, values, b, x, work, min_norm);
+}
+
+/* schur_solve_mode with the minimum-norm cases as M->min_norm says (eq. (14) asks for none:
+ * it takes the null-space form instead, nullspace.h). */
+static int schur_solve_keeping(const Model *M, const double *values, const double *b, double *x,
+                               double *work, double *tmp, int *kept) {
+    return schur_solve_mode(M, values, b, x, work, tmp, kept, M->min_norm);
 }
 
 static int schur_solve(const Model *M, const double *values, const double *b, double *x,

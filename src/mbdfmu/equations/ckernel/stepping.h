@@ -182,9 +182,9 @@ static int tangent_part(const Model *M, Scratch *s, double *v, int fresh) {
     for (int half = 0; half < 2; half++) {
         double *w = v + half * n;
         jac_mul(M, s->values, w, s->rhs);
-        if (fresh) {
+        if (fresh || !s->kept) {   /* a minimum-norm solve keeps no factor: each half anew */
             int r = schur_solve_keeping(M, s->values, s->rhs, s->x, s->band, s->tmp, &s->kept);
-            if (r != ST_OK || !s->kept) return ST_SINGULAR;  /* the numpy path's solve */
+            if (r != ST_OK) return ST_SINGULAR;              /* the numpy path's solve */
             fresh = 0;
         } else schur_again(M, s->rhs, s->x, s->band, s->tmp);
         jac_t_mul(M, s->values, s->x, s->nv);
