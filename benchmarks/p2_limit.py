@@ -41,8 +41,6 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-import numpy as np  # noqa: E402
-
 import mbdfmu  # noqa: E402
 from mbdfmu.bench.closed_forms import G, n_four_bar_B0  # noqa: E402
 from mbdfmu.equations.ckernel.build import CFLAGS  # noqa: E402

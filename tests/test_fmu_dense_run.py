@@ -49,6 +49,21 @@ def taken_by_wrapper(h) -> int:
                if "taken by the wrapper" in m)
 
 
+def lockstep(fast, slow, steps: int, compare: bool = True, catch_up_at=()) -> None:
+    """``steps`` 1 ms doSteps of both instances, ``slow`` sent through Python for the next
+    one after each (fmi2SetDebugLogging), their outputs the same bit for bit after each;
+    ``fast`` made to catch up after the steps numbered in ``catch_up_at``."""
+    names = fast.outputs
+    for k in range(steps):
+        assert fast.step(H) == OK and slow.step(H) == OK, (fast.messages[-3:],
+                                                           slow.messages[-3:])
+        if compare:
+            assert fast.real(*names) == slow.real(*names), k
+        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+        if k in catch_up_at:
+            assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK
+
+
 def test_steps_past_the_solvers_step_are_the_wrappers_and_pythons_values(scene_fmu,
                                                                           scene_host):
     """P2 N = 2 (auto -> dop853p, energy audit on) over 1.2 s at 1 ms, through the cranks'
@@ -58,13 +73,8 @@ def test_steps_past_the_solvers_step_are_the_wrappers_and_pythons_values(scene_f
     path = scene_fmu("n_four_bar_2")
     fast, slow = scene_host(path, "fast").init(), scene_host(path, "slow").init()
     names = fast.outputs
-    for k in range(1200):
-        assert fast.step(H) == OK and slow.step(H) == OK, (fast.messages[-3:],
-                                                           slow.messages[-3:])
-        assert fast.real(*names) == slow.real(*names), k
-        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
-        if k in (400, 800):         # Python catches up, takes the state over, arms again
-            assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK
+    # at 400 and 800 Python catches up, takes the state over and arms the wrapper again
+    lockstep(fast, slow, 1200, catch_up_at=(400, 800))
     assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK    # the slave catches up
     # Python took the first doStep and the one after each catch-up only, the crossing too
     assert taken_by_wrapper(fast) == 1197, taken_by_wrapper(fast)
@@ -78,11 +88,7 @@ def test_redundant_constraints_stay_in_the_wrapper(scene_fmu, scene_host):
     bit Python's values."""
     path = scene_fmu("parallelogram")
     fast, slow = scene_host(path, "fast").init(), scene_host(path, "slow").init()
-    names = fast.outputs
-    for k in range(200):
-        assert fast.step(H) == OK and slow.step(H) == OK
-        assert fast.real(*names) == slow.real(*names), k
-        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+    lockstep(fast, slow, 200)
     assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK
     assert taken_by_wrapper(fast) == 199, taken_by_wrapper(fast)
 
@@ -97,11 +103,7 @@ def test_held_force_inputs_ride_along_bit_for_bit(tmp_path, scene_host):
     fast, slow = scene_host(path, "fast").init(), scene_host(path, "slow").init()
     for h in (fast, slow):
         assert h.set_real([h.vr["cylinder.actuator"]], [8000.0]) == OK
-    names = fast.outputs
-    for k in range(600):
-        assert fast.step(H) == OK and slow.step(H) == OK
-        assert fast.real(*names) == slow.real(*names), k
-        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+    lockstep(fast, slow, 600)
     assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK
     assert taken_by_wrapper(fast) >= 599, taken_by_wrapper(fast)
 
@@ -132,18 +134,18 @@ def test_a_run_the_wrapper_cannot_finish_is_pythons_unchanged(scene_fmu, scene_h
     for h in (fast, slow):
         assert h.set_int("solver.max_steps_per_communication_step", 2) == OK
         h.init()
-    names = fast.outputs
-    for _ in range(50):
-        assert fast.step(H) == OK and slow.step(H) == OK
-        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
-    before = fast.real(*names)
-    assert fast.status("fmi2DoStep", fast.t, 0.5, 1) == DISCARD
-    assert "solver.max_steps_per_communication_step" in fast.messages[-1][2]
-    assert fast.real(*names) == before
-    for _ in range(200):
-        assert fast.step(H) == OK and slow.step(H) == OK
-        assert fast.real(*names) == slow.real(*names)
-        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+    lockstep(fast, slow, 50, compare=False)
+    discards(fast, 0.5, "solver.max_steps_per_communication_step")
+    lockstep(fast, slow, 200)
+
+
+def discards(h, step: float, setting: str) -> None:
+    """A doStep of ``step`` s is discarded, the message naming ``setting``, with every output
+    as it was."""
+    before = h.real(*h.outputs)
+    assert h.status("fmi2DoStep", h.t, step, 1) == DISCARD
+    assert setting in h.messages[-1][2]
+    assert h.real(*h.outputs) == before
 
 
 def test_the_c_interpolant_is_scipys_dop853_formula():
@@ -182,17 +184,9 @@ def test_the_wrappers_run_checks_the_cpu_limit_and_python_discards(scene_fmu, sc
     assert fast.set_real([fast.vr["solver.max_cpu_per_communication_step"]], [0.01]) == OK
     fast.init()
     names = fast.outputs
-    for _ in range(5):
-        assert fast.step(H) == OK and slow.step(H) == OK
-        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
-    before = fast.real(*names)
-    assert fast.status("fmi2DoStep", fast.t, 100.0, 1) == DISCARD
-    assert "solver.max_cpu_per_communication_step" in fast.messages[-1][2]
-    assert fast.real(*names) == before
-    for _ in range(20):
-        assert fast.step(H) == OK and slow.step(H) == OK
-        assert fast.real(*names) == slow.real(*names)
-        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+    lockstep(fast, slow, 5, compare=False)
+    discards(fast, 100.0, "solver.max_cpu_per_communication_step")
+    lockstep(fast, slow, 20)
     assert slow.step(8.0) == OK                                 # default limits
     assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
     other = scene_host(path, "other").init()
@@ -212,11 +206,7 @@ def test_andrews_squeezer_runs_in_the_wrapper_with_its_springs_energy_audit(scen
     all went through Python before (several ms each)."""
     path = scene_fmu("andrews")
     fast, slow = scene_host(path, "fast").init(), scene_host(path, "slow").init()
-    names = fast.outputs
-    for k in range(100):
-        assert fast.step(H) == OK and slow.step(H) == OK
-        assert fast.real(*names) == slow.real(*names), k
-        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+    lockstep(fast, slow, 100)
     assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK
     assert taken_by_wrapper(fast) >= 95, taken_by_wrapper(fast)
 

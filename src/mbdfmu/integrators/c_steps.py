@@ -77,7 +77,6 @@ def audit_back(audit, state) -> None:
 def rk4p_run(rk, t0: float, h: float, k: int, stop: int, n: int, t_target: float) -> int:
     """``RK4P._fixed_run`` with runs of steps in C (same grid, checks and counts): steps
     k + 1 .. stop of the grid t0 + j h (n steps to t_target); returns stop."""
-    eq = rk.equations
     while k < stop:            # the kernel checks the energy (stepping.h total_energy)
         count = min(RUN_LENGTH, stop - k)
         done, status = _rk4p_run(rk, t0, h, k, count)

@@ -40,24 +40,7 @@ static void joint_values(const Model *M, const double *q, const double *lam,
 static double potential(const Model *M, const double *q) {
     double e = 0.0;
     for (I k = 0; k < M->n; k++) e += M->gravity[k] * q[k];
-    e = -e;
-    for (I k = 0; k < M->nforce; k++) {
-        const I *fi = M->f_int + 4 * k;
-        const double *fr = M->f_real + 8 * k;
-        if (fi[0] == F_SPRING) {
-            double xi, yi, aix, aiy, xj, yj, ajx, ajy;
-            body_point(M, q, NULL, fi[1], fr[0], fr[1], &xi, &yi, &aix, &aiy);
-            body_point(M, q, NULL, fi[2], fr[2], fr[3], &xj, &yj, &ajx, &ajy);
-            double stretch = hypot(xj + ajx - xi - aix, yj + ajy - yi - aiy) - fr[6];
-            e += 0.5 * fr[4] * stretch * stretch;
-        } else if (fi[0] == F_TORSION) {
-            double pi = fi[1] < M->nb ? q[3 * fi[1] + 2] : 0.0;
-            double pj = fi[2] < M->nb ? q[3 * fi[2] + 2] : 0.0;
-            double d = pj - pi - fr[2];
-            e += 0.5 * fr[0] * d * d;
-        }
-    }
-    return e;
+    return spring_potentials(M, q, -e);
 }
 
 /* The groups of the output vector after the body states, which a wrapper's step computes

@@ -77,17 +77,10 @@ static int rk4p_step(const Model *M, Scratch *s, double *y, double *f, double h,
     return ST_OK;
 }
 
-/* Equations.total_energy of a conservative scene (forces.py potential_energy and
- * load_potential): 1/2 q'M q' (*kinetic), the potential -F.q of the constant forces
- * (gravity, constant torques, constant forces at a centre of mass), 1/2 k (l - l0)^2 of
- * each spring, 1/2 k (phi_j - phi_i - phi0)^2 of each rotational spring and -F.(r + A s)
- * of each constant force off a centre. A scene of constant forces only: 1/2 q'M q' - F.q,
- * rk4p_compiled._energy_check's arithmetic. */
-static double total_energy(const Model *M, const double *q, const double *qd, double *kinetic) {
-    double kin = 0.0, fq = 0.0;
-    for (I k = 0; k < M->n; k++) { kin += M->mass[k] * qd[k] * qd[k]; fq += M->f_const[k] * q[k]; }
-    kin *= 0.5;
-    double energy = kin - fq;
+/* e plus the potentials of the springs, 1/2 k (l - l0)^2, and rotational springs,
+ * 1/2 k (phi_j - phi_i - phi0)^2, added one by one (AppliedForces.potential_energy's, a
+ * length by hypot as there). */
+static double spring_potentials(const Model *M, const double *q, double e) {
     for (I k = 0; k < M->nforce; k++) {
         const I *fi = M->f_int + 4 * k;
         const double *fr = M->f_real + 8 * k;
@@ -95,21 +88,39 @@ static double total_energy(const Model *M, const double *q, const double *qd, do
             double xi, yi, aix, aiy, xj, yj, ajx, ajy;
             body_point(M, q, NULL, fi[1], fr[0], fr[1], &xi, &yi, &aix, &aiy);
             body_point(M, q, NULL, fi[2], fr[2], fr[3], &xj, &yj, &ajx, &ajy);
-            double dx = xj + ajx - xi - aix, dy = yj + ajy - yi - aiy;
-            double stretch = sqrt(dx * dx + dy * dy) - fr[6];
-            energy += 0.5 * fr[4] * stretch * stretch;
+            double stretch = hypot(xj + ajx - xi - aix, yj + ajy - yi - aiy) - fr[6];
+            e += 0.5 * fr[4] * stretch * stretch;
         } else if (fi[0] == F_TORSION) {
-            double phi_i = fi[1] < M->nb ? q[3 * fi[1] + 2] : 0.0;
-            double phi_j = fi[2] < M->nb ? q[3 * fi[2] + 2] : 0.0;
-            double twist = phi_j - phi_i - fr[2];
-            energy += 0.5 * fr[0] * twist * twist;
-        } else if (fi[0] == F_POINT && fi[3] < 0) {
+            double pi = fi[1] < M->nb ? q[3 * fi[1] + 2] : 0.0;
+            double pj = fi[2] < M->nb ? q[3 * fi[2] + 2] : 0.0;
+            double d = pj - pi - fr[2];
+            e += 0.5 * fr[0] * d * d;
+        }
+    }
+    return e;
+}
+
+/* Equations.total_energy of a conservative scene (forces.py potential_energy and
+ * load_potential): 1/2 q'M q' (*kinetic), the potential -F.q of the constant forces
+ * (gravity, constant torques, constant forces at a centre of mass), the springs'
+ * (spring_potentials) and -F.(r + A s) of each constant force off a centre. A scene of
+ * constant forces only: 1/2 q'M q' - F.q, rk4p_compiled._energy_check's arithmetic. */
+static double total_energy(const Model *M, const double *q, const double *qd, double *kinetic) {
+    double kin = 0.0, fq = 0.0;
+    for (I k = 0; k < M->n; k++) { kin += M->mass[k] * qd[k] * qd[k]; fq += M->f_const[k] * q[k]; }
+    kin *= 0.5;
+    *kinetic = kin;
+    if (!M->nforce) return kin - fq;
+    double energy = spring_potentials(M, q, kin - fq);
+    for (I k = 0; k < M->nforce; k++) {
+        const I *fi = M->f_int + 4 * k;
+        const double *fr = M->f_real + 8 * k;
+        if (fi[0] == F_POINT && fi[3] < 0) {
             double x, y, ax, ay;
             body_point(M, q, NULL, fi[1], fr[0], fr[1], &x, &y, &ax, &ay);
             energy -= fr[2] * (x + ax) + fr[3] * (y + ay);
         }
     }
-    *kinetic = kin;
     return energy;
 }
 
