@@ -299,28 +299,30 @@ def fast_prk_run(rk, limit, time_tol: float, factors: tuple,
     max_work = wrapper_attempts(limit)
     if max_work is None:
         return None
-    return dict(t_now=rk.t, time_tol=time_tol, h=rk.h, max_step=rk.max_step,
-                exponent=-rk.alpha, safety=factors[0], min_factor=factors[1],
-                max_factor=factors[2], beta=rk.beta, err_old=rk.err_old,
-                rtol=rk.local_tolerance * rk.rtol, atol=rk.local_tolerance * rk.atol,
-                tol=rk._projection_tol(), max_iter=PROJECTION_MAX_ITER, indicator=rk.zone.indicator,
-                landing=int(rk.zone.landing), max_work=max_work, stiff_limit=stiff_limit or 0.0,
-                y=np.concatenate((rk.q, rk.qd)), f=rk.f)
+    return pair_settings(rk, factors, max_work) | dict(
+        t_now=rk.t, time_tol=time_tol, stiff_limit=stiff_limit or 0.0,
+        y=np.concatenate((rk.q, rk.qd)), f=rk.f)
 
 
-def adopt_prk_run(rk, state: dict) -> None:
-    """The state and counters after communication steps the FMU's wrapper took
-    (``fast_prk_run``), as ``_advance_adaptive`` leaves them; the last step's dense output
-    is not kept (a step that lands on the communication point is never read inside)."""
+def adopt_pair_state(rk, state: dict) -> None:
+    """An embedded pair's state, controller and counters after steps the kernel took for
+    the FMU's wrapper (``state``: t, h, err_old, indicator, landing, y, f, counters), as
+    ``_advance_adaptive`` leaves them."""
     n = rk.q.size
     y = state["y"]
     rk.q, rk.qd, rk.f, rk.t, rk.h = y[:n].copy(), y[n:].copy(), state["f"], state["t"], state["h"]
     rk.err_old = state["err_old"]
-    rk.out = rk.dense = rk.energy_rejected = None
     rk.zone.indicator, rk.zone.crossing, rk.zone.landing = state["indicator"], False, \
         state["landing"]
     for name, count in state["counters"].items():
         setattr(rk.stats, name, getattr(rk.stats, name) + count)
+
+
+def adopt_prk_run(rk, state: dict) -> None:
+    """``adopt_pair_state`` after the wrapper's landing steps (``fast_prk_run``), without a
+    dense output: a step that lands on the communication point is never read inside."""
+    adopt_pair_state(rk, state)
+    rk.out = rk.dense = rk.energy_rejected = None
 
 
 # Attempts per call of a run of an embedded pair's steps: the work limit is checked between.
@@ -340,15 +342,21 @@ def prk_runs(rk) -> bool:
             eq.m > 0 and rk.watch is None and not eq.scene.drivers and eq.ckernel.nf == 0)
 
 
+def pair_settings(rk, factors: tuple, max_work: int) -> dict:
+    """PrkRun's fields for rk's coming steps: its controller, tolerances and zone state;
+    ``factors``: projected_rk.py's (safety, min, max) step factors."""
+    return dict(h=rk.h, max_step=rk.max_step, exponent=-rk.alpha, safety=factors[0],
+                min_factor=factors[1], max_factor=factors[2], beta=rk.beta, err_old=rk.err_old,
+                rtol=rk.local_tolerance * rk.rtol, atol=rk.local_tolerance * rk.atol,
+                tol=rk._projection_tol(), max_iter=PROJECTION_MAX_ITER,
+                indicator=rk.zone.indicator, landing=int(rk.zone.landing), max_work=max_work)
+
+
 def run_settings(rk, factors: tuple, energy: tuple, max_work: int) -> dict:
-    """PrkPy's fields (PrkRun's in "run") for a run of rk's steps from its state."""
-    run = dict(h=rk.h, max_step=rk.max_step, exponent=-rk.alpha, safety=factors[0],
-               min_factor=factors[1], max_factor=factors[2], beta=rk.beta, err_old=rk.err_old,
-               rtol=rk.local_tolerance * rk.rtol, atol=rk.local_tolerance * rk.atol,
-               tol=rk._projection_tol(), max_iter=PROJECTION_MAX_ITER,
-               indicator=rk.zone.indicator, landing=int(rk.zone.landing), max_work=max_work)
+    """PrkPy's fields (PrkRun's in "run": ``pair_settings``) for a run of rk's steps."""
     last = rk.energy_rejected
-    return dict(run=run, t=rk.t, energy_rejected=np.nan if last is None else last,
+    return dict(run=pair_settings(rk, factors, max_work), t=rk.t,
+                energy_rejected=np.nan if last is None else last,
                 step_factor=ENERGY_STEP_FACTOR, min_gain=energy[0], jump_limit=energy[1],
                 divergence=ENERGY_DIVERGENCE_FRACTION, roundoff=ENERGY_ROUNDOFF)
 

@@ -45,12 +45,8 @@ def adopt_dense_run(rk, state: dict) -> None:
     """The state, counters, audit and last step (with its interpolant) after the wrapper's
     dense run (``Kernel.dense_run_taken``), as ``_advance_adaptive`` with ``prk_run``
     leaves them."""
-    n = rk.q.size
-    y = state["y"]
-    rk.q, rk.qd, rk.f, rk.t, rk.h = y[:n].copy(), y[n:].copy(), state["f"], state["t"], state["h"]
-    rk.err_old, rk.energy_rejected = state["err_old"], state["energy_rejected"]
-    rk.zone.indicator, rk.zone.crossing, rk.zone.landing = state["indicator"], False, \
-        state["landing"]
+    c_steps.adopt_pair_state(rk, state)
+    rk.energy_rejected = state["energy_rejected"]
     rk.dense = DenseStep(state["t_old"], state["h_old"], state["y_old"], state["y_end"],
                          state["K_old"])
     rk.dense.coefficients = state["coefficients"]
@@ -58,5 +54,3 @@ def adopt_dense_run(rk, state: dict) -> None:
     # advance to the wrapper's time then reads it from the new step's dense output
     if rk.audit is not None:
         c_steps.audit_back(rk.audit, state["audit"])
-    for name, count in state["counters"].items():
-        setattr(rk.stats, name, getattr(rk.stats, name) + count)

@@ -208,15 +208,16 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
  * AdaptiveStepping._advance_adaptive's loop, ProjectedRK._step_impl and _energy_rejects and
  * Integrator._after_step's energy check, in the same order and arithmetic, for steps that
  * need nothing else: a scene without drivers and force inputs (the stage inputs are the same
- * at every time), no watch, its energy audited (total_energy, as energy_check) or not. The
- * step decisions and prk_try are those of the wrapper's landing steps above; with `dense` the steps go past the target (the
- * last accepted step is kept for the dense output). It stops with the state and counters of
- * the decisions taken so far: RUN_DONE at the target; RUN_PYTHON before an attempt Python
- * takes (singular_zone.plan's case, a trial the kernel hands back, an energy jump Python
- * raises on); RUN_WORK after max_work attempts, or with cpu_limit when the thread's CPU
- * time passes it (Python checks its work limit); RUN_ENERGY
- * after a step whose energy check failed (Python's check says why); RUN_FAILED when the
- * step size fell below its minimum or too many steps were rejected in a row. */
+ * at every time), no watch (auto's stiffness limit aside: a step it counts is RUN_PYTHON),
+ * its energy audited (total_energy, as energy_check) or not. The step decisions and
+ * prk_try are those of the wrapper's landing steps above; with `dense` the steps go past
+ * the target (the last accepted step is kept for the dense output). It stops with the
+ * state and counters of the decisions taken so far: RUN_DONE at the target; RUN_PYTHON
+ * before an attempt Python takes (singular_zone.plan's case, a trial the kernel hands
+ * back, an energy jump Python raises on); RUN_WORK after max_work attempts, or with
+ * cpu_limit when the thread's CPU time passes it (Python checks its work limit);
+ * RUN_ENERGY after a step whose energy check failed (Python's check says why); RUN_FAILED
+ * when the step size fell below its minimum or too many steps were rejected in a row. */
 
 enum { RUN_DONE = 0, RUN_PYTHON = 1, RUN_WORK = 2, RUN_ENERGY = 3, RUN_FAILED = 4 };
 

@@ -63,7 +63,7 @@ typedef struct {
     PrkPy p;                     /* the pair's state and decisions (adaptive.h), dense mode */
     const double *a_extra, *D;   /* DOP853's dense output tableau (3 x 16, 4 x 16) */
     double *motions, *ufs;       /* the inputs at its three extra nodes (held: all alike) */
-    double *coef[2], *y_old[2];  /* F and y_old of the steps taken here: the one read, the next */
+    double *coef[2];             /* F of the steps taken here: the one read, the next */
     I which;                     /* the one read (when d.coef is one of them) */
     double *Kx, *ys;             /* dop853_dense's scratch */
     double *saved;               /* the state before a run (save_run) */
@@ -131,12 +131,11 @@ int mbd_dense_run_step(const Model *M, DenseRun *R, double t, double h, double *
         st = dop853_dense(M, &s, p->K_old, p->y_old, p->y_end, p->h_old, R->a_extra, R->D,
                           R->motions, R->ufs, R->coef[w], R->Kx, R->ys);
     }
-    if (st == ST_OK) {
-        memcpy(R->y_old[w], p->y_old, (size_t)(2 * M->n) * sizeof(double));
+    if (st == ST_OK) {       /* the run's y_old: a later run that fails puts it back */
         d->t_old = p->t_old;
         d->h = p->h_old;
         d->coef = R->coef[w];
-        d->y_old = R->y_old[w];
+        d->y_old = p->y_old;
         st = mbd_dense_step(M, d, t, h, values);
     }
     if (st != ST_OK) {

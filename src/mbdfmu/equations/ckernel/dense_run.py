@@ -28,7 +28,7 @@ class DenseRun(ctypes.Structure):
     """dense_run.h's ``DenseRun``."""
 
     _fields_ = [("d", DenseRead), ("p", PrkPy), ("a_extra", _P), ("D", _P), ("motions", _P),
-                ("ufs", _P), ("coef", _P * 2), ("y_old", _P * 2), ("which", _I), ("Kx", _P),
+                ("ufs", _P), ("coef", _P * 2), ("which", _I), ("Kx", _P),
                 ("ys", _P), ("saved", _P), ("taken", _I)]
 
 
@@ -40,7 +40,7 @@ class RunBuffers(PrkRunBuffers):
         super().__init__(n, m, nf, ns)
         n2 = 2 * n
         self.node_motions, self.node_ufs = np.zeros((3, 3 * m)), np.zeros((3, max(nf, 1)))
-        self.coef, self.coef_y_old = np.zeros((2, DENSE_ROWS, n2)), np.zeros((2, n2))
+        self.coef = np.zeros((2, DENSE_ROWS, n2))
         self.Kx, self.ys = np.zeros((DENSE_STAGES, n2)), np.zeros(n2)
         self.saved = np.zeros(4 * n2 + (ns + 1) * n2 + 13 + RUN_SCALARS)
 
@@ -107,13 +107,12 @@ class DenseRuns:
         run.a_extra, run.D = (a.ctypes.data for a in b.tableau)
         run.motions, run.ufs = b.node_motions.ctypes.data, b.node_ufs.ctypes.data
         run.coef[0], run.coef[1] = b.coef[0].ctypes.data, b.coef[1].ctypes.data
-        run.y_old[0], run.y_old[1] = b.coef_y_old[0].ctypes.data, b.coef_y_old[1].ctypes.data
         run.Kx, run.ys, run.saved = b.Kx.ctypes.data, b.ys.ctypes.data, b.saved.ctypes.data
 
     def dense_run_taken(self) -> dict | None:
         """What the wrapper's dense run did since it was armed: None without steps, else the
-        state for ``c_dense_run.adopt_dense_run`` (copies). The run is then disarmed until
-        armed anew."""
+        state for ``integrators.dense_runs.adopt_dense_run`` (copies), its counters started
+        again."""
         run, b = self.run, self.run_buffers
         if b is None or not run.taken:
             return None

@@ -12,7 +12,7 @@
  *                    nullspace_accelerations where S is ill-conditioned (nullspace.h)
  *   project_*()      projection.py project_positions / project_velocities (eqs. 18-19)
  *   mbd_rk4p_steps   rk4p.py's step (rk4_step, _project, the next q'') for runs of steps,
- *                    with rk4p_compiled.py's energy check for constant forces
+ *                    with the energy audit's check (stepping.h total_energy)
  *   mbd_prk_trial    projected_rk.py ProjectedRK._step_impl's arithmetic: stages, error
  *                    norm, projections, the next q'' (the decisions stay in Python);
  *                    mbd_prk_trial_near also near singular configurations (stepping.h)
@@ -36,8 +36,7 @@
  * sparsity.py's minimum-norm solutions (solve.h, Model.min_norm); a banded scene's
  * eq. (14) at a singular S returns ST_SINGULAR and the caller redoes the work on the numpy
  * path; a spring of zero length returns ST_SPRING and the numpy path raises its error.
- * Nothing allocates:
- * scratch space is the caller's `work` (mbd_work_size doubles).
+ * Nothing allocates: scratch space is the caller's `work` (mbd_work_size doubles).
  */
 #define _GNU_SOURCE      /* sincos */
 #include <math.h>
