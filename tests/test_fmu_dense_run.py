@@ -230,3 +230,25 @@ def test_the_kernels_energy_audit_is_the_scenes_energy(name, monkeypatch):
     energy = sim.equations.total_energy(rk.q, rk.qd)
     assert rk.audit.checks > 3
     assert abs(rk.audit.last_energy - energy) <= 1e-12 * max(1.0, rk.audit.magnitude)
+
+
+def test_the_wrappers_untimed_landing_steps_leave_a_long_dostep_to_python(tmp_path,
+                                                                        scene_host):
+    """The wrapper's landing steps (the crane, its force set before each doStep) are not
+    timed: under the FMU's default CPU limit a doStep needing more attempts than Python
+    takes between two checks of it (10 s of the crane, about 150 attempts) is Python's,
+    with Python's values; a 1 ms doStep stays the wrapper's."""
+    from mbdfmu.fmu_build.scene_fmu import build_fmu
+    root = Path(__file__).resolve().parents[1]
+    path = build_fmu(root / "scenarios" / "hydraulic_crane" / "crane.toml", tmp_path / "c.fmu")
+    fast, slow = scene_host(path, "fast").init(), scene_host(path, "slow").init()
+    names = fast.outputs
+    for step in (H, H, H, 10.0, H):
+        for h in (fast, slow):
+            assert h.set_real([h.vr["cylinder.actuator"]], [8000.0 + 100.0 * h.t]) == OK
+            assert h.step(step) == OK
+        assert fast.real(*names) == slow.real(*names)
+        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+    assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK
+    # the 2nd, 3rd and last; the 1st and the 10 s one are Python's
+    assert taken_by_wrapper(fast) == 3
