@@ -297,3 +297,14 @@ def test_p2s_adaptive_run_crosses_in_c_and_reaches_the_reduction(monkeypatch):
     error = math.hypot(out["crank0.x"] + 0.5 * math.cos(phi) - float(b0["x"][-1]),
                        out["crank0.y"] + 0.5 * math.sin(phi) - float(b0["y"][-1]))
     assert error < 2e-5
+
+
+def test_the_kernel_digest_covers_every_header():
+    # the compiled library is cached by the digest of SOURCES: a header left out would let
+    # an edit of it run a stale library
+    from pathlib import Path
+
+    from mbdfmu.equations.ckernel import build
+
+    folder = Path(build.__file__).parent
+    assert sorted(p.name for p in folder.glob("*.[ch]")) == sorted(build.SOURCES)

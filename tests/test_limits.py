@@ -20,8 +20,12 @@ from mbdfmu.errors import MbdfmuError
 import exact_solutions as ref
 from event_checks import CHECKS, check_events
 
+# "C kernel": the modes with a stop or a sticking joint evaluated in C (each attempt a C
+# call), the sliding ones on the numpy kernel; what every FMU runs by default
 SETTINGS = {"default": {}, "rtol 1e-10": dict(rtol=1e-10, atol=1e-10), "rk4p": dict(method="rk4p"),
-            "rk45p": dict(method="rk45p")}
+            "rk45p": dict(method="rk45p"), "C kernel": dict(kernel="c"),
+            "C kernel, rtol 1e-10": dict(kernel="c", rtol=1e-10, atol=1e-10),
+            "C kernel, rk4p": dict(kernel="c", method="rk4p")}
 
 
 @pytest.mark.parametrize("setting", SETTINGS)
@@ -120,7 +124,8 @@ def test_check_reports_stops_friction_and_their_rows(capsys, tmp_path):
     assert "restitution must be between 0 and 1" in err and "\n" not in err
 
 
-def test_revolute_friction_and_stop_on_a_torqued_disc():
+@pytest.mark.parametrize("kernel", [None, "c"])
+def test_revolute_friction_and_stop_on_a_torqued_disc(kernel):
     # a 2 kg disc (J = 0.5 kg m^2) on a ground bearing at its centre, torque 2 N.m, friction
     # 0.5 + 0.1 x 0.05 m x |F| (|F| = m g: the bearing carries the weight), stop at 1 rad:
     # slides with alpha = (2 - bound) / J, hits the stop at sqrt(2 / alpha) s and rests on it
@@ -134,7 +139,7 @@ def test_revolute_friction_and_stop_on_a_torqued_disc():
                    "limits": [-1.0, 1.0],
                    "friction": {"coulomb": 0.5, "coefficient": 0.1, "radius": 0.05}}],
         "force": [{"name": "drive", "type": "torque", "body": "disc", "value": 2.0}]})
-    res = mbdfmu.simulate(scene, t_end=2.0, output_interval=0.05)
+    res = mbdfmu.simulate(scene, t_end=2.0, output_interval=0.05, kernel=kernel)
     hit = math.sqrt(2.0 / alpha)
     assert [e[2].split()[0] for e in res.events] == ["slips:", "hits"]
     assert res.events[0][0] == 0.0 and abs(res.events[1][0] - hit) < 1e-9
@@ -147,7 +152,7 @@ def test_revolute_friction_and_stop_on_a_torqued_disc():
     np.testing.assert_allclose(res["bearing.limit"], np.where(moving, 0.0, -2.0), rtol=1e-6)
     # below the bound it sticks: friction holds the torque
     held = mbdfmu.simulate(dataclasses.replace(scene, forces=(dataclasses.replace(
-        scene.forces[0], value=0.4),)), t_end=0.5, output_interval=0.1)
+        scene.forces[0], value=0.4),)), t_end=0.5, output_interval=0.1, kernel=kernel)
     assert [e[2] for e in held.events] == ["sticks"]
     np.testing.assert_allclose(held["disc.phi"], 0.0, atol=1e-12)
     np.testing.assert_allclose(held["bearing.friction"], -0.4, rtol=1e-9)
@@ -183,3 +188,106 @@ def test_analysis_refuses_stops_and_friction_in_one_line():
         mbdfmu.equilibrium(ref.SCENES / "incline_stick.toml")
     assert "do not handle joint limits or friction" in str(info.value)
     assert "\n" not in str(info.value)
+
+
+def test_the_c_kernel_projects_a_scene_with_stops_on_psi_alone():
+    # as projection.project_positions: a q whose constraints are met within the tolerance is
+    # left as it is (a Newton increment more would move what the stops' rows hold)
+    from mbdfmu.equations.limits import ModeEquations
+    from mbdfmu.equations.projection import project_positions
+
+    scene = mbdfmu.load_scene(ref.SCENES / "crane_stop.toml")
+    sim = mbdfmu.Simulation(scene, kernel="c")
+    eq = ModeEquations(scene, {}, kernel="c")
+    tol = 1e-9
+    q = sim.q + 0.2 * tol * np.cos(np.arange(sim.q.size))        # Psi within tol, not zero
+    assert 0 < np.max(np.abs(eq.constraint_values(0.0, q)[0])) <= tol
+    expected, _ = project_positions(eq, 0.0, q, tol=tol)
+    assert np.array_equal(expected, q)
+    projected, _ = eq.ckernel.project(q, sim.qd, eq.motion_values(0.0), tol, 10)
+    assert np.array_equal(projected, q)
+
+
+def _swinging_rod(coefficient: float):
+    # a 1 m, 2 kg rod (J = 1/6 kg m^2) on a ground pivot at one end, turning at 3 rad/s,
+    # friction 0.2 N m + coefficient x 0.05 m x |F|: the bearing force |F| (weight,
+    # centripetal and tangential) depends on the friction torque, which depends on |F|
+    return mbdfmu.model.scene_from_dict({
+        "name": "rod", "gravity": [0.0, -ref.G],
+        "body": [{"name": "rod", "mass": 2.0, "inertia": 1.0 / 6.0, "position": [0.5, 0.0],
+                  "velocity": [0.0, 1.5], "angular_velocity": 3.0}],
+        "joint": [{"name": "pivot", "type": "revolute", "body_i": "ground", "body_j": "rod",
+                   "point_i": [0.0, 0.0], "point_j": [-0.5, 0.0],
+                   "friction": {"coulomb": 0.2, "coefficient": coefficient, "radius": 0.05}}]})
+
+
+def test_sliding_friction_in_c_iterates_as_the_numpy_path():
+    # the C kernel's friction iteration (ckernel/friction.h) against the numpy one of
+    # ModeEquations, at a state where the bearing force and the friction torque are coupled
+    from mbdfmu.equations.limits import ModeEquations
+
+    scene = _swinging_rod(0.8)
+    q = np.array([0.4, 0.3, 0.6435011087932844])
+    qd = np.array([-0.9, 1.2, 3.0])
+    got = {}
+    for kernel in ("numpy", "c"):
+        eq = ModeEquations(scene, {0: 1}, kernel=kernel)
+        qdd, lam = eq.accelerations(0.0, q, qd)
+        got[kernel] = qdd, lam, float(eq.last_friction[0])
+    (qdd0, lam0, f0), (qdd1, lam1, f1) = got["numpy"], got["c"]
+    np.testing.assert_allclose(qdd1, qdd0, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(lam1, lam0, rtol=1e-12, atol=1e-12)
+    assert f1 == pytest.approx(f0, rel=1e-13) and f0 < -0.2
+    # the bearing's force is that of the rod's acceleration and weight, and the friction is
+    # its bound: the Coulomb torque plus coefficient x radius x that force
+    r = q[:2]
+    force = 2.0 * qdd1[:2] - 2.0 * np.array([0.0, -ref.G])
+    assert -f1 == pytest.approx(0.2 + 0.8 * 0.05 * math.hypot(*force), rel=1e-12)
+    assert math.hypot(*r) == pytest.approx(0.5)
+
+
+def test_sliding_friction_that_cannot_converge_stops_with_its_reason():
+    # coefficient x radius too large: neither kernel finds the friction torque
+    from mbdfmu.equations.limits import ModeEquations
+    from mbdfmu.errors import SolverError
+
+    scene = _swinging_rod(400.0)
+    q = np.array([0.4, 0.3, 0.6435011087932844])
+    for kernel in ("numpy", "c"):
+        eq = ModeEquations(scene, {0: 1}, kernel=kernel)
+        with pytest.raises(SolverError, match="sliding friction of pivot does not converge"):
+            eq.accelerations(0.0, q, np.array([-0.9, 1.2, 3.0]))
+
+
+def test_sliding_friction_in_c_on_a_turning_guide():
+    # a slider in a guide on a turning arm (offset pins, the guide's axis not along the arm):
+    # the C kernel's coordinate gradient and normal force (friction.h) against the numpy
+    # path's, whose gradient is held to finite differences of the coordinate
+    from mbdfmu.equations.limits import Coordinate, ModeEquations
+
+    scene = mbdfmu.model.scene_from_dict({
+        "name": "arm", "gravity": [0.0, -ref.G],
+        "body": [{"name": "arm", "mass": 3.0, "inertia": 0.4, "position": [0.5, 0.1]},
+                 {"name": "slider", "mass": 1.0, "inertia": 0.02, "position": [0.9, 0.5],
+                  "angle": 0.3}],
+        "joint": [{"name": "hub", "type": "revolute", "body_i": "ground", "body_j": "arm",
+                   "point_i": [0.0, 0.0], "point_j": [-0.5, -0.1]},
+                  {"name": "guide", "type": "translational", "body_i": "arm",
+                   "body_j": "slider", "axis_i": [0.9, 0.2], "point_i": [0.1, 0.05],
+                   "point_j": [-0.05, 0.02], "frame_angle": 0.4,
+                   "friction": {"coulomb": 0.3, "coefficient": 0.25}}],
+        "force": [{"name": "drive", "type": "torque", "body": "arm", "value": 5.0}]})
+    q = np.array([0.45, 0.2, 0.25, 0.8, 0.55, 0.4])
+    qd = np.array([-0.1, 0.3, 2.0, -0.6, 1.1, 1.7])
+    coordinate = Coordinate(scene, scene.joints[1])
+    step = 1e-7
+    numeric = [(coordinate.value(q + step * e) - coordinate.value(q - step * e)) / (2 * step)
+               for e in np.eye(6)]
+    np.testing.assert_allclose(coordinate.gradient(q), numeric, atol=1e-8)
+    got = {}
+    for kernel in ("numpy", "c"):
+        eq = ModeEquations(scene, {1: -1}, kernel=kernel)
+        qdd, lam = eq.accelerations(0.0, q, qd)
+        got[kernel] = np.concatenate((qdd, lam, eq.last_friction))
+    np.testing.assert_allclose(got["c"], got["numpy"], rtol=1e-11, atol=1e-11)
+    assert got["c"][-1] > 0.3                 # sliding down: the force pushes up, past F0

@@ -14,7 +14,7 @@ import numpy as np
 from ..model.scene import RotationalSpringDamper, Scene, has_events
 from ..model.variables import TABLES, InputValues, input_layout
 from . import ckernel
-from .constraints import ConstraintSet, choose_kernel
+from .constraints import ConstraintSet
 from .forces import AppliedForces
 from .planar import poses, rotate, stacked
 from .singular import nullspace_accelerations
@@ -39,8 +39,6 @@ class Equations:
         self.minv = 1.0 / self.mass
         self.layout = input_layout(scene)
         self.has_events = has_events(scene)
-        if self.has_events and choose_kernel(kernel) == "c":
-            kernel = "numpy"    # the C kernel has no stops or friction (Simulation says so)
         self.no_inputs = self.layout.initial()
         self.constraint_set = ConstraintSet(scene, self.minv, kernel)
         self.applied = AppliedForces(scene, self.mass, self.layout)
@@ -137,6 +135,11 @@ class Equations:
             done = self.ckernel.accelerations(q, qd, self.motion_values(t, u), u.forces)
             if done is not None:
                 return done
+        return self.python_accelerations(t, q, qd, u, baumgarte=baumgarte)
+
+    def python_accelerations(self, t: float, q: np.ndarray, qd: np.ndarray, u: InputValues, *,
+                             baumgarte: tuple[float, float] | None = None):
+        """``accelerations`` on the numpy (or numba) path, never the C kernel's."""
         F = self.applied(t, q, qd, u)
         if self.m == 0:
             return self.minv * F, np.zeros(0)

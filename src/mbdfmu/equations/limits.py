@@ -123,26 +123,44 @@ class ModeEquations(Equations):
 
     The friction force of a sliding joint, ``-direction (F0 + mu r |F|)`` (eq. 31), depends
     on the reactions it changes: eq. (14) is solved with a guess, the force updated from
-    the reactions, until it no longer changes (``last_friction`` keeps it)."""
+    the reactions, until it no longer changes (``last_friction`` keeps it). The C kernel
+    iterates in C (``ckernel/friction.h``), the same way."""
 
     def __init__(self, scene: Scene, sliding: dict[int, int], *, kernel: str | None = None):
+        self.sliding = dict(sliding)          # before the C kernel, which reads it
         super().__init__(scene, kernel=kernel)
-        self.sliding = dict(sliding)
         self.coordinates = {k: Coordinate(scene, scene.joints[k]) for k in self.sliding}
         self.direction = np.array([float(d) for d in self.sliding.values()])
-        self.last_friction = -self.direction * np.array(
+        self._last_friction = -self.direction * np.array(
             [scene.joints[k].friction.coulomb for k in self.sliding])
         self.applied = _PlusFriction(self.applied, bool(self.sliding))
+
+    @property
+    def last_friction(self) -> np.ndarray:
+        """The friction forces of the last evaluation (N, or N m on revolute joints)."""
+        return self._last_friction if self.ckernel is None else self.ckernel.sliding_forces
+
+    @last_friction.setter
+    def last_friction(self, value: np.ndarray) -> None:
+        if self.ckernel is None:
+            self._last_friction = value
+        else:
+            self.ckernel.sliding_forces[:] = value
 
     def accelerations(self, t, q, qd, u=None, *, baumgarte=None):
         if not self.sliding:
             return super().accelerations(t, q, qd, u, baumgarte=baumgarte)
+        u = self._u(u)
+        if self.ckernel is not None and baumgarte is None:
+            done = self.ckernel.accelerations(q, qd, self.motion_values(t, u), u.forces)
+            if done is not None:
+                return done
         grads = [c.gradient(q) for c in self.coordinates.values()]
         f = self.last_friction.copy()
         for _ in range(FRICTION_MAX_ITER):
             self.applied.extra = sum(fk * g for fk, g in zip(f, grads))
             try:
-                qdd, lam = super().accelerations(t, q, qd, u, baumgarte=baumgarte)
+                qdd, lam = self.python_accelerations(t, q, qd, u, baumgarte=baumgarte)
             finally:
                 self.applied.extra = None
             new = -self.direction * np.array([friction_bound(self, k, q, lam)

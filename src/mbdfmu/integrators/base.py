@@ -92,6 +92,8 @@ class Integrator:
     # Called as watch(self) after each accepted step; events.py sets it to find events
     # (it raises to stop the run there).
     watch: Callable | None = None
+    # The watch must see every step (events): no run of several steps in one C call.
+    watch_each_step = False
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)

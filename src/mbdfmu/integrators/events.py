@@ -65,15 +65,15 @@ class EventRunner(ContactModes):
         while integrator.t < t_target:
             self.watching = (integrator.rollback_point(),
                              self.values(integrator.t, integrator.q, integrator.qd), integrator.t)
-            integrator.watch = self.watch
+            integrator.watch, integrator.watch_each_step = self.watch, True
             try:
                 integrator.advance(t_target, limit)
             except EventFound as found:
-                integrator.watch = None
+                integrator.watch, integrator.watch_each_step = None, False
                 crossed, g1 = found.args
                 self._handle(integrator, crossed, g1)
             finally:
-                integrator.watch = None
+                integrator.watch, integrator.watch_each_step = None, False
 
     def _state_at(self, integrator, start, t: float):
         integrator.set_state(start)
@@ -200,12 +200,17 @@ class EventRunner(ContactModes):
 
 
 def event_kernel(scene: Scene, kernel: str | None) -> tuple[str | None, str]:
-    """The kernel a scene runs on and a note when it is not the one asked for: the C kernel
-    takes whole steps in one call, which the events cannot watch; scenes with stops or
-    friction run on the numpy kernel instead (numba's stays: its steps are watched)."""
+    """The kernel a scene runs on and a note on what it leaves to another: on the C kernel
+    the runner watches each step, which then goes through Python (each attempt in C), and a
+    mode in which a joint with friction slides runs on the numpy kernel
+    (``limits.ModeEquations``: its force is iterated against the reactions)."""
     if not has_events(scene) or choose_kernel(kernel) != "c":
         return kernel, ""
-    return "numpy", 'kernel "c" does not handle joint limits or friction: the numpy kernel runs'
+    rubs = [j.name for j in scene.joints if getattr(j, "friction", None) is not None]
+    if not rubs:
+        return kernel, ""
+    return kernel, (f'kernel "c" does not take the sliding friction of {", ".join(rubs)}: '
+                    "while it slides, the numpy kernel runs")
 
 
 def event_summary(scene: Scene, q0, qd0, dof: int) -> str:

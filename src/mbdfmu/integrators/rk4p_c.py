@@ -40,7 +40,7 @@ def advance_fixed(rk, t_target: float) -> bool:
     ``c_steps.rk4p_run``, which costs less to make), no C kernel or constraints, inputs
     the kernel does not hold."""
     eq, accuracy = rk.equations, rk.accuracy
-    if eq.ckernel is None or eq.m == 0:
+    if eq.ckernel is None or eq.m == 0 or rk.watch_each_step:
         return False
     t0, n, h = rk.fixed_grid(t_target)
     if not accuracy.due() and n <= min(RUN_LENGTH, accuracy.every - accuracy.unchecked):

@@ -19,49 +19,23 @@ from pathlib import Path
 
 import numpy as np
 
-from ...model.scene import PointForce, RotationalSpringDamper, SpringDamper, Torque
+from ...model.scene import SpringDamper
 from ..sparsity import RANK_TOLERANCE
 from .dense import DENSE_KINDS, DenseReads  # noqa: F401 (DENSE_KINDS: public here)
 from .adaptive import PrkSteps
 from .dense_run import DenseRun, DenseRuns
 from .fixed import FixedSteps
 from .implicit import ImplicitCalls, declare_implicit
+from .model import (SLIDE_COULOMB, SLIDE_DIRECTION, SLIDE_REALS, Model, _I, _P,  # noqa: F401
+                    _packed, model_arrays)
 
 # Return codes of kernel.c (ST_*).
 OK, SINGULAR, PROJECTION, NOT_FINITE, SPRING, ENERGY, ERROR_NORM, NEWTON = range(8)
-FORCE_CODES = {PointForce: 0, Torque: 1, SpringDamper: 2, RotationalSpringDamper: 3}
 # Stages of the largest tableau a trial step may have (DOP853's 12, plus its last row).
 MAX_STAGES = 13
 # Times whose inputs one call can take (a run of 64 rk4p steps evaluates 3 times each).
 MAX_ROWS = 192
 ENV_LIBRARY = "MBDFMU_C_KERNEL"
-# Minimum-norm solves (projections, error estimates) in C as sparsity.py's, else the numpy
-# path's. Never eq. 14's: at an ill-conditioned S it takes the null-space form (singular.py,
-# nullspace.h), whose q'' stays right next to a singular configuration; a cut-off's not.
-MIN_NORM_IN_C = True
-
-_P, _I = ctypes.c_void_p, ctypes.c_int64
-_FIELDS = (
-    "nb n m nf kc *c_rows *c_bi *c_bj *c_si *c_sj kl *l_rows *l_bi *l_bj *l_si *l_sj *l_u "
-    "*l_w ka *a_rows *a_bi *a_bj *a_w nconst *constants nraw *merge size nkeep *keep *rows "
-    "*cols npairs *pair_a *pair_b *pair_minv *band_index *perm kd *mass *minv *gravity "
-    "%rank_tol *f_const nforce *f_int *f_real nr *joint_rows *reaction_entries *joint_bj "
-    "*frame_body *reaction_joints *frame_angle *frame_point nj nplan *joint_plan ncoupler "
-    "*coupler_rows ndriver *driver_rows banded min_norm *work *memo").split()
-
-
-# Model's array fields (work and memo: set by Kernel) and its counts
-_POINTERS = [f[1:] for f in _FIELDS if f[0] == "*" and f not in ("*work", "*memo")]
-_COUNTS = [f for f in _FIELDS if f[0] not in "*%"]
-
-
-class Model(ctypes.Structure):
-    """kernel.c's ``Model``: counts (int64), pointers, one double (``%``)."""
-
-    _fields_ = [(f.strip("*%"), _P if f[0] == "*" else ctypes.c_double if f[0] == "%" else _I)
-                for f in _FIELDS]
-
-
 _D = ctypes.c_double
 # kernel.c's entry points called through a Kernel, and their argument types (all return int)
 _SIGNATURES = {
@@ -119,89 +93,6 @@ def available() -> bool:
     return True
 
 
-def _ints(a) -> np.ndarray:
-    return np.ascontiguousarray(a, dtype=np.int64).ravel()
-
-
-def _floats(a) -> np.ndarray:
-    return np.ascontiguousarray(a, dtype=np.float64).ravel()
-
-
-def force_table(applied) -> tuple[np.ndarray, np.ndarray]:
-    """The forces that depend on the state or inputs (``AppliedForces.state_forces``) as
-    kernel.c reads them: (type, body_i, body_j, input slot or -1) and eight reals each."""
-    ints, reals = [], []
-    slots = {name: s.start for name, s in applied.layout.forces.items()}
-    index = applied.index
-    for f in applied.state_forces:
-        real = np.zeros(8)
-        if isinstance(f, PointForce):
-            b = index[f.body]
-            ints.append((0, b, b, slots[f.name] if f.input else -1))
-            real[:4] = (*f.point, *((0.0, 0.0) if f.input else f.value))
-        elif isinstance(f, Torque):
-            b = index[f.body]
-            ints.append((1, b, b, slots[f.name]))
-        elif isinstance(f, SpringDamper):
-            ints.append((2, index[f.body_i], index[f.body_j],
-                         slots[f.name] if f.actuator_input else -1))
-            real[:7] = (*f.point_i, *f.point_j, f.stiffness, f.damping, f.rest_length)
-        else:
-            joint = applied.scene.joint(f.joint)
-            ints.append((3, index[joint.body_i], index[joint.body_j], -1))
-            real[:3] = (f.stiffness, f.damping, f.rest_angle)
-        reals.append(real)
-    return _ints(np.array(ints, dtype=np.int64).reshape(-1, 4)), _floats(np.array(reals).reshape(-1, 8))
-
-
-def model_arrays(eq) -> dict:
-    """Every array and count of ``Model`` for the ``Equations`` eq."""
-    c, p = eq.constraint_set, eq.pattern
-    co, li, an = c.coincidence, c.line, c.angle
-    f_int, f_real = force_table(eq.applied)
-    a = dict(nb=eq.nb, n=eq.n, m=eq.m, nf=eq.layout.size,
-             kc=co.n, c_rows=co.rows, c_bi=co.bi, c_bj=co.bj, c_si=co.si, c_sj=co.sj,
-             kl=li.n, l_rows=li.rows, l_bi=li.bi, l_bj=li.bj, l_si=li.si, l_sj=li.sj,
-             l_u=li.u, l_w=li.w, ka=an.n, a_rows=an.rows, a_bi=an.bi, a_bj=an.bj, a_w=an.w,
-             nconst=c._constants.size, constants=c._constants, nraw=p.merge.size,
-             merge=p.merge, size=p.size, nkeep=p.keep.size, keep=p.keep, rows=p.rows,
-             cols=p.cols, npairs=p.pair_a.size, pair_a=p.pair_a, pair_b=p.pair_b,
-             pair_minv=p.pair_minv, band_index=p.band_index, perm=p.perm, kd=p.kd,
-             mass=eq.mass, minv=eq.minv, gravity=eq.applied.gravity,
-             f_const=eq.applied.constant, nforce=f_int.size // 4, f_int=f_int, f_real=f_real,
-             nr=len(c.joint_rows), joint_rows=c.joint_rows,
-             reaction_entries=eq._reaction_entries, joint_bj=c.joint_bj,
-             frame_body=c.frame_body, reaction_joints=c.reaction_joints,
-             frame_angle=c.frame_angle, frame_point=c.frame_point, nj=len(eq.scene.joints),
-             nplan=eq._joint_outputs.size, joint_plan=eq._joint_outputs,
-             ncoupler=c.coupler_rows.size, coupler_rows=c.coupler_rows,
-             ndriver=c.driver_rows.size, driver_rows=c.driver_rows,
-             banded=int(p.banded), min_norm=int(MIN_NORM_IN_C))
-    return a
-
-
-def _packed(arrays: dict) -> tuple[dict, list]:
-    """``Model``'s fields from ``model_arrays``: counts as they are, each array copied into
-    one int64 or one float64 block (as ``_ints`` / ``_floats`` would give it) and given by
-    its address there; and the two blocks, which must live as long as the model."""
-    values = {name: arrays[name] for name in _COUNTS}
-    integer, real = [], []
-    for name in _POINTERS:
-        a = np.asarray(arrays[name])
-        (integer if a.dtype.kind in "iu" else real).append((name, a))
-    blocks = []
-    for part, dtype in ((integer, np.int64), (real, np.float64)):
-        # one element more: never of size 0
-        block = np.concatenate([a for _, a in part] + [np.zeros(1, dtype)], axis=None,
-                               dtype=dtype)
-        address = block.ctypes.data
-        for name, a in part:
-            values[name] = address
-            address += 8 * a.size
-        blocks.append(block)
-    return values, blocks
-
-
 class Buffers:
     """The persistent arrays of one kernel, and their addresses (``p_<name>``): arguments
     and results are copied in and out, so a call passes addresses known beforehand."""
@@ -245,13 +136,22 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
         # the dense read (dense.h) heads the dense run (dense_run.h): one address for both
         self.run = DenseRun()
         self.dense, self._dense_arrays, self._publish = self.run.d, (), None
-        # the work space, the kept evaluation and the dense reads' scratch: one allocation
+        # the work space, the kept evaluation, the dense reads' scratch and the sliding
+        # friction's (friction.h: its last forces first): one allocation
+        ns = arrays["nslide"]
         sizes = (lib.mbd_work_size(self.address, MAX_STAGES), lib.mbd_memo_size(self.address),
-                 self.nout + 3 * self.n + max(self.m, 1))
+                 self.nout + 3 * self.n + max(self.m, 1), 3 * ns + self.n + ns * self.n)
         block, ends = np.zeros(sum(sizes)), tuple(itertools.accumulate(sizes, initial=0))
-        self.work, self.memo, self._dense_scratch = (block[a:b] for a, b in zip(ends, ends[1:]))
+        self.work, self.memo, self._dense_scratch, slide = (
+            block[a:b] for a, b in zip(ends, ends[1:]))
         base = block.ctypes.data
         model.work, model.memo, self.dense.V = base, base + 8 * ends[1], base + 8 * ends[2]
+        model.slide_f = base + 8 * ends[3]
+        # the friction forces the last evaluation converged to (N or N m), first the guess
+        # ModeEquations starts from: -direction x coulomb
+        self.sliding_forces = slide[:ns]
+        reals = np.asarray(arrays["s_real"]).reshape(ns, SLIDE_REALS)
+        self.sliding_forces[:] = -reals[:, SLIDE_DIRECTION] * reals[:, SLIDE_COULOMB]
         self.buf = Buffers(self.n, self.m, self.nf, self.nout)
         self._tableaus: dict = {}
         self.static_rows = 0          # rows of buf.motions holding a driverless scene's block

@@ -198,7 +198,7 @@ static int solve_kept(const Model *M, const double *kept, const double *y,
                       const double *motion, const double *uf, Scratch *s, double *qdd) {
     I n = M->n, m = M->m;
     const double *values = kept_values(M, kept, y, motion), *q = y, *qd = y + n;
-    if (!values) return 0;
+    if (!values || M->nslide) return 0;     /* sliding friction iterates: a whole evaluation */
     const double *gamma = values + M->nkeep, *band = gamma + m, *cdd = motion + 2 * m;
     if (forces(M, q, qd, uf, s->F) != ST_OK) return 0;
     solve_with_factor(M, s, values, gamma, band, cdd, qdd, s->lam);

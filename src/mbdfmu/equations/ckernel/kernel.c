@@ -72,6 +72,9 @@ typedef struct {
     I nj, nplan; const I *joint_plan; I ncoupler; const I *coupler_rows;
     I ndriver; const I *driver_rows;
     I banded, min_norm;   /* S in band storage (else dense); minimum-norm solves here */
+    I psi_only;           /* positions projected until Psi alone is within tol (held rows) */
+    I nslide; const I *s_int; const double *s_real;   /* sliding friction (friction.h) */
+    double *slide_f;
     double *work;
     double *memo;   /* the last evaluation of eq. (14): its arguments and results (memo_size) */
 } Model;
@@ -319,6 +322,8 @@ static void extend(const Model *M, const double *q, double *qe) {
 
 /* ---- eq. (14) ------------------------------------------------------------------------------ */
 
+#include "friction.h"
+
 /* again: S's factor is in s->band already (s->kept after a projection to this q). */
 /* eq. (14)'s solve with the forces in s->F and Psi_q's values, gamma and the band factor of
  * S = Psi_q M^-1 Psi_q^T given (none of them depends on the forces): q'' and lam. */
@@ -351,19 +356,27 @@ static int accelerations_at(const Model *M, Scratch *s, const double *q, const d
     merged(M, s->raw, s->data, s->values);
     int st = forces_cs(M, q, qd, uf, s->cs, s->F);      /* with the angles' trig of terms() */
     if (st != ST_OK) return st;
+    if (M->nslide) return sliding_accelerations(M, s, q, cdd, qdd, lam);
     if (again) return solve_with_factor(M, s, s->values, s->gamma, s->band, cdd, qdd, lam);
-    for (I k = 0; k < n; k++) s->Fm[k] = M->minv[k] * s->F[k];
+    return solve_eq14(M, s, s->F, cdd, qdd, lam);
+}
+
+/* Eq. (14) for the applied forces F, with s holding Psi_q's values and gamma at (q, q'). */
+static int solve_eq14(const Model *M, Scratch *s, const double *F, const double *cdd,
+                      double *qdd, double *lam) {
+    I n = M->n, m = M->m;
+    for (I k = 0; k < n; k++) s->Fm[k] = M->minv[k] * F[k];
     jac_mul(M, s->values, s->Fm, s->rhs);
     for (I r = 0; r < m; r++) s->rhs[r] -= s->gamma[r] + cdd[r];
     int kept;
-    st = schur_solve_mode(M, s->values, s->rhs, lam, s->band, s->tmp, &kept, 0);
+    int st = schur_solve_mode(M, s->values, s->rhs, lam, s->band, s->tmp, &kept, 0);
     if (st == ST_SINGULAR) {       /* S ill-conditioned: the null-space form (nullspace.h) */
         for (I r = 0; r < m; r++) s->x[r] = s->gamma[r] + cdd[r];
-        return nullspace_accelerations(M, s->values, s->F, s->x, qdd, lam, s->svd);
+        return nullspace_accelerations(M, s->values, F, s->x, qdd, lam, s->svd);
     }
     if (st != ST_OK) return st;
     jac_t_mul(M, s->values, lam, s->nv);
-    for (I k = 0; k < n; k++) qdd[k] = M->minv[k] * (s->F[k] - s->nv[k]);
+    for (I k = 0; k < n; k++) qdd[k] = M->minv[k] * (F[k] - s->nv[k]);
     return ST_OK;
 }
 
@@ -456,8 +469,9 @@ static int project_positions(const Model *M, Scratch *s, double *q, const double
         }
         /* converged in q, not only in Psi (projection.project_positions): near a singular
          * configuration |Psi| <= tol alone leaves q off by up to tol / sigma; what does not
-         * get there goes back to the numpy path (ST_PROJECTION) */
-        if (err <= tol && increment <= tol) return ST_OK;
+         * get there goes back to the numpy path (ST_PROJECTION). A scene with stops or
+         * friction stops on Psi alone: the extra increment would move what its events hold */
+        if (err <= tol && (increment <= tol || M->psi_only)) return ST_OK;
         if (it == max_iter) break;
         int st = schur_solve(M, s->values, s->psi, s->x, s->band, s->tmp);
         if (st != ST_OK) return st;

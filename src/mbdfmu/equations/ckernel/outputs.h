@@ -7,32 +7,8 @@
  * 28) into out (nj, 3), NaN for couplers, then the coupler efforts -lam. */
 static void joint_values(const Model *M, const double *q, const double *lam,
                          const double *data, double *out) {
-    I nb = M->nb, m = M->m;
     for (I k = 0; k < 3 * M->nj; k++) out[k] = NAN;
-    for (I k = 0; k < M->nr; k++) {
-        double gen[3];
-        for (int b = 0; b < 3; b++) {
-            double g = 0.0;
-            for (int a = 0; a < 2; a++) {
-                I row = M->joint_rows[2 * k + a];
-                I e = M->reaction_entries[6 * k + 3 * a + b];
-                double l = row < m ? lam[row] : 0.0, d = e < M->size ? data[e] : 0.0;
-                g += d * l;
-            }
-            gen[b] = -g;
-        }
-        I bj = M->joint_bj[k], fb = M->frame_body[k];
-        double c = bj < nb ? cos(q[3 * bj + 2]) : 1.0, s = bj < nb ? sin(q[3 * bj + 2]) : 0.0;
-        double px = M->frame_point[2 * k], py = M->frame_point[2 * k + 1];
-        double ax = c * px - s * py, ay = s * px + c * py;
-        double torque = gen[2] - (ax * gen[1] - ay * gen[0]);
-        double theta = (fb < nb ? q[3 * fb + 2] : 0.0) + M->frame_angle[k];
-        double co = cos(theta), si = sin(theta);
-        I j = M->reaction_joints[k];
-        out[3 * j] = co * gen[0] + si * gen[1];
-        out[3 * j + 1] = -si * gen[0] + co * gen[1];
-        out[3 * j + 2] = torque;
-    }
+    for (I k = 0; k < M->nr; k++) joint_reaction(M, q, lam, data, k, out + 3 * M->reaction_joints[k]);
     for (I k = 0; k < M->ncoupler; k++) out[3 * M->nj + k] = -lam[M->coupler_rows[k]];
 }
 
