@@ -182,8 +182,6 @@ class Model(Slave):
         self.sim, self.built = self.new_simulation(build), build
         for line in self.sim.warnings:          # initial values the assembly changed
             self.warn(f"initial conditions: {line}")
-        if self.sim.kernel_note:
-            self.log(self.sim.kernel_note)
         self.logged_events = 0
         self.log_events()
         self.push_inputs()

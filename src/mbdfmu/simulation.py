@@ -22,7 +22,7 @@ from .errors import InputError, SettingError, SolverError
 from .integrators import make_integrator
 from .integrators.auto_watch import method_chain, switches_of
 from .integrators.base import WorkLimit
-from .integrators.events import EventRunner, check_method, event_kernel
+from .integrators.events import EventRunner, check_method
 from .integrators.projected_rk import ProjectedRK
 from .integrators.settings import SolverSettings, settings_from_scene
 from .model.reader import load_scene
@@ -57,7 +57,6 @@ class Simulation(SimulationInputs):
         self.settings = (settings or settings_from_scene(scene)).updated(
             method=method, step=step, rtol=rtol, atol=atol, options=method_options,
             output_interval=output_interval)
-        kernel, self.kernel_note = event_kernel(scene, kernel)   # stops, friction: numpy
         self.equations = Equations(scene, kernel=kernel)
         layout = self.equations.layout
         self.input_names = [v.name for v in inputs(scene)]
@@ -377,6 +376,6 @@ def simulate(scene: Scene | str | Path, t_end: float | None = None, method=None,
                   q=np.array(qs), qd=np.array(qds), qdd=np.array(qdds), lam=np.array(lams),
                   units=dict(sim.units), method=sim.method_name, method_reason=sim.method_reason,
                   stats=vars(sim.integrator.stats).copy(),
-                  warnings=list(sim.warnings) + ([sim.kernel_note] if sim.kernel_note else []),
+                  warnings=list(sim.warnings),
                   events=list(sim.events.log) if sim.events is not None else [],
                   switches=switches_of(sim.integrator))

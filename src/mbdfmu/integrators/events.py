@@ -23,7 +23,6 @@ import math
 
 import numpy as np
 
-from ..equations.constraints import choose_kernel
 from ..equations.limits import velocity_jump
 from ..errors import SettingError, SolverError
 from ..model.limits import (HELD, LOWER, SLIDE_DOWN, SLIDE_UP, STICK, UPPER, JointMode,
@@ -197,20 +196,6 @@ class EventRunner(ContactModes):
         if toward <= 0 or e >= 1.0:
             return False
         return 2.0 * abs(after) / toward / (1.0 - e) < SETTLE_TIME
-
-
-def event_kernel(scene: Scene, kernel: str | None) -> tuple[str | None, str]:
-    """The kernel a scene runs on and a note on what it leaves to another: on the C kernel
-    the runner watches each step, which then goes through Python (each attempt in C), and a
-    mode in which a joint with friction slides runs on the numpy kernel
-    (``limits.ModeEquations``: its force is iterated against the reactions)."""
-    if not has_events(scene) or choose_kernel(kernel) != "c":
-        return kernel, ""
-    rubs = [j.name for j in scene.joints if getattr(j, "friction", None) is not None]
-    if not rubs:
-        return kernel, ""
-    return kernel, (f'kernel "c" does not take the sliding friction of {", ".join(rubs)}: '
-                    "while it slides, the numpy kernel runs")
 
 
 def event_summary(scene: Scene, q0, qd0, dof: int) -> str:
