@@ -100,7 +100,9 @@ type = "torque"
 body = "bob"
 input = true
 """
-ALL = SCENES + ["kitchen_sink", "pendulum_torque", "andrews"]
+# the scenes with end stops and friction: their own equations, each joint free
+ALL = SCENES + ["kitchen_sink", "pendulum_torque", "andrews", "slider_stop", "crane_stop",
+               "incline_slide"]
 
 
 def any_scene(name):

@@ -252,3 +252,20 @@ def test_the_wrappers_untimed_landing_steps_leave_a_long_dostep_to_python(tmp_pa
     assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK
     # the 2nd, 3rd and last; the 1st and the 10 s one are Python's
     assert taken_by_wrapper(fast) == 3
+
+
+@pytest.mark.parametrize("stem, steps", [("slider_stop", 3300), ("crane_stop", 1500)])
+def test_a_scene_with_stops_reads_its_free_flights_in_the_wrapper(scene_fmu, scene_host, stem,
+                                                                  steps):
+    """The end-stop scenes through their impacts, each settling on its stop, at 1 ms: the
+    wrapper reads the dense output of the steps the event runner watched while every
+    joint is free (the scene's own equations; a stop's force 0), Python takes the steps,
+    the events and the doSteps in contact: bit for bit Python's values at every doStep."""
+    path = scene_fmu(stem)
+    fast, slow = scene_host(path, "fast").init(), scene_host(path, "slow").init()
+    lockstep(fast, slow, steps)
+    assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK
+    free = taken_by_wrapper(fast)
+    assert free > steps // 4, free
+    log = [m for _, _, m in fast.messages if "hits its lower stop" in m]
+    assert len(log) >= 3 and any("rests against it" in m for m in log), log[-3:]

@@ -135,6 +135,8 @@ def dense_run_ahead(sim, limit) -> tuple | None:
     """The arguments of ``Kernel.arm_dense_run`` when the wrapper may also take the steps
     past the step it reads (``integrators.dense_runs``: dop853p, auto's watcher at rest),
     else None. ``sim.dense_reads_ahead()`` said yes: no drivers, inputs held."""
+    if sim.events is not None:        # the steps are watched for events: Python's
+        return None
     integrator = getattr(sim.integrator, "current", sim.integrator)
     watcher = getattr(sim.integrator, "watcher", None)
     run = dense_run(integrator, limit, auto_stiff_limit(integrator, watcher))

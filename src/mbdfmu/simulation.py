@@ -73,7 +73,8 @@ class Simulation(SimulationInputs):
         self.warnings = assembly_changes(self.equations, estimates, (q0, qd0))
         self.events = None                          # stops and friction: their contact mode
         if self.equations.has_events:
-            self.events = EventRunner(scene, kernel, t0, q0, qd0, self.inputs_at)
+            self.events = EventRunner(scene, kernel, t0, q0, qd0, self.inputs_at,
+                                      base=self.equations)
             q0, qd0 = self.events.q, self.events.qd
         self.integrator = make_integrator(      # auto watches runs without events
             None, self.events.equations if self.events else self.equations, t0, q0, qd0,
@@ -162,11 +163,11 @@ class Simulation(SimulationInputs):
         times); None: when the inputs beyond it are known (``inputs_known_ahead``)."""
         if dense is None:
             dense = self.inputs_known_ahead()
-        if self.events is None and not self._inputs_changed and \
-                self.integrator.interpolates_to(t_target, dense):
+        if not self._inputs_changed and self.integrator.interpolates_to(t_target, dense):
             # a time inside the last step: the state there from its dense output, which
             # changes nothing a failure would have to undo (the common case of an FMU
-            # stepped at communication steps shorter than the method's steps)
+            # stepped at communication steps shorter than the method's steps); with events,
+            # a step whose event functions kept their signs (the runner's watch)
             self.integrator.advance(t_target, limit, dense=True)
             self._cache = None
             return
@@ -180,8 +181,8 @@ class Simulation(SimulationInputs):
                 self._reinitialize()
             if self.events is None:
                 self.integrator.advance(t_target, limit, dense=dense)
-            else:       # located events: the steps land on them (no dense output)
-                self.events.advance(self.integrator, t_target, limit)
+            else:       # located events: the steps land on them
+                self.events.advance(self.integrator, t_target, limit, dense)
         except SolverError:
             if self.events is not None:
                 self.events.restore(self.integrator, saved)
@@ -194,10 +195,15 @@ class Simulation(SimulationInputs):
     def dense_reads_ahead(self):
         """The C kernel, holding the last step's dense output (``Kernel.load_dense``), when
         the coming communication steps inside that step can only read it: no drivers (the
-        constraints' motion is constant), no events, no input changed, the inputs beyond
-        now known; else None. An FMU's wrapper then takes those steps by itself."""
+        constraints' motion is constant), no contact held or sliding, no input changed,
+        the inputs beyond now known; else None. An FMU's wrapper then takes those steps by
+        itself."""
         integrator, kernel = self.integrator, self.equations.ckernel
-        if kernel is None or self.events is not None or self.scene.drivers or \
+        # with events, a mode in which every joint is free: the scene's own equations,
+        # whose outputs (stop and friction forces 0) the kernel computes; the steps whose
+        # dense output is read were watched for events
+        if kernel is None or (self.events is not None and integrator.equations is not
+                              self.equations) or self.scene.drivers or \
                 self._inputs_changed or not integrator.interpolates_to(integrator.t, True) or \
                 not self.inputs_known_ahead() or \
                 not getattr(integrator, "load_dense_output", lambda t: False)(self.t):

@@ -36,6 +36,9 @@ EVENT_METHODS = ("rk4p", "rk45p", "dop853p")
 EVENT_TIME_TOL = 1e-12
 # Secant / Illinois iterations allowed to locate one event.
 LOCATE_MAX_ITER = 200
+# How far towards the estimated time of an event past the communication point the steps
+# may go before they close in on it again (``EventRunner.advance``).
+HORIZON_FRACTION = 0.9
 # An impact whose remaining bounces would all end within this time (s) rests at once.
 SETTLE_TIME = 1e-10
 
@@ -58,21 +61,49 @@ class EventRunner(ContactModes):
 
     # ------------------------------------------------------------------ running
 
-    def advance(self, integrator, t_target: float, limit=None) -> None:
-        """``integrator.advance(t_target, limit)`` with every event on the way handled."""
+    def advance(self, integrator, t_target: float, limit=None, dense: bool = False) -> None:
+        """``integrator.advance(t_target, limit, dense=dense)`` with every event on the way
+        handled.
+
+        With ``dense`` (an adaptive method, inputs known ahead) a step may end past
+        t_target, its dense output giving the state there, when its event functions keep
+        their signs. A step past t_target in which one changes sign is taken again: landing
+        on t_target when the sign change (by linear interpolation) comes before it, so that
+        the event is located as any other; else ending at ``horizon``, HORIZON_FRACTION of
+        the way to that estimate, and no step passes the horizon until it is reached, so
+        the steps close in on an event still to come while the communication steps before
+        it read their dense output."""
         integrator.equations = self.equations
         while integrator.t < t_target:
             self.watching = (integrator.rollback_point(),
                              self.values(integrator.t, integrator.q, integrator.qd), integrator.t)
+            if self.horizon is not None and integrator.t >= self.horizon:
+                self.horizon = None
             integrator.watch, integrator.watch_each_step = self.watch, True
+            max_step = integrator.max_step if integrator.adaptive else None
+            if dense and self.horizon is not None:
+                integrator.max_step = min(max_step, self.horizon - integrator.t)
             try:
-                integrator.advance(t_target, limit)
+                integrator.advance(t_target, limit, dense=dense)
             except EventFound as found:
                 integrator.watch, integrator.watch_each_step = None, False
                 crossed, g1 = found.args
+                if dense and integrator.t > t_target:
+                    start, g0, t0 = self.watching
+                    coming = t0 + (integrator.t - t0) * min(_fraction(g0[c], g1[c])
+                                                            for c in crossed)
+                    integrator.set_state(start)
+                    horizon = t0 + HORIZON_FRACTION * (coming - t0)
+                    if horizon > t_target:
+                        self.horizon = horizon
+                    else:
+                        dense = False
+                    continue
                 self._handle(integrator, crossed, g1)
             finally:
                 integrator.watch, integrator.watch_each_step = None, False
+                if max_step is not None:
+                    integrator.max_step = max_step
 
     def _state_at(self, integrator, start, t: float):
         integrator.set_state(start)
@@ -181,6 +212,7 @@ class EventRunner(ContactModes):
         q, qd = self._project(t, q, qd)
         integrator.equations = self.equations
         integrator.reset_state(q, qd)
+        self.horizon = None
 
     def _settles(self, t, q, qd, k, stop, after) -> bool:
         """An impact ends in contact: no rebound, or the remaining bounces (a geometric

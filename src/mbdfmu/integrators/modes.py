@@ -26,10 +26,16 @@ CACHE_SIZE = 16
 
 class ContactModes:
     """The contact mode of a run (a state per event joint), its equations (``equations``:
-    the current mode's), its event functions and outputs; ``log`` its transitions."""
+    the current mode's; ``base``, the scene's own, where every joint is free), its event
+    functions and outputs; ``log`` its transitions."""
 
-    def __init__(self, scene: Scene, kernel: str | None, t0: float, q0, qd0, inputs):
+    def __init__(self, scene: Scene, kernel: str | None, t0: float, q0, qd0, inputs,
+                 base=None):
         self.scene, self.kernel, self.inputs = scene, kernel, inputs
+        # the scene's own Equations (the Simulation's): those of a mode with nothing held
+        # and nothing sliding, so that an FMU's wrapper reads their dense output as it
+        # does for a scene without events (Simulation.dense_reads_ahead)
+        self.base = base
         self.joints = event_joints(scene)
         self.coordinates = {k: Coordinate(scene, scene.joints[k]) for k in self.joints}
         self.base_drivers = len(scene.drivers)
@@ -49,6 +55,7 @@ class ContactModes:
         self._settle(t0, self.q, self.qd, "starts")
         self.q, self.qd = self._project(t0, self.q, self.qd)
         self.watching = None            # (rollback point, event values) at the last step
+        self.horizon = None             # no step past this time (s; events.py's advance)
 
     # ------------------------------------------------------------------ modes
 
@@ -80,7 +87,11 @@ class ContactModes:
     def mode_equations(self, mode) -> ModeEquations:
         key = tuple(sorted(mode.items()))
         eq = self._cache.get(key)
-        if eq is None:
+        if eq is None and self.base is not None and \
+                all(m.state == FREE for m in mode.values()):
+            eq = self.base
+            eq.held_rows = {}
+        elif eq is None:
             if len(self._cache) >= CACHE_SIZE:
                 self._cache.pop(next(iter(self._cache)))
             eq = ModeEquations(mode_scene(self.scene, mode), sliding(mode), kernel=self.kernel)
@@ -178,12 +189,13 @@ class ContactModes:
         return out
 
     def get_state(self) -> dict:
-        """The modes and the length of the log, as plain data."""
+        """The modes, the length of the log and the steps' horizon, as plain data."""
         return {"modes": [[k, m.state, m.held] for k, m in self.mode.items()],
-                "logged": len(self.log)}
+                "logged": len(self.log), "horizon": self.horizon}
 
     def restore(self, integrator, state: dict) -> None:
         """Back to ``get_state()``'s modes (the log cut back to its length then)."""
         self.mode = {int(k): JointMode(str(s), float(h)) for k, s, h in state["modes"]}
         del self.log[int(state["logged"]):]
+        self.horizon = state.get("horizon")
         integrator.equations = self.equations
