@@ -31,8 +31,9 @@ from .integrators.c_steps import adopt_fast_run, adopt_prk_run, fast_prk_run, fa
 from .integrators.auto_watch import STIFF_HLAMBDA
 from .integrators.dense_runs import adopt_dense_run, dense_run
 from .integrators.projected_rk import DOP853P, MAX_FACTOR, MIN_FACTOR, SAFETY
+from .model.limits import HELD, STICK, hold_driver_name
 from .model.scene import Body, SpringDamper
-from .model.variables import GLOBAL_OUTPUTS, TABLES
+from .model.variables import GLOBAL_OUTPUTS, TABLES, outputs
 from .signals import Held
 
 
@@ -119,7 +120,7 @@ def arm(sim, limit, time_tol: float, inputs, published) -> tuple | None:
     places in (outputs, q, q', q'')) of the values each step writes."""
     kernel = sim.dense_reads_ahead()
     if kernel is not None:
-        armed = kernel.arm_dense_steps(sim.t, time_tol, *published)
+        armed = kernel.arm_dense_steps(sim.t, time_tol, *mode_published(sim, published))
         run = dense_run_ahead(sim, limit)
         return armed if run is None else kernel.arm_dense_run(*run)
     fast = fast_steps_ahead(sim, limit, time_tol, inputs)
@@ -129,6 +130,33 @@ def arm(sim, limit, time_tol: float, inputs, published) -> tuple | None:
     if kind == "fixed":
         return kernel.arm_fixed_steps(*arguments, *published, **keywords)
     return kernel.arm_prk_steps(*arguments, inputs, *published)
+
+
+def mode_published(sim, published) -> tuple:
+    """``published`` (value references, places in the scene's (outputs, q, q', q'')) as
+    places in the current contact mode's: its output vector has the effort of each
+    held coordinate's driver too (model.limits.hold_driver_name), which is the stop's force
+    (``<joint>.limit``) of a joint resting on a stop and the friction (``<joint>.friction``)
+    of a sticking one, as ``ContactModes.output_vector`` reads them (a sliding joint's
+    friction is not there: ``Simulation.dense_reads_ahead`` leaves those modes to Python)."""
+    eq = sim.stepped_equations
+    if eq is sim.equations:
+        return published
+    kept = getattr(eq, "published_places", None)
+    if kept is not None and kept[0] is published:
+        return kept[1]
+    names = [v.name for v in outputs(eq.scene)]
+    place = {name: i for i, name in enumerate(names)}
+    for k, mode in sim.events.mode.items():
+        if mode.state in HELD:
+            joint = sim.scene.joints[k].name
+            what = "friction" if mode.state == STICK else "limit"
+            place[f"{joint}.{what}"] = place[f"{hold_driver_name(joint)}.effort"]
+    base, (vrs, sources) = sim.output_names, published
+    shift = len(names) - len(base)
+    mapped = vrs, np.array([place[base[s]] if s < len(base) else s + shift for s in sources])
+    eq.published_places = (published, mapped)
+    return mapped
 
 
 def dense_run_ahead(sim, limit) -> tuple | None:
@@ -154,7 +182,7 @@ def catch_up(sim, inputs) -> tuple[bool, list, list]:
     (whether it moved; [(value reference, value)] of the ``settable_inputs`` as ``sim``
     now holds them, when it moved; those the wrapper took from fmi2SetReal after its last
     step, for the FMU to treat as set)."""
-    kernel = sim.equations.ckernel
+    kernel = sim.stepped_equations.ckernel
     if kernel is None:
         return False, [], []
     (fixed, fixed_pending), (_, prk, pending) = kernel.fixed_taken(), kernel.prk_taken()

@@ -192,18 +192,24 @@ class Simulation(SimulationInputs):
         finally:
             self._cache = None
 
+    @property
+    def stepped_equations(self) -> Equations:
+        """The equations the integrator steps: the current contact mode's with stops or
+        friction, else the scene's."""
+        return self.equations if self.events is None else self.events.equations
+
     def dense_reads_ahead(self):
         """The C kernel, holding the last step's dense output (``Kernel.load_dense``), when
         the coming communication steps inside that step can only read it: no drivers (the
-        constraints' motion is constant), no contact held or sliding, no input changed,
+        constraints' motion is constant), no joint sliding with friction, no input changed,
         the inputs beyond now known; else None. An FMU's wrapper then takes those steps by
         itself."""
-        integrator, kernel = self.integrator, self.equations.ckernel
-        # with events, a mode in which every joint is free: the scene's own equations,
-        # whose outputs (stop and friction forces 0) the kernel computes; the steps whose
-        # dense output is read were watched for events
-        if kernel is None or (self.events is not None and integrator.equations is not
-                              self.equations) or self.scene.drivers or \
+        integrator, eq = self.integrator, self.stepped_equations
+        kernel = eq.ckernel
+        # with events, the current mode's equations (the steps whose dense output is read
+        # were watched for events), but not a sliding one: its friction is not among the
+        # kernel's outputs (fast_steps.mode_published)
+        if kernel is None or getattr(eq, "sliding", None) or self.scene.drivers or \
                 self._inputs_changed or not integrator.interpolates_to(integrator.t, True) or \
                 not self.inputs_known_ahead() or \
                 not getattr(integrator, "load_dense_output", lambda t: False)(self.t):

@@ -39,6 +39,8 @@ LOCATE_MAX_ITER = 200
 # How far towards the estimated time of an event past the communication point the steps
 # may go before they close in on it again (``EventRunner.advance``).
 HORIZON_FRACTION = 0.9
+# ... and within what (relative) a step's end counts as having reached it.
+HORIZON_REACHED = 1e-12
 # An impact whose remaining bounces would all end within this time (s) rests at once.
 SETTLE_TIME = 1e-10
 
@@ -77,8 +79,9 @@ class EventRunner(ContactModes):
         while integrator.t < t_target:
             self.watching = (integrator.rollback_point(),
                              self.values(integrator.t, integrator.q, integrator.qd), integrator.t)
-            if self.horizon is not None and integrator.t >= self.horizon:
-                self.horizon = None
+            if self.horizon is not None and \
+                    integrator.t >= self.horizon - HORIZON_REACHED * max(1.0, self.horizon):
+                self.horizon = None          # reached (a step to it ends there to round-off)
             integrator.watch, integrator.watch_each_step = self.watch, True
             max_step = integrator.max_step if integrator.adaptive else None
             if dense and self.horizon is not None:
