@@ -9,10 +9,12 @@ this shared machine does not count. ``--python`` builds the FMUs with another ch
 interpreter too (label=path), for a before/after in one run: each build's rows are
 measured alternately, ``--repeat`` rounds, and the round with the lowest mean kept.
 
-    python benchmarks/fmu_step_times.py [--t-end 10] [--repeat 3] [--python base=/path/python]
+    python benchmarks/fmu_step_times.py [--set targets|events] [--t-end 10] [--repeat 3]
+        [--python base=/path/python]
 
-Writes ``fmu_step_times.md``, ``.csv`` and ``.png`` into ``-o`` (default
-docs/figures/performance).
+``--set events`` times the shipped scenes with end stops and friction instead. Writes
+``fmu_step_times.md`` (``fmu_step_times_events.md``), ``.csv`` and ``.png`` into ``-o``
+(default docs/figures/performance).
 """
 
 from __future__ import annotations
@@ -40,6 +42,11 @@ CASES = {"slider-crank (P4)": (ROOT / "scenes" / "slider_crank.toml", None),
          "P2 N = 2": (ROOT / "scenes" / "n_four_bar_2.toml", None),
          "crane mechanism": (ROOT / "scenarios" / "hydraulic_crane" / "crane.toml",
                              "cylinder.actuator")}
+# --set events: the shipped scenes with end stops and friction (impacts, rest on a stop,
+# sticking, sliding), default settings
+EVENT_CASES = {stem: (ROOT / "scenes" / f"{stem}.toml", None)
+               for stem in ("slider_stop", "crane_stop", "incline_stick", "incline_slide")}
+SETS = {"targets": (CASES, "fmu_step_times"), "events": (EVENT_CASES, "fmu_step_times_events")}
 H = 1e-3
 SLOW_US = 100.0
 HOLD, SWING = 8420.0, 0.05     # the crane's cylinder force (N) as fmu_speed.py sets it
@@ -83,17 +90,19 @@ def summary(case: str, build_label: str, times: np.ndarray) -> dict:
     slow = times > SLOW_US
     return {"case": case, "build": build_label, "steps": times.size,
             "median_us": float(np.median(times)), "mean_us": float(times.mean()),
+            "real_time_factor": float(H * 1e6 / times.mean()),
             "p99_us": float(np.quantile(times, 0.99)),
             "p999_us": float(np.quantile(times, 0.999)), "max_us": float(times.max()),
             "slow_steps": int(slow.sum()), "slow_share": float(times[slow].sum() / times.sum())}
 
 
 def markdown(rows: list[dict], header: str) -> str:
-    lines = [header, "", "| case | build | median µs | mean µs | p99 µs | p99.9 µs | largest µs "
-             f"| steps over {SLOW_US:g} µs | their share of the time |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = [header, "", "| case | build | median µs | mean µs | real-time factor | p99 µs "
+             f"| p99.9 µs | largest µs | steps over {SLOW_US:g} µs | their share of the time |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['case']} | {r['build']} | {r['median_us']:.1f} | {r['mean_us']:.1f} "
+                     f"| {r['real_time_factor']:.1f} "
                      f"| {r['p99_us']:.1f} | {r['p999_us']:.1f} | {r['max_us']:.0f} "
                      f"| {r['slow_steps']} of {r['steps']} | {100 * r['slow_share']:.0f} % |")
     return "\n".join(lines) + "\n"
@@ -120,6 +129,9 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--t-end", type=float, default=10.0)
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--set", choices=SETS, default="targets",
+                        help="targets: issue 13's three mechanisms; events: the scenes with "
+                             "end stops and friction (writes fmu_step_times_events.*)")
     parser.add_argument("--python", action="append", default=[], metavar="LABEL=PATH",
                         help="also build the FMUs with this interpreter's mbdfmu")
     parser.add_argument("-o", "--output", default=str(ROOT / "docs" / "figures" / "performance"))
@@ -131,11 +143,12 @@ def main(argv=None) -> int:
             parser.error(f"--python {item!r}: give LABEL=PATH of a Python interpreter")
         builds.append((label, python))
     rows, samples = [], {}
+    cases, stem = SETS[args.set]
     with tempfile.TemporaryDirectory() as tmp:
         fmus = {(case, label): build(python, scene, Path(tmp) / f"c{i}b{j}.fmu")
-                for i, (case, (scene, _)) in enumerate(CASES.items())
+                for i, (case, (scene, _)) in enumerate(cases.items())
                 for j, (label, python) in enumerate(builds)}
-        for case, (_, input_name) in CASES.items():
+        for case, (_, input_name) in cases.items():
             for _ in range(args.repeat):
                 for label, _ in builds:
                     times = step_times(fmus[case, label], input_name, args.t_end)
@@ -145,19 +158,19 @@ def main(argv=None) -> int:
             for label, _ in builds:
                 rows.append(summary(case, label, samples[case, label]))
                 print(rows[-1], flush=True)
-    header = (f"`python benchmarks/fmu_step_times.py --t-end {args.t_end:g} --repeat "
-              f"{args.repeat}`: CPU time of each 1 ms doStep in fmpy (set, step, get of every "
-              f"output), the round with the lowest mean of {args.repeat}.")
+    header = (f"`python benchmarks/fmu_step_times.py --set {args.set} --t-end {args.t_end:g} "
+              f"--repeat {args.repeat}`: CPU time of each 1 ms doStep in fmpy (set, step, get "
+              f"of every output), the round with the lowest mean of {args.repeat}.")
     text = markdown(rows, header)
     print(text)
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "fmu_step_times.md").write_text(text)
-    with open(out / "fmu_step_times.csv", "w", newline="") as f:
+    (out / f"{stem}.md").write_text(text)
+    with open(out / f"{stem}.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    chart(samples, out / "fmu_step_times.png")
+    chart(samples, out / f"{stem}.png")
     return 0
 
 
