@@ -137,8 +137,8 @@ def mode_published(sim, published) -> tuple:
     places in the current contact mode's: its output vector has the effort of each
     held coordinate's driver too (model.limits.hold_driver_name), which is the stop's force
     (``<joint>.limit``) of a joint resting on a stop and the friction (``<joint>.friction``)
-    of a sticking one, as ``ContactModes.output_vector`` reads them (a sliding joint's
-    friction is not there: ``Simulation.dense_reads_ahead`` leaves those modes to Python)."""
+    of a sticking one, as ``ContactModes.output_vector`` reads them; a sliding joint's
+    friction is its own output there (``ModeEquations.sliding_forces``)."""
     eq = sim.stepped_equations
     if eq is sim.equations:
         return published

@@ -201,15 +201,12 @@ class Simulation(SimulationInputs):
     def dense_reads_ahead(self):
         """The C kernel, holding the last step's dense output (``Kernel.load_dense``), when
         the coming communication steps inside that step can only read it: no drivers (the
-        constraints' motion is constant), no joint sliding with friction, no input changed,
-        the inputs beyond now known; else None. An FMU's wrapper then takes those steps by
-        itself."""
-        integrator, eq = self.integrator, self.stepped_equations
-        kernel = eq.ckernel
-        # with events, the current mode's equations (the steps whose dense output is read
-        # were watched for events), but not a sliding one: its friction is not among the
-        # kernel's outputs (fast_steps.mode_published)
-        if kernel is None or getattr(eq, "sliding", None) or self.scene.drivers or \
+        constraints' motion is constant), no input changed, the inputs beyond now known;
+        else None. An FMU's wrapper then takes those steps by itself."""
+        # with events, the current mode's equations: the steps whose dense output is read
+        # were watched for events (fast_steps.mode_published: its outputs)
+        integrator, kernel = self.integrator, self.stepped_equations.ckernel
+        if kernel is None or self.scene.drivers or \
                 self._inputs_changed or not integrator.interpolates_to(integrator.t, True) or \
                 not self.inputs_known_ahead() or \
                 not getattr(integrator, "load_dense_output", lambda t: False)(self.t):

@@ -51,7 +51,7 @@ class Equations:
         # the body_j blocks of each joint's rows in Psi_q's values (reactions, eq. 16)
         self._reaction_entries = self.pattern.entries(
             c.joint_rows[:, :, None], 3 * c.joint_bj[:, None, None] + np.arange(3)[None, None, :])
-        self._joint_outputs = _joint_output_plan(scene, c)
+        self._joint_outputs = _joint_output_plan(scene, c, list(getattr(self, "sliding", ())))
         # the C kernel (kernel "c"): eq. (14), steps and outputs in compiled code
         self.ckernel = ckernel.Kernel(self) if self.kernel == "c" else None
 
@@ -228,11 +228,16 @@ class Equations:
 
     def joint_outputs(self, q, lam, t: float = 0.0, data=None) -> np.ndarray:
         """Every joint output of ``model.variables.outputs(scene)``, in that order."""
-        # a trailing 0: limit and friction outputs, which the events layer fills
-        # (integrators/events.py: they depend on the contact mode)
+        # a 0 for the limit and friction outputs, which the events layer fills (they
+        # depend on the contact mode: integrators/modes.py), then a contact mode's sliding
+        # friction forces (limits.ModeEquations)
         values = np.concatenate((self.reactions(q, lam, t, data).ravel(),
-                                 self.coupler_efforts(lam), [0.0]))
+                                 self.coupler_efforts(lam), [0.0], self.sliding_forces()))
         return values[self._joint_outputs]
+
+    def sliding_forces(self) -> np.ndarray:
+        """The friction forces of the joints that slide (none here: ``ModeEquations``)."""
+        return np.zeros(0)
 
     def output_values(self, t, q, qd, qdd, lam, u: InputValues | None = None) -> np.ndarray:
         """Every output of ``model.variables.outputs(scene)`` at one instant, in that order."""
@@ -251,9 +256,11 @@ class Equations:
         return np.concatenate([np.asarray(p, dtype=float) for p in parts])
 
 
-def _joint_output_plan(scene: Scene, c) -> np.ndarray:
-    """Where each joint output sits in [reactions (nj, 3) raveled | coupler efforts]: the
-    reaction columns Fx, Fy, Tz a joint type declares in the variable table, or its effort."""
+def _joint_output_plan(scene: Scene, c, sliding: list[int]) -> np.ndarray:
+    """Where each joint output sits in [reactions (nj, 3) raveled | coupler efforts | 0 |
+    sliding friction forces]: the reaction columns Fx, Fy, Tz a joint type declares in the
+    variable table, or its effort, the friction of a joint in ``sliding`` (scene indices,
+    in the order of its forces), else 0 (a stop's force, friction: modes.py fills them)."""
     column = {"Fx": 0, "Fy": 1, "Tz": 2}
     coupler = {k: i for i, k in enumerate(c.coupler_joints.tolist())}
     nj = len(scene.joints)
@@ -263,10 +270,17 @@ def _joint_output_plan(scene: Scene, c) -> np.ndarray:
         specs = declared.get(type(j))
         if specs is None:        # each type's outputs once: (place, Spec.applies's condition)
             specs = declared[type(j)] = [
-                ("effort" if s.suffix == "effort" else column.get(s.suffix, "zero"), s.condition)
-                for s in TABLES[type(j)].outputs]
+                (s.suffix if s.suffix in ("effort", "friction") else
+                 column.get(s.suffix, "zero"), s.condition) for s in TABLES[type(j)].outputs]
         for place, condition in specs:
-            if condition is None or bool(getattr(j, condition[0])) != condition[1]:
-                plan.append(3 * nj + coupler[k] if place == "effort" else
-                            zero if place == "zero" else 3 * k + place)
+            if condition is not None and bool(getattr(j, condition[0])) == condition[1]:
+                continue
+            if place == "effort":
+                plan.append(3 * nj + coupler[k])
+            elif place == "friction" and k in sliding:
+                plan.append(zero + 1 + sliding.index(k))
+            elif place in ("zero", "friction"):
+                plan.append(zero)
+            else:
+                plan.append(3 * k + place)
     return np.array(plan, dtype=int)

@@ -135,6 +135,9 @@ class ModeEquations(Equations):
             [scene.joints[k].friction.coulomb for k in self.sliding])
         self.applied = _PlusFriction(self.applied, bool(self.sliding))
 
+    def sliding_forces(self) -> np.ndarray:
+        return np.array(self.last_friction, dtype=float)
+
     @property
     def last_friction(self) -> np.ndarray:
         """The friction forces of the last evaluation (N, or N m on revolute joints)."""

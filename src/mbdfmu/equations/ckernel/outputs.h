@@ -4,7 +4,8 @@
  */
 
 /* Reactions of each joint on its body_j in its frame (Equations.reactions, eqs. 16-17,
- * 28) into out (nj, 3), NaN for couplers, then the coupler efforts -lam, then a zero. */
+ * 28) into out (nj, 3), NaN for couplers, then the coupler efforts -lam, then a zero, then
+ * the sliding friction forces (friction.h). */
 static void joint_values(const Model *M, const double *q, const double *lam,
                          const double *data, double *out) {
     for (I k = 0; k < 3 * M->nj; k++) out[k] = NAN;
@@ -12,6 +13,8 @@ static void joint_values(const Model *M, const double *q, const double *lam,
     for (I k = 0; k < M->ncoupler; k++) out[3 * M->nj + k] = -lam[M->coupler_rows[k]];
     out[3 * M->nj + M->ncoupler] = 0.0;   /* the plan's zero: outputs no joint type computes
                                           * here (a stop's force while nothing touches it) */
+    for (I k = 0; k < M->nslide; k++)     /* the sliding friction of the last evaluation */
+        out[3 * M->nj + M->ncoupler + 1 + k] = M->slide_f[k];
 }
 
 /* Potential energy of gravity and springs (AppliedForces.potential_energy). */
