@@ -161,20 +161,23 @@ def mode_published(sim, published) -> tuple:
 
 def dense_run_ahead(sim, limit) -> tuple | None:
     """The arguments of ``Kernel.arm_dense_run`` when the wrapper may also take the steps
-    past the step it reads (``integrators.dense_runs``: dop853p, auto's watcher at rest),
-    else None. ``sim.dense_reads_ahead()`` said yes: no drivers, inputs held."""
-    if sim.events is not None:        # the steps are watched for events: Python's
-        return None
+    past the step it reads (``integrators.dense_runs``: dop853p, auto's watcher at rest;
+    with stops or friction, the mode's event functions to watch), else None.
+    ``sim.dense_reads_ahead()`` said yes: no drivers, inputs held."""
     integrator = getattr(sim.integrator, "current", sim.integrator)
     watcher = getattr(sim.integrator, "watcher", None)
     run = dense_run(integrator, limit, auto_stiff_limit(integrator, watcher))
     if run is None:
         return None
-    u = sim.inputs_at(sim.t)
+    u, eq = sim.inputs_at(sim.t), sim.stepped_equations
     settings, tableau, gaps, audit, a_extra, D = run
+    # with stops or friction the run watches the mode's event functions after each step,
+    # from their values at the last step's end, within the event runner's horizon
+    events = None if sim.events is None else sim.events.c_events(
+        integrator.t, integrator.q, integrator.qd)
     return (settings, tableau[:5], gaps, np.concatenate((integrator.q, integrator.qd)),
-            integrator.f, np.concatenate(sim.equations.motion_values(sim.t, u)), u.forces,
-            audit, a_extra, D)
+            integrator.f, np.concatenate(eq.motion_values(sim.t, u)), u.forces,
+            audit, a_extra, D, events, None if sim.events is None else sim.events.horizon)
 
 
 def catch_up(sim, inputs) -> tuple[bool, list, list]:
@@ -202,6 +205,8 @@ def catch_up(sim, inputs) -> tuple[bool, list, list]:
     elif run is not None or kernel.dense.t_now > sim.t:
         if run is not None:     # past its step: the wrapper's steps, then the read inside
             adopt_dense_run(sim.integrator, run)
+            if sim.events is not None:
+                sim.events.horizon = run["horizon"]
         sim.advance(kernel.dense.t_now)
     else:
         return False, [], pending

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..equations.ckernel.model import EV_DISTANCE, EV_HELD, EV_RATE, EV_STICK, event_table
 from ..equations.limits import Coordinate, ModeEquations, friction_bound
 from ..equations.projection import ASSEMBLY_TOL, project_positions, project_velocities
 from ..errors import SettingError, SolverError
@@ -157,6 +158,25 @@ class ContactModes:
                 rate = c.rate(q, qd)
                 out[k, m.state] = rate if m.state == SLIDE_UP else -rate
         return out
+
+    def c_events(self, t, q, qd) -> tuple:
+        """The event functions of the current mode as the C kernel's dense runs watch them
+        (events.h; ``ckernel.model.event_table``), in the order of ``values``, and their
+        values at (t, q, q'): (ints, reals, values)."""
+        eq, rows = self.equations, []
+        for k, m in self.mode.items():
+            j = self.scene.joints[k]
+            if m.state in (LOWER, UPPER, STICK):
+                rows.append((EV_STICK if m.state == STICK else EV_HELD, k, eq.held_rows[k],
+                             0.0, -1.0 if m.state == UPPER else 1.0))
+                continue
+            if j.limits is not None:
+                rows += [(EV_DISTANCE, k, -1, j.limits[0], 1.0),
+                         (EV_DISTANCE, k, -1, j.limits[1], -1.0)]
+            if m.state in (SLIDE_UP, SLIDE_DOWN):
+                rows.append((EV_RATE, k, -1, 0.0, 1.0 if m.state == SLIDE_UP else -1.0))
+        ints, reals = event_table(eq, rows)
+        return ints, reals, np.array(list(self.values(t, q, qd).values()), dtype=float)
 
     # ------------------------------------------------------------------ outputs, state
 

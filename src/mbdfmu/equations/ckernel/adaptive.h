@@ -217,7 +217,9 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
  * back, an energy jump Python raises on); RUN_WORK after max_work attempts, or with
  * cpu_limit when the thread's CPU time passes it (Python checks its work limit);
  * RUN_ENERGY after a step whose energy check failed (Python's check says why); RUN_FAILED
- * when the step size fell below its minimum or too many steps were rejected in a row. */
+ * when the step size fell below its minimum or too many steps were rejected in a row;
+ * RUN_EVENT after a step that changed the sign of a watched event function (events.h:
+ * only an FMU wrapper's dense run watches them, and puts the run back). */
 
 enum { RUN_DONE = 0, RUN_PYTHON = 1, RUN_WORK = 2, RUN_ENERGY = 3, RUN_FAILED = 4 };
 
@@ -234,7 +236,12 @@ typedef struct {
     I ngaps; const double *gap_mid, *gap_width;   /* singular_zone.gaps of the nodes */
     double cpu_limit, cpu_start; /* > 0: RUN_WORK once the thread's CPU time since cpu_start
                                   * passes cpu_limit (s; WorkLimit's max_cpu), else unchecked */
+    I nevent;                    /* event functions watched after each step (events.h) */
+    const I *ev_int; const double *ev_real;
+    double *ev_g;                /* their values at the last step's end, then scratch */
 } PrkPy;
+
+#include "events.h"
 
 /* The calling thread's CPU time (s): WorkLimit's clock (time.thread_time). */
 static double thread_cpu(void) {
@@ -416,6 +423,10 @@ int mbd_prk_run(const Model *M, PrkPy *p) {
         int cut = hh < proposal && h_next >= hh;
         r->h = cut ? proposal : h_next;
         if (!cut) r->err_old = fmax(err, ERR_OLD_MIN);
+        if (p->nevent) {                 /* the event runner's watch, before the audit */
+            int crossed = events_crossed(M, p, &s, y);
+            if (crossed) return crossed > 0 ? RUN_EVENT : RUN_PYTHON;
+        }
         if (p->audit && p->audit[A_ACTIVE] != 0.0 &&
                 !energy_check(M, y, y + n, p->audit, p->divergence, p->roundoff))
             return RUN_ENERGY;

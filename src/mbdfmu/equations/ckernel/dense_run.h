@@ -9,7 +9,9 @@
  * evaluation or read, and a point that is the last step's end leave everything as it was
  * (the state is kept before the run and put back) and the wrapper calls Python, which
  * takes the same steps and says why; so does a run that passes the doStep's CPU limit
- * (PrkPy.cpu_limit), which Python then discards.
+ * (PrkPy.cpu_limit), which Python then discards. In a scene with end stops or friction the
+ * run watches the contact mode's event functions after each step (events.h) and keeps its
+ * steps within the event runner's horizon; a step that changes a sign is Python's too.
  *
  * Python's own interpolant (DOP853P._interpolant with the C kernel) calls dop853_dense
  * too, so a value read here is the one Python reads, bit for bit.
@@ -68,11 +70,13 @@ typedef struct {
     double *Kx, *ys;             /* dop853_dense's scratch */
     double *saved;               /* the state before a run (save_run) */
     I taken;                     /* steps were taken since armed: Python adopts them */
+    double horizon;              /* no step past it (events.py's EventRunner.advance), or NAN */
 } DenseRun;
 
 /* doubles of saved: y, f, y_old, y_end (2n each), K_old (13 x 2n), the audit (13), the
- * scalars below */
-#define RUN_SCALARS 16
+ * scalars below, the event functions (nevent) */
+#define RUN_SCALARS 17
+#define HORIZON_REACHED 1e-12    /* events.HORIZON_REACHED */
 
 static void save_run(const Model *M, const DenseRun *R, double *b) {
     const PrkPy *p = &R->p;
@@ -88,8 +92,11 @@ static void save_run(const Model *M, const DenseRun *R, double *b) {
     double scalars[RUN_SCALARS] = {
         r->h, r->err_old, r->indicator, (double)r->landing, p->t, p->energy_rejected,
         p->t_old, p->h_old, (double)p->stepped, (double)r->nsteps, (double)r->nrejected,
-        (double)r->naccel, (double)r->nprojections, R->d.t_old, R->d.h, (double)R->taken};
+        (double)r->naccel, (double)r->nprojections, R->d.t_old, R->d.h, (double)R->taken,
+        R->horizon};
     memcpy(b, scalars, sizeof scalars);
+    b += RUN_SCALARS;
+    if (p->nevent) memcpy(b, p->ev_g, (size_t)p->nevent * sizeof(double));
 }
 
 static void restore_run(const Model *M, DenseRun *R, const double *b) {
@@ -107,6 +114,9 @@ static void restore_run(const Model *M, DenseRun *R, const double *b) {
     p->t = b[4]; p->energy_rejected = b[5]; p->t_old = b[6]; p->h_old = b[7];
     p->stepped = (I)b[8]; r->nsteps = (I)b[9]; r->nrejected = (I)b[10]; r->naccel = (I)b[11];
     r->nprojections = (I)b[12]; R->d.t_old = b[13]; R->d.h = b[14]; R->taken = (I)b[15];
+    R->horizon = b[16];
+    b += RUN_SCALARS;
+    if (p->nevent) memcpy(p->ev_g, b, (size_t)p->nevent * sizeof(double));
 }
 
 /* The wrapper's doStep from t over h (dense.h's mbd_dense_step inside the step read; past
@@ -123,8 +133,14 @@ int mbd_dense_run_step(const Model *M, DenseRun *R, double t, double h, double *
     p->t_target = end;
     p->rejections = 0;              /* _advance_adaptive counts them per call */
     p->stepped = 0;
+    /* EventRunner.advance: a horizon reached is dropped, else this call's steps end by it */
+    double max_step = p->r.max_step;
+    if (!isnan(R->horizon) && p->t >= R->horizon - HORIZON_REACHED * fmax(1.0, R->horizon))
+        R->horizon = NAN;
+    if (!isnan(R->horizon)) p->r.max_step = fmin(max_step, R->horizon - p->t);
     int st = mbd_prk_run(M, p) == RUN_DONE && p->stepped && end < p->t_old + p->h_old ? ST_OK
              : ST_ERROR_NORM;
+    p->r.max_step = max_step;
     I w = d->coef == R->coef[R->which] ? !R->which : R->which;
     if (st == ST_OK) {
         Scratch s = scratch(M, M->work);

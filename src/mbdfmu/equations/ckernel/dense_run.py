@@ -20,7 +20,7 @@ from .dense import DenseRead
 _P, _I = ctypes.c_void_p, ctypes.c_int64
 ST_OK = 0                               # kernel.c's ST_OK
 DENSE_STAGES, DENSE_ROWS = 16, 7        # dense_run.h: DOP853's stages with the extra three
-RUN_SCALARS = 16                        # dense_run.h: the scalars save_run keeps
+RUN_SCALARS = 17                        # dense_run.h: the scalars save_run keeps
 COUNTERS = ("nsteps", "nrejected", "naccel", "nprojections")
 
 
@@ -29,7 +29,7 @@ class DenseRun(ctypes.Structure):
 
     _fields_ = [("d", DenseRead), ("p", PrkPy), ("a_extra", _P), ("D", _P), ("motions", _P),
                 ("ufs", _P), ("coef", _P * 2), ("which", _I), ("Kx", _P),
-                ("ys", _P), ("saved", _P), ("taken", _I)]
+                ("ys", _P), ("saved", _P), ("taken", _I), ("horizon", ctypes.c_double)]
 
 
 class RunBuffers(PrkRunBuffers):
@@ -42,7 +42,9 @@ class RunBuffers(PrkRunBuffers):
         self.node_motions, self.node_ufs = np.zeros((3, 3 * m)), np.zeros((3, max(nf, 1)))
         self.coef = np.zeros((2, DENSE_ROWS, n2))
         self.Kx, self.ys = np.zeros((DENSE_STAGES, n2)), np.zeros(n2)
-        self.saved = np.zeros(4 * n2 + (ns + 1) * n2 + 13 + RUN_SCALARS)
+        self.saved_base = 4 * n2 + (ns + 1) * n2 + 13 + RUN_SCALARS
+        self.saved = np.zeros(self.saved_base)      # and the watched event functions'
+        self.events = None
 
 
 class DenseRuns:
@@ -68,14 +70,17 @@ class DenseRuns:
         return F if status == ST_OK else None
 
     def arm_dense_run(self, settings: dict, tableau, gaps, y, f, motion, uf, audit,
-                      a_extra, D) -> tuple:
+                      a_extra, D, events=None, horizon: float | None = None) -> tuple:
         """Let an FMU's wrapper also take the communication steps past the step
         ``load_dense`` put in ``dense`` (armed by ``arm_dense_steps`` first): the pair
         ``tableau`` (``Kernel.tableau``) from (y, f) with ``settings`` (PrkPy's scalar
         fields, PrkRun's in ``settings["run"]``: c_steps.run_settings), the gaps between
         its nodes, the held inputs (motion: (c, c', c''), uf), the energy audit's state
-        (13 values) or None, DOP853's dense tableau (a_extra, D). Returns (the addresses of
-        ``mbd_dense_run_step``, of the model, of the DenseRun)."""
+        (13 values) or None, DOP853's dense tableau (a_extra, D); in a scene with end stops or
+        friction, the contact mode's event functions (``events``: events.h's ints and reals
+        and their values now, ``ContactModes.c_events``) and the event runner's horizon (s,
+        or None). Returns (the addresses of ``mbd_dense_run_step``, of the model, of the
+        DenseRun)."""
         run, ns = self.run, tableau[0]
         b = self.run_buffers
         if b is None or b.K.shape[0] != ns + 1:
@@ -98,8 +103,28 @@ class DenseRuns:
         else:
             b.audit[:] = audit
             p.audit = b.audit.ctypes.data
+        self._watch_events(run, b, events)
+        run.horizon = np.nan if horizon is None else horizon
         function = ctypes.cast(self.library.mbd_dense_run_step, ctypes.c_void_p).value
         return function, self.address, ctypes.addressof(run)
+
+    @staticmethod
+    def _watch_events(run: DenseRun, b: RunBuffers, events) -> None:
+        """Point the run at the event functions it watches (kept in b), or at none."""
+        p = run.p
+        if events is None:
+            p.nevent, b.events = 0, None
+            return
+        ints, reals, values = events
+        ne = len(values)
+        b.events = (np.ascontiguousarray(ints, dtype=np.int64),
+                    np.ascontiguousarray(reals, dtype=float), np.zeros(2 * ne))
+        b.events[2][:ne] = values
+        if b.saved.size < b.saved_base + ne:
+            b.saved = np.zeros(b.saved_base + ne)
+            run.saved = b.saved.ctypes.data
+        p.nevent = ne
+        p.ev_int, p.ev_real, p.ev_g = (a.ctypes.data for a in b.events)
 
     @staticmethod
     def _point_interpolant(run: DenseRun, b: RunBuffers, a_extra, D) -> None:
@@ -126,6 +151,7 @@ class DenseRuns:
                      y_end=b.y_end.copy(), K_old=b.K_old.copy(),
                      coefficients=b.coef[which].copy(),
                      audit=b.audit.copy() if p.audit else None,
+                     horizon=None if np.isnan(run.horizon) else float(run.horizon),
                      counters={k: int(getattr(r, k)) for k in COUNTERS})
         run.taken = 0
         for name in COUNTERS:

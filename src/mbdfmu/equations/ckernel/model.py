@@ -109,25 +109,45 @@ def model_arrays(eq) -> dict:
     return a
 
 
+def joint_table(eq, k: int, direction: float = 0.0) -> tuple[tuple, tuple]:
+    """Joint ``k`` of eq's scene as friction.h reads it: (SLIDE_INTS ints, SLIDE_REALS
+    reals), its friction 0 where it has none; ``direction`` that of a sliding joint."""
+    joint = eq.scene.joints[k]
+    index = {b.name: i for i, b in enumerate(eq.scene.bodies)}
+    reaction = [int(j) for j in eq.constraint_set.reaction_joints].index(k)
+    revolute = isinstance(joint, RevoluteJoint)
+    u = (0.0, 0.0) if revolute else tuple(v / math.hypot(*joint.axis_i) for v in joint.axis_i)
+    f = joint.friction
+    coulomb, coefficient, radius = (0.0, 0.0, 0.0) if f is None else (
+        f.coulomb, f.coefficient, f.radius if revolute else 0.0)
+    return ((int(revolute), index.get(joint.body_i, -1), index.get(joint.body_j, -1), reaction),
+            (*joint.point_i, *joint.point_j, *u, float(direction), coulomb, coefficient, radius,
+             0.0 if revolute else joint.frame_angle))
+
+
 def friction_table(eq) -> tuple[int, np.ndarray, np.ndarray]:
     """The sliding joints of a contact mode (``limits.ModeEquations.sliding``; none for
     other equations) as friction.h reads them: (count, SLIDE_INTS ints, SLIDE_REALS reals)."""
-    sliding = getattr(eq, "sliding", None) or {}
-    index = {b.name: k for k, b in enumerate(eq.scene.bodies)}
-    reaction = {int(j): r for r, j in enumerate(eq.constraint_set.reaction_joints)}
+    rows = [joint_table(eq, k, d) for k, d in (getattr(eq, "sliding", None) or {}).items()]
+    return (len(rows), _ints(np.array([r[0] for r in rows], dtype=np.int64).reshape(
+        -1, SLIDE_INTS)), _floats(np.array([r[1] for r in rows], dtype=float).reshape(
+            -1, SLIDE_REALS)))
+
+
+# events.h's kinds of event function: a stop's distance, a held coordinate's effort, a
+# sticking joint's bound minus its effort, a sliding joint's rate
+EV_DISTANCE, EV_HELD, EV_STICK, EV_RATE = range(4)
+
+
+def event_table(eq, events: list[tuple]) -> tuple[np.ndarray, np.ndarray]:
+    """Event functions as events.h reads them: (ints, reals) from ``events``, each (kind,
+    joint index, held row or -1, limit, sign)."""
     ints, reals = [], []
-    for k, direction in sliding.items():
-        joint = eq.scene.joints[k]
-        revolute = isinstance(joint, RevoluteJoint)
-        ints.append((int(revolute), index.get(joint.body_i, -1), index.get(joint.body_j, -1),
-                     reaction[k]))
-        u = (0.0, 0.0) if revolute else tuple(v / math.hypot(*joint.axis_i) for v in joint.axis_i)
-        f = joint.friction
-        reals.append((*joint.point_i, *joint.point_j, *u, float(direction), f.coulomb,
-                      f.coefficient, f.radius if revolute else 0.0,
-                      0.0 if revolute else joint.frame_angle))
-    return (len(ints), _ints(np.array(ints, dtype=np.int64).reshape(-1, SLIDE_INTS)),
-            _floats(np.array(reals, dtype=float).reshape(-1, SLIDE_REALS)))
+    for kind, k, row, limit, sign in events:
+        joint_ints, joint_reals = joint_table(eq, k)
+        ints.append((kind, row, *joint_ints))
+        reals.append((*joint_reals, limit, sign))
+    return _ints(np.array(ints, dtype=np.int64)), _floats(np.array(reals, dtype=float))
 
 
 def _packed(arrays: dict) -> tuple[dict, list]:

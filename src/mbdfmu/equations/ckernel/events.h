@@ -1,0 +1,88 @@
+/*
+ * events.h (part of kernel.c): the event functions of a contact mode (modes.ContactModes.
+ * values, formulation.md eq. 33), checked after each step of an FMU wrapper's dense run
+ * (dense_run.h) as the event runner's watch does after each of Python's: a step in which
+ * one changes sign (v < 0 where it was not, or fell further) ends the run, which then puts
+ * everything back for Python to take the doStep, locate the event and change the mode.
+ * Per event (events.py c_events): its kind, the held coordinate's row, the joint as
+ * friction.h reads it; the limit and the sign.
+ */
+
+enum { EV_DISTANCE, EV_HELD, EV_STICK, EV_RATE };
+enum { EV_KIND, EV_ROW, EV_JOINT, EV_INTS = EV_JOINT + SL_INTS };
+enum { EV_LIMIT = SL_REALS, EV_SIGN, EV_REALS };
+enum { RUN_EVENT = 5 };          /* mbd_prk_run: a step changed an event function's sign */
+
+/* The joint's coordinate (limits.Coordinate.value, in its arithmetic). */
+static double coordinate_value(const I *si, const double *sr, const double *q) {
+    I i = si[SL_BI], j = si[SL_BJ];
+    double xi = 0.0, yi = 0.0, ai = 0.0, xj = 0.0, yj = 0.0, aj = 0.0;
+    if (i >= 0) { xi = q[3 * i]; yi = q[3 * i + 1]; ai = q[3 * i + 2]; }
+    if (j >= 0) { xj = q[3 * j]; yj = q[3 * j + 1]; aj = q[3 * j + 2]; }
+    if (si[SL_REVOLUTE]) return aj - ai;
+    double ci = cos(ai), sn_i = sin(ai), cj = cos(aj), sn_j = sin(aj);
+    const double *u = sr + SL_U, *pi = sr + SL_PI, *pj = sr + SL_PJ;
+    double dx = xj + cj * pj[0] - sn_j * pj[1] - xi - ci * pi[0] + sn_i * pi[1];
+    double dy = yj + sn_j * pj[0] + cj * pj[1] - yi - sn_i * pi[0] - ci * pi[1];
+    return (ci * u[0] - sn_i * u[1]) * dx + (sn_i * u[0] + ci * u[1]) * dy;
+}
+
+/* The event functions at the state y (2n) into g. A held coordinate's effort is -lam of
+ * eq. (14) there with the run's held inputs: the kept evaluation's (the step's end), as
+ * Python's watch reads it (mbd_accelerations), else a new one; a sticking joint's bound
+ * also needs Psi_q's data there. */
+static int event_values(const Model *M, const PrkPy *p, Scratch *s, const double *y,
+                        double *g) {
+    const PrkRun *r = &p->r;
+    I n = M->n, m = M->m;
+    const double *lam = NULL, *cval = r->motion, *cdd = r->motion + 2 * m;
+    int data = 0;
+    for (I e = 0; e < p->nevent; e++) {
+        const I *ei = p->ev_int + EV_INTS * e, *si = ei + EV_JOINT;
+        const double *er = p->ev_real + EV_REALS * e;
+        I kind = ei[EV_KIND];
+        if (kind == EV_DISTANCE) {
+            g[e] = er[EV_SIGN] * (coordinate_value(si, er, y) - er[EV_LIMIT]);
+            continue;
+        }
+        if (kind == EV_RATE) {
+            double *grad = s->nv, rate = 0.0;
+            coordinate_gradient(M, si, er, y, grad);
+            for (I k = 0; k < n; k++) rate += grad[k] * y[n + k];
+            g[e] = er[EV_SIGN] * rate;
+            continue;
+        }
+        if (!lam && memo_hit(M, y, y + n, cval, cdd, r->ufs)) {
+            lam = M->memo + 1 + 3 * n + 2 * m + M->nf;
+        } else if (!lam) {
+            int st = accelerations(M, s, y, y + n, cval, cdd, r->ufs, s->qv, s->lam);
+            if (st != ST_OK) return st;
+            lam = s->lam;
+            data = 1;
+        }
+        double effort = -lam[ei[EV_ROW]];
+        if (kind == EV_HELD) {
+            g[e] = er[EV_SIGN] * effort;
+            continue;
+        }
+        if (!data) {             /* Psi_q's data at y, for the joint's reaction */
+            extend(M, y, s->qe);
+            terms(M, s->qe, NULL, cval, s->psi, s->raw, NULL, s->cs);
+            merged(M, s->raw, s->data, s->values);
+            data = 1;
+        }
+        g[e] = friction_bound(M, si, er, y, lam, s->data) - fabs(effort);
+    }
+    return ST_OK;
+}
+
+/* After an accepted step ending at y: 1 when an event function changed sign since the last
+ * step's end (p->ev_g, then updated), 0 when none did, -1 when they cannot be evaluated. */
+static int events_crossed(const Model *M, PrkPy *p, Scratch *s, const double *y) {
+    double *g0 = p->ev_g, *g = p->ev_g + p->nevent;
+    if (event_values(M, p, s, y, g) != ST_OK) return -1;
+    for (I e = 0; e < p->nevent; e++)
+        if (g[e] < 0.0 && (g0[e] >= 0.0 || g[e] < g0[e])) return 1;
+    memcpy(g0, g, (size_t)p->nevent * sizeof(double));
+    return 0;
+}
