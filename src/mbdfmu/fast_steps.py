@@ -8,14 +8,17 @@ wrapper serves are Python's bit for bit (tests/test_fmu_fast.py):
 * ``dense``: a step that ends inside an adaptive method's last step reads its dense output
   (``ckernel/dense.h``; ``Simulation.dense_reads_ahead``); with dop853p, one that ends past
   it takes the next steps and their interpolant first (``ckernel/dense_run.h``,
-  ``integrators.dense_runs``);
+  ``integrators.dense_runs``). In a scene with end stops or friction these read the
+  current contact mode's equations (``mode_published``) and the runs watch its event
+  functions after each step (``ckernel/events.h``);
 * ``fixed``: rk4p's steps, the drivers' motions evaluated in C (``ckernel/fixed.h``);
 * ``prk``: an embedded pair's steps landing on the communication point (``ckernel/adaptive.h``).
 
-Both take the force inputs the master sets before each step (the wrapper takes those
-fmi2SetReal calls too, then restarts as Python does; rk4p where the restart starts no
-energy audit). They need no events, no input changed since the step, every force input
-held, no driver taking its motion from the inputs, and under ``auto`` a watcher at rest
+The last two take the force inputs the master sets before each step (the wrapper takes
+those fmi2SetReal calls too, then restarts as Python does; rk4p where the restart starts
+no energy audit), in scenes without end stops or friction. All need no input changed
+since the step, every force input held, no driver taking its motion from the inputs, and
+under ``auto`` a watcher at rest
 (no switch pending, no stiff step counted; dop853p's steps checked in C against its
 stiffness test, ``auto_stiff_limit``); ``c_steps``'s ``fast_run`` and ``fast_prk_run``
 say the rest. This module reads ``Simulation``'s input
