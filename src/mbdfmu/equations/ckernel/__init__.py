@@ -150,8 +150,9 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
         # the friction forces the last evaluation converged to (N or N m), first the guess
         # ModeEquations starts from: -direction x coulomb
         self.sliding_forces = slide[:ns]
-        reals = np.asarray(arrays["s_real"]).reshape(ns, SLIDE_REALS)
-        self.sliding_forces[:] = -reals[:, SLIDE_DIRECTION] * reals[:, SLIDE_COULOMB]
+        if ns:
+            reals = np.asarray(arrays["s_real"]).reshape(ns, SLIDE_REALS)
+            self.sliding_forces[:] = -reals[:, SLIDE_DIRECTION] * reals[:, SLIDE_COULOMB]
         self.buf = Buffers(self.n, self.m, self.nf, self.nout)
         self._tableaus: dict = {}
         self.static_rows = 0          # rows of buf.motions holding a driverless scene's block

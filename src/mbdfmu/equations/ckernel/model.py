@@ -129,10 +129,14 @@ def friction_table(eq) -> tuple[int, np.ndarray, np.ndarray]:
     """The sliding joints of a contact mode (``limits.ModeEquations.sliding``; none for
     other equations) as friction.h reads them: (count, SLIDE_INTS ints, SLIDE_REALS reals)."""
     rows = [joint_table(eq, k, d) for k, d in (getattr(eq, "sliding", None) or {}).items()]
+    if not rows:
+        return 0, _NO_INTS, _NO_REALS
     return (len(rows), _ints(np.array([r[0] for r in rows], dtype=np.int64).reshape(
         -1, SLIDE_INTS)), _floats(np.array([r[1] for r in rows], dtype=float).reshape(
             -1, SLIDE_REALS)))
 
+
+_NO_INTS, _NO_REALS = np.zeros(0, dtype=np.int64), np.zeros(0)
 
 # events.h's kinds of event function: a stop's distance, a held coordinate's effort, a
 # sticking joint's bound minus its effort, a sliding joint's rate
