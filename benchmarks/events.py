@@ -9,7 +9,9 @@ closed forms of ``tests/event_checks.py`` (the crane: its Lagrange equation in s
 * position error: the largest error of the positions at the output times (m or rad);
 * time: wall seconds, the best of ``--repeat`` runs (a loaded machine: compare within a run).
 
-    python benchmarks/events.py [--repeat 3] [--quick] [-o DIR]
+``--kernel`` (default c, what FMUs run): the equations' kernel, for every run.
+
+    python benchmarks/events.py [--repeat 3] [--kernel c] [--quick] [-o DIR]
 
 Writes ``events.md``, ``events.csv`` and ``events.png`` into DIR (default benchmarks/results).
 """
@@ -71,12 +73,13 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--quick", action="store_true", help="one step and two tolerances")
+    parser.add_argument("--kernel", choices=("c", "numpy", "numba"), default="c")
     parser.add_argument("-o", "--out", type=Path, default=ROOT / "benchmarks" / "results")
     args = parser.parse_args(argv)
     steps, tols = (STEPS[:1], TOLS[1:3]) if args.quick else (STEPS, TOLS)
-    runs = [("rk4p", "step", h, dict(method="rk4p", step=h)) for h in steps]
-    runs += [(m, "rtol", r, dict(method=m, rtol=r, atol=r)) for m in ("rk45p", "dop853p")
-             for r in tols]
+    runs = [("rk4p", "step", h, dict(method="rk4p", step=h, kernel=args.kernel)) for h in steps]
+    runs += [(m, "rtol", r, dict(method=m, rtol=r, atol=r, kernel=args.kernel))
+             for m in ("rk45p", "dop853p") for r in tols]
     rows = []
     for name in SCENES:
         for method, kind, value, settings in runs:
@@ -94,7 +97,8 @@ def main(argv=None) -> int:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    lines = ["| scene | method | setting | events | event error (s) | position error | "
+    lines = [f"`python benchmarks/events.py --repeat {args.repeat} --kernel {args.kernel}`", "",
+             "| scene | method | setting | events | event error (s) | position error | "
              "time (s) |", "|---|---|---|---|---|---|---|"]
     lines += [f"| {r['scene']} | {r['method']} | {r['setting']} | {r['events']} | "
               f"{r['event_error']:.2e} | {r['position_error']:.2e} | {r['seconds']:.3f} |"
