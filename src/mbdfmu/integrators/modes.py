@@ -12,7 +12,8 @@ import numpy as np
 
 from ..equations.ckernel.model import EV_DISTANCE, EV_HELD, EV_RATE, EV_STICK, event_table
 from ..equations.limits import Coordinate, ModeEquations, friction_bound
-from ..equations.projection import ASSEMBLY_TOL, project_positions, project_velocities
+from ..equations.projection import (ASSEMBLY_TOL, PROJECTION_MAX_ITER, project_positions,
+                                   project_velocities)
 from ..errors import SettingError, SolverError
 from ..model.limits import (FREE, HELD, LOWER, SLIDE_DOWN, SLIDE_UP, STICK, UPPER, JointMode,
                             event_joints, mode_scene, slip_text, sliding)
@@ -131,8 +132,14 @@ class ContactModes:
                           "switching at one instant)", t)
 
     def _project(self, t, q, qd):
+        """(q, q') onto the current mode's constraints: in C where its kernel can (its
+        positions on Psi alone, as project_positions for these scenes), else numpy's."""
         eq, u = self.equations, self.inputs(t)
         tol = ASSEMBLY_TOL * eq.length_scale
+        done = None if eq.ckernel is None else eq.ckernel.project(
+            q, qd, eq.motion_values(t, u), tol, PROJECTION_MAX_ITER)
+        if done is not None:
+            return done
         q, _ = project_positions(eq, t, q, tol=tol, u=u)
         return q, project_velocities(eq, t, q, qd, u)
 

@@ -33,6 +33,7 @@ zone's half-width in time, ZONE_MARGIN ZONE / k.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -98,10 +99,18 @@ def crossing(integrator, c0: float) -> tuple[float, float] | None:
 
 
 def gaps(nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Middles and widths of the gaps of at least MIN_GAP between the sorted nodes (and 1)."""
-    c = np.unique(np.append(nodes, 1.0))
+    """Middles and widths of the gaps of at least MIN_GAP between the sorted nodes (and 1),
+    read-only: worked out once per tableau (every run of steps in C asks for them)."""
+    return _gaps(np.ascontiguousarray(nodes, dtype=float).tobytes())
+
+
+@functools.lru_cache(maxsize=16)
+def _gaps(nodes: bytes) -> tuple[np.ndarray, np.ndarray]:
+    c = np.unique(np.append(np.frombuffer(nodes), 1.0))
     wide = np.diff(c) >= MIN_GAP
-    return ((c[:-1] + c[1:])[wide] / 2, np.diff(c)[wide])
+    middles, widths = (c[:-1] + c[1:])[wide] / 2, np.diff(c)[wide]
+    middles.flags.writeable = widths.flags.writeable = False
+    return middles, widths
 
 
 def crossing_step(nodes, d: float, w: float, k: float, limit: float) -> float | None:
