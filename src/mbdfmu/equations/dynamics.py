@@ -28,8 +28,13 @@ class Equations:
     ``constraints`` the rows and their Jacobian pattern, ``applied`` the forces,
     ``layout`` where each input sits in ``InputValues``, ``length_scale`` (m) the size of
     the mechanism (for tolerances), ``has_events`` whether the scene has end stops or
-    friction (``model.scene.has_events``, a scan of its joints: once here).
+    friction (``model.scene.has_events``, a scan of its joints: once here). ``sliding``
+    ({joint index: direction}) and ``held_rows`` ({joint index: row}) are a contact mode's
+    (``limits.ModeEquations``, ``integrators.modes``): none here.
     """
+
+    sliding: dict = {}
+    held_rows: dict = {}
 
     def __init__(self, scene: Scene, *, kernel: str | None = None):
         self.scene = scene
@@ -51,7 +56,7 @@ class Equations:
         # the body_j blocks of each joint's rows in Psi_q's values (reactions, eq. 16)
         self._reaction_entries = self.pattern.entries(
             c.joint_rows[:, :, None], 3 * c.joint_bj[:, None, None] + np.arange(3)[None, None, :])
-        self._joint_outputs = _joint_output_plan(scene, c, list(getattr(self, "sliding", ())))
+        self._joint_outputs = _joint_output_plan(scene, c, list(self.sliding))
         # the C kernel (kernel "c"): eq. (14), steps and outputs in compiled code
         self.ckernel = ckernel.Kernel(self) if self.kernel == "c" else None
 
@@ -131,11 +136,17 @@ class Equations:
         with the minimum-norm lam wherever S is ill-conditioned).
         """
         u = self._u(u)
-        if self.ckernel is not None and baumgarte is None:
-            done = self.ckernel.accelerations(q, qd, self.motion_values(t, u), u.forces)
-            if done is not None:
-                return done
+        done = self.kernel_accelerations(t, q, qd, u) if baumgarte is None else None
+        if done is not None:
+            return done
         return self.python_accelerations(t, q, qd, u, baumgarte=baumgarte)
+
+    def kernel_accelerations(self, t: float, q: np.ndarray, qd: np.ndarray, u: InputValues):
+        """(q'', lam) of eq. (14) from the C kernel, or None without one or where it hands
+        the case back to the numpy path."""
+        if self.ckernel is None:
+            return None
+        return self.ckernel.accelerations(q, qd, self.motion_values(t, u), u.forces)
 
     def python_accelerations(self, t: float, q: np.ndarray, qd: np.ndarray, u: InputValues, *,
                              baumgarte: tuple[float, float] | None = None):

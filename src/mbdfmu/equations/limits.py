@@ -96,7 +96,7 @@ def friction_bound(eq: Equations, k: int, q: np.ndarray, lam: np.ndarray) -> flo
 class _PlusFriction:
     """The scene's applied forces plus the sliding friction of the current evaluation.
 
-    Never constant: rk4p then takes its steps one at a time, each watched for events."""
+    Never constant: the friction follows the state."""
 
     is_constant = False
 
@@ -154,10 +154,9 @@ class ModeEquations(Equations):
         if not self.sliding:
             return super().accelerations(t, q, qd, u, baumgarte=baumgarte)
         u = self._u(u)
-        if self.ckernel is not None and baumgarte is None:
-            done = self.ckernel.accelerations(q, qd, self.motion_values(t, u), u.forces)
-            if done is not None:
-                return done
+        done = self.kernel_accelerations(t, q, qd, u) if baumgarte is None else None
+        if done is not None:            # the C kernel iterates the friction itself
+            return done
         grads = [c.gradient(q) for c in self.coordinates.values()]
         f = self.last_friction.copy()
         for _ in range(FRICTION_MAX_ITER):

@@ -43,6 +43,7 @@ class ContactModes:
         self.base_drivers = len(scene.drivers)
         self.log: list[tuple[float, str, str]] = []
         self._cache: dict = {}
+        self._event_tables: dict = {}     # c_events' tables, per joints' states
         self.mode = {k: JointMode(FREE) for k in self.joints}
         for k, c in self.coordinates.items():
             j = scene.joints[k]
@@ -91,8 +92,7 @@ class ContactModes:
         eq = self._cache.get(key)
         if eq is None and self.base is not None and \
                 all(m.state == FREE for m in mode.values()):
-            eq = self.base
-            eq.held_rows = {}
+            eq = self.base                     # nothing held: no held_rows
         elif eq is None:
             if len(self._cache) >= CACHE_SIZE:
                 self._cache.pop(next(iter(self._cache)))
@@ -170,6 +170,13 @@ class ContactModes:
         """The event functions of the current mode as the C kernel's dense runs watch them
         (events.h; ``ckernel.model.event_table``), in the order of ``values``, and their
         values at (t, q, q'): (ints, reals, values)."""
+        key = tuple((k, m.state) for k, m in self.mode.items())   # not the held values
+        tables = self._event_tables.get(key)
+        if tables is None:
+            tables = self._event_tables[key] = self._event_table()
+        return (*tables, np.array(list(self.values(t, q, qd).values()), dtype=float))
+
+    def _event_table(self) -> tuple:
         eq, rows = self.equations, []
         for k, m in self.mode.items():
             j = self.scene.joints[k]
@@ -182,8 +189,7 @@ class ContactModes:
                          (EV_DISTANCE, k, -1, j.limits[1], -1.0)]
             if m.state in (SLIDE_UP, SLIDE_DOWN):
                 rows.append((EV_RATE, k, -1, 0.0, 1.0 if m.state == SLIDE_UP else -1.0))
-        ints, reals = event_table(eq, rows)
-        return ints, reals, np.array(list(self.values(t, q, qd).values()), dtype=float)
+        return event_table(eq, rows)
 
     # ------------------------------------------------------------------ outputs, state
 

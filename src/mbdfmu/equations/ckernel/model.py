@@ -126,9 +126,9 @@ def joint_table(eq, k: int, direction: float = 0.0) -> tuple[tuple, tuple]:
 
 
 def friction_table(eq) -> tuple[int, np.ndarray, np.ndarray]:
-    """The sliding joints of a contact mode (``limits.ModeEquations.sliding``; none for
-    other equations) as friction.h reads them: (count, SLIDE_INTS ints, SLIDE_REALS reals)."""
-    rows = [joint_table(eq, k, d) for k, d in (getattr(eq, "sliding", None) or {}).items()]
+    """The sliding joints of a contact mode (``Equations.sliding``) as friction.h reads
+    them: (count, SLIDE_INTS ints, SLIDE_REALS reals)."""
+    rows = [joint_table(eq, k, d) for k, d in eq.sliding.items()]
     if not rows:
         return 0, _NO_INTS, _NO_REALS
     return (len(rows), _ints(np.array([r[0] for r in rows], dtype=np.int64).reshape(
