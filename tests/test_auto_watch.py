@@ -147,14 +147,39 @@ def test_auto_switches_to_genalpha_when_stability_holds_dop853p(reference_rtol):
     (t, old, new, why), *later = res.switches
     assert 0.0 < t < 0.05 and "Hairer" in why
     # a switch early in the stretch's decay hands genalpha a large stiff acceleration, and
-    # its step-doubling estimate may then call on ali3p, with the reason
-    assert all(to == "ali3p" and "estimated error" in reason for _, _, to, reason in later)
+    # its step-doubling estimate may then ask for a smaller step: genalpha at half its step
+    # (rule 3; before it, ali3p, whose steps shrink as the stretch rings: more work than
+    # dop853p alone)
+    assert all(old == to == "genalpha" and "estimated error" in reason and "with step" in reason
+               for _, old, to, reason in later)
     err = np.hypot(res["bob.x"] - reference["bob.x"], res["bob.y"] - reference["bob.y"])
     assert err.max() < 10 * 1e-6
     # work in evaluations of the equations (of eq. (14), or of the residual in a Newton
     # iteration), since an implicit step and an explicit one are not the same work
     work = res.stats["naccel"] + res.stats["nnewton"]
     assert work < 0.5 * alone.stats["naccel"]
+
+
+def test_auto_retries_a_fixed_step_that_breaks_its_stated_accuracy_at_half_the_step():
+    # the pendulum with genalpha at 4 ms (as a switch to it would run it): its energy
+    # balance, the stated accuracy of a fixed step, breaks at about t = 0.23 s. Auto retries
+    # that output step from its start at 2 ms and stays with genalpha (before, it left for
+    # ali3p, which is for singular configurations); the run then keeps its audit and ends
+    # near dop853p at rtol 1e-11
+    scene = mbdfmu.load_scene(ref.SCENES / "pendulum.toml")
+    sim = mbdfmu.Simulation(scene)
+    reference = mbdfmu.Simulation(scene, method="dop853p", rtol=1e-11, atol=1e-13)
+    watcher = sim.integrator.watcher
+    sim.integrator.__dict__["current"] = watcher.switch(sim.integrator.current, "genalpha",
+                                                        "4 ms", 4e-3)
+    for k in range(1, 9):
+        for each in (sim, reference):
+            each.advance(0.05 * k)
+    (t, old, to, reason), = sim.integrator.switches[1:]
+    assert old == to == "genalpha" and 0.15 <= t <= 0.25, (t, reason)
+    assert "energy balance broken" in reason and f"retried from t = {t:.9g} s with step 0.002 s" in reason
+    assert sim.integrator.h == 2e-3 and sim.method_name == "auto->dop853p->genalpha->genalpha"
+    assert np.max(np.abs(sim.q - reference.q)) < 1e-4
 
 
 def test_cli_says_when_auto_switched(tmp_path, capsys):

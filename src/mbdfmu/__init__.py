@@ -7,8 +7,8 @@
     >>> mbdfmu.linearize("double_pendulum", equilibrium=True).frequencies_hz
 """
 
-from .errors import (AssemblyError, InputError, MbdfmuError, SceneError, SettingError,
-                     SolverError)
+from .errors import (AccuracyError, AssemblyError, InputError, MbdfmuError, SceneError,
+                     SettingError, SolverError)
 from .integrators import METHOD_NAMES, METHODS, SolverSettings
 from .model import Scene, load_scene, parameters, rod_inertia, with_parameters
 from .result import Result, read_csv
@@ -27,7 +27,7 @@ def __getattr__(name: str):
         return getattr(analysis, name)
     raise AttributeError(f"module 'mbdfmu' has no attribute {name!r}")
 
-__all__ = ["AssemblyError", "InputError", "MbdfmuError", "SceneError", "SettingError",
+__all__ = ["AccuracyError", "AssemblyError", "InputError", "MbdfmuError", "SceneError", "SettingError",
            "SolverError", "METHODS", "METHOD_NAMES", "SolverSettings", "Result", "read_csv",
            "Scene", "load_scene", "parameters", "rod_inertia", "with_parameters",
            "Simulation", "simulate", "Equilibrium", "Linearization", "equilibrium", "linearize",

@@ -50,6 +50,11 @@ class SolverError(MbdfmuError):
         super().__init__(prefix + message)
 
 
+class AccuracyError(SolverError):
+    """A fixed-step run whose estimated error exceeds what its stated accuracy allows: a
+    smaller step may succeed (auto retries with one, ``auto_watch.py``)."""
+
+
 class WorkLimitError(SolverError):
     """The work allowed for one advance (internal steps, CPU time) ran out before its target
     time: a shorter advance may succeed, unlike the other solver failures."""

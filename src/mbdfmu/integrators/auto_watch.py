@@ -6,7 +6,7 @@ at signals the step already has, and on a failure it looks at the error; it swit
 these rules:
 
 1. Singular configuration left: ali3p (chosen for a singular configuration at t0, or by
-   rule 3) runs while the singularity indicator (``equations.singular``: 0 at the
+   rule 4) runs while the singularity indicator (``equations.singular``: 0 at the
    configuration, of order one away from it) stays below CLEAR. Once it has been at least
    CLEAR for CLEAR_STEPS accepted steps in a row (Psi_q has full rank, so the constraints
    are not redundant) and no spring or damper is stiff at this state (``choose.stiff_reason``),
@@ -20,8 +20,12 @@ these rules:
    (ali3p with redundant constraints), implicit, whose step is not held by stability (a
    stiff spring stretched at t0 gets dop853p, which resolves its oscillation; once it has
    died out, only stability holds dop853p's step).
-3. A method that stops (``SolverError`` other than the work limit): the advance call is
-   retried from where it started with ali3p (which passes singular configurations and
+3. A fixed-step method of auto's own step whose estimated error exceeds its stated
+   accuracy (``AccuracyError``): the advance call is retried from where it started with
+   the same method at half the step, at most HALVINGS times a call; a smaller step is what
+   the error asks for, and the method keeps fitting the mechanism.
+4. A method that stops otherwise (``SolverError`` other than the work limit): the advance
+   call is retried from where it started with ali3p (which passes singular configurations and
    redundant constraints, where explicit methods and genalpha stop), or with dop853p if
    ali3p stopped; each method at most once per call; when none is left, the first
    method's error is raised, with the retries' errors after it.
@@ -39,7 +43,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import SolverError, WorkLimitError
+from ..errors import AccuracyError, SolverError, WorkLimitError
 from ..plain import Plain, decode, encode
 from . import c_steps, singular_zone
 from .ali3p import ALI3P
@@ -52,6 +56,8 @@ from .settings import adaptive_with
 # Singularity indicator above which the mechanism is clear of a singular configuration
 # (twice the level at which dop853p starts planning a crossing).
 CLEAR = 2 * singular_zone.NEAR_ZONE
+# Times an advance call is retried at half the step after an AccuracyError (rule 3).
+HALVINGS = 3
 # Accepted steps in a row with the indicator above CLEAR before leaving ali3p.
 CLEAR_STEPS = 3
 # Hairer's stiffness test (dop853.f): h |lambda| beyond this is at DOP853's stability
@@ -154,7 +160,7 @@ class AutoWatch(Plain):
             integrator.advance(t_target, limit, dense=dense)
             return integrator
         start, first, tried = integrator.rollback_point(), integrator, {integrator.name}
-        self._target, failures = t_target, []
+        self._target, failures, halvings = t_target, [], 0
         try:
             while True:
                 try:
@@ -165,6 +171,16 @@ class AutoWatch(Plain):
                 except WorkLimitError:
                     raise
                 except SolverError as exc:
+                    if isinstance(exc, AccuracyError) and halvings < HALVINGS and \
+                            self.step is None and not integrator.adaptive and \
+                            integrator.name == first.name:
+                        halvings += 1
+                        step = 0.5 * integrator.h
+                        first.set_state(start)
+                        integrator = self.switch(first, first.name, f"{exc}; retried from "
+                                                 f"t = {first.t:.9g} s with step {step:g} s",
+                                                 step)
+                        continue
                     failures.append(exc)
                     to = DOP853P.name if integrator.name == ALI3P.name else ALI3P.name
                     if to in tried and len(failures) == 1:
@@ -179,15 +195,17 @@ class AutoWatch(Plain):
         finally:
             self._target = None
 
-    def switch(self, old, to: str, reason: str):
-        """A ``to`` integrator carrying old's state, counters and energy balance."""
+    def switch(self, old, to: str, reason: str, step: float | None = None):
+        """A ``to`` integrator carrying old's state, counters and energy balance; at
+        ``step`` (s) when given, else at auto's."""
         cls = AUTO_METHODS[to]
         # ali3p as make_integrator builds auto's choice (step control); genalpha for
         # stiffness at its fixed step, whose steps are not held by stability (the step
         # control follows the stiff spring's oscillation: more steps than dop853p's here)
         options = {"step_control": "adaptive"} if cls is ALI3P else {}
-        step = self.step if self.step is not None else (
-            np.inf if adaptive_with(cls, options) else cls.default_step)
+        if step is None:
+            step = self.step if self.step is not None else (
+                np.inf if adaptive_with(cls, options) else cls.default_step)
         new = cls(old.equations, old.t, old.q, old.qd, step=step, rtol=old.rtol,
                   atol=old.atol, inputs=old.inputs, **options)
         if old.out is not None and old.out.t < old.t:

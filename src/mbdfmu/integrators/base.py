@@ -34,7 +34,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from ..equations import Equations
-from ..errors import SettingError, SolverError
+from ..errors import AccuracyError, SettingError, SolverError
 from ..model.variables import InputValues
 from ..plain import Plain, decode, encode
 from .energy_audit import ENERGY_TOL_FACTOR, EnergyAudit
@@ -179,8 +179,9 @@ class Integrator:
             self.watch(self)
         if self.audit is not None:
             problem = self.audit.check(self.equations, self.t, self.q, self.qd)
-            if problem:
-                raise SolverError(problem + self.singularity_hint(), self.t)
+            if problem:      # a fixed step's stated accuracy: a smaller step may keep it
+                raise (SolverError if self.adaptive else AccuracyError)(
+                    problem + self.singularity_hint(), self.t)
 
     def singularity_hint(self) -> str:
         """For failure messages: a note when Psi_q is nearly singular at the current state."""

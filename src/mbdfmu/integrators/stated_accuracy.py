@@ -2,8 +2,8 @@
 
 A fixed-step method has no error control: the step is the user's choice. It still states
 an accuracy, its rtol and atol (``SolverSettings``: FIXED_STEP_RTOL and FIXED_STEP_ATOL
-unless given), and keeps it or stops with a ``SolverError`` naming the time and the reason,
-by three checks that together leave no silently wrong run:
+unless given), and keeps it or stops with an ``AccuracyError`` (a ``SolverError``) naming
+the time and the reason, by three checks that together leave no silently wrong run:
 
 * the energy of a conservative scene (``energy_audit.py``) stays within ENERGY_TOL_FACTOR
   times what errors at the stated accuracy would change;
@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import SolverError
+from ..errors import AccuracyError, SolverError
 from ..plain import Plain
 from .energy_audit import ENERGY_TOL_FACTOR
 
@@ -154,7 +154,7 @@ class ErrorEstimate(Plain):
         stats.error_estimate = self.sum_q + max(0.0, t * self.sum_v - self.sum_vt)
         allowed = allowed_error(integrator)
         if stats.error_estimate > allowed:
-            raise SolverError(
+            raise AccuracyError(
                 f"{integrator.name}: estimated error {stats.error_estimate:.3g} (step doubling: "
                 f"{self.local:.2g} in q and {self.local_v:.2g} in q' per step of {h:g} s, "
                 f"carried to t) exceeds {allowed:.3g}, what the stated accuracy rtol = "
