@@ -9,12 +9,13 @@ this shared machine does not count. ``--python`` builds the FMUs with another ch
 interpreter too (label=path), for a before/after in one run: each build's rows are
 measured alternately, ``--repeat`` rounds, and the round with the lowest mean kept.
 
-    python benchmarks/fmu_step_times.py [--set targets|events] [--t-end 10] [--repeat 3]
-        [--python base=/path/python]
+    python benchmarks/fmu_step_times.py [--set targets|events] [--method rk4p] [--t-end 10]
+        [--repeat 3] [--python base=/path/python]
 
-``--set events`` times the shipped scenes with end stops and friction instead. Writes
-``fmu_step_times.md`` (``fmu_step_times_events.md``), ``.csv`` and ``.png`` into ``-o``
-(default docs/figures/performance).
+``--set events`` times the shipped scenes with end stops and friction instead; ``--method``
+sets every FMU's ``solver.method`` (its scene's by default). Writes ``fmu_step_times.md``
+(``fmu_step_times_events.md``; with ``--method M``, ``..._M.md``), ``.csv`` and ``.png``
+into ``-o`` (default docs/figures/performance).
 """
 
 from __future__ import annotations
@@ -60,14 +61,19 @@ def build(python: str, scene: Path, target: Path) -> Path:
     return target
 
 
-def step_times(fmu: Path, input_name: str | None, t_end: float) -> np.ndarray:
-    """CPU µs of each doStep (with its set and get) over t_end at H."""
+def step_times(fmu: Path, input_name: str | None, t_end: float,
+               method: str | None = None) -> np.ndarray:
+    """CPU µs of each doStep (with its set and get) over t_end at H; ``method``: the
+    FMU's solver.method, set before initialization (None: its scene's)."""
     md = read_model_description(fmu)
     slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(fmu), instanceName="times",
                       modelIdentifier=md.coSimulation.modelIdentifier)
     outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
     vr = {v.name: v.valueReference for v in md.modelVariables}.get(input_name)
     slave.instantiate()
+    if method is not None:
+        slave.setString([{v.name: v.valueReference for v in md.modelVariables}["solver.method"]],
+                        [method])
     slave.setupExperiment(startTime=0.0)
     slave.enterInitializationMode()
     slave.exitInitializationMode()
@@ -132,6 +138,8 @@ def main(argv=None) -> int:
     parser.add_argument("--set", choices=SETS, default="targets",
                         help="targets: issue 13's three mechanisms; events: the scenes with "
                              "end stops and friction (writes fmu_step_times_events.*)")
+    parser.add_argument("--method", default=None,
+                        help="every FMU's solver.method (default: its scene's)")
     parser.add_argument("--python", action="append", default=[], metavar="LABEL=PATH",
                         help="also build the FMUs with this interpreter's mbdfmu")
     parser.add_argument("-o", "--output", default=str(ROOT / "docs" / "figures" / "performance"))
@@ -151,15 +159,18 @@ def main(argv=None) -> int:
         for case, (_, input_name) in cases.items():
             for _ in range(args.repeat):
                 for label, _ in builds:
-                    times = step_times(fmus[case, label], input_name, args.t_end)
+                    times = step_times(fmus[case, label], input_name, args.t_end, args.method)
                     best = samples.get((case, label))
                     if best is None or times.mean() < best.mean():
                         samples[case, label] = times
             for label, _ in builds:
                 rows.append(summary(case, label, samples[case, label]))
                 print(rows[-1], flush=True)
-    header = (f"`python benchmarks/fmu_step_times.py --set {args.set} --t-end {args.t_end:g} "
-              f"--repeat {args.repeat}`: CPU time of each 1 ms doStep in fmpy (set, step, get "
+    if args.method is not None:
+        stem = f"{stem}_{args.method}"
+    method = "" if args.method is None else f" --method {args.method}"
+    header = (f"`python benchmarks/fmu_step_times.py --set {args.set}{method} --t-end "
+              f"{args.t_end:g} --repeat {args.repeat}`: CPU time of each 1 ms doStep in fmpy (set, step, get "
               f"of every output), the round with the lowest mean of {args.repeat}.")
     text = markdown(rows, header)
     print(text)

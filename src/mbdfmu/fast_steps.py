@@ -11,16 +11,19 @@ wrapper serves are Python's bit for bit (tests/test_fmu_fast.py):
   ``integrators.dense_runs``). In a scene with end stops or friction these read the
   current contact mode's equations (``mode_published``) and the runs watch its event
   functions after each step (``ckernel/events.h``);
-* ``fixed``: rk4p's steps, the drivers' motions evaluated in C (``ckernel/fixed.h``);
+* ``fixed``: rk4p's steps, the drivers' motions evaluated in C (``ckernel/fixed.h``), the
+  energy audit's check after each in C too; in a scene with end stops or friction the
+  current contact mode's equations, its event functions watched after each step;
 * ``prk``: an embedded pair's steps landing on the communication point (``ckernel/adaptive.h``).
 
 The last two take the force inputs the master sets before each step (the wrapper takes
 those fmi2SetReal calls too, then restarts as Python does; rk4p where the restart starts
-no energy audit), in scenes without end stops or friction. All need no input changed
+no energy audit), in scenes without end stops or friction (with them, a set input sends
+the step to Python, whose restart in a contact mode projects). All need no input changed
 since the step, every force input held, no driver taking its motion from the inputs, and
 under ``auto`` a watcher at rest
 (no switch pending, no stiff step counted; dop853p's steps checked in C against its
-stiffness test, ``auto_stiff_limit``); ``c_steps``'s ``fast_run`` and ``fast_prk_run``
+stiffness test, ``auto_stiff_limit``); ``rk4p_c.fast_run`` and ``c_steps.fast_prk_run``
 say the rest. This module reads ``Simulation``'s input
 bookkeeping (its ``_inputs_changed``, ``_drivers``, ``_forces``) as the class itself does.
 """
@@ -30,9 +33,10 @@ from __future__ import annotations
 import numpy as np
 
 from .equations.ckernel.fixed import motion_table
-from .integrators.c_steps import adopt_fast_run, adopt_prk_run, fast_prk_run, fast_run, tableau
+from .integrators.c_steps import adopt_prk_run, fast_prk_run, tableau
 from .integrators.auto_watch import STIFF_HLAMBDA
 from .integrators.dense_runs import adopt_dense_run, dense_run
+from .integrators.rk4p_c import adopt_fast_run, fast_run
 from .integrators.projected_rk import DOP853P, MAX_FACTOR, MIN_FACTOR, SAFETY
 from .model.limits import HELD, STICK, hold_driver_name
 from .model.scene import Body, SpringDamper
@@ -93,9 +97,9 @@ def fast_steps_ahead(sim, limit, time_tol: float, inputs=None):
     and the keywords after them), ("prk", kernel, those of ``arm_prk_steps`` before the
     inputs, and {}), or None. ``inputs``: ``settable_inputs``, which rk4p's steps take
     from fmi2SetReal too where a restart starts no energy audit."""
-    kernel, integrator, eq = sim.equations.ckernel, sim.integrator, sim.equations
-    watcher = getattr(integrator, "watcher", None)
-    if kernel is None or sim.events is not None or sim._inputs_changed or sim._drivers or \
+    integrator, eq = sim.integrator, sim.stepped_equations
+    kernel, watcher = eq.ckernel, getattr(integrator, "watcher", None)
+    if kernel is None or sim._inputs_changed or sim._drivers or \
             any(type(f) is not Held for f in sim._forces.values()) or \
             (watcher is not None and watcher.pending is not None):
         return None
@@ -103,10 +107,18 @@ def fast_steps_ahead(sim, limit, time_tol: float, inputs=None):
     u = sim.inputs_at(sim.t)
     table = motion_table(eq.constraint_set)
     run = None if table is None else fast_run(current, limit, time_tol)
+    arguments = (run, table, eq.constraint_set.offsets, u.forces)
+    if run is not None and sim.events is not None:
+        # the contact mode's event functions watched after each step; an input set goes
+        # through Python, whose restart in a mode projects (Simulation._reinitialize)
+        return "fixed", kernel, arguments, dict(events=sim.events.c_events(
+            current.t, current.q, current.qd))
     if run is not None:
         sets = {} if inputs is None or not len(inputs[0]) or eq.nonconservative_reason() is None \
             else dict(inputs=inputs)
-        return "fixed", kernel, (run, table, eq.constraint_set.offsets, u.forces), sets
+        return "fixed", kernel, arguments, sets
+    if sim.events is not None:
+        return None
     stiff_limit = auto_stiff_limit(current, watcher)
     run = None if sim.scene.drivers or sim.inputs_known_ahead() or stiff_limit is None else \
         fast_prk_run(current, limit, time_tol, (SAFETY, MIN_FACTOR, MAX_FACTOR), stiff_limit)
@@ -131,7 +143,7 @@ def arm(sim, limit, time_tol: float, inputs, published) -> tuple | None:
         return None
     kind, kernel, arguments, keywords = fast
     if kind == "fixed":
-        return kernel.arm_fixed_steps(*arguments, *published, **keywords)
+        return kernel.arm_fixed_steps(*arguments, *mode_published(sim, published), **keywords)
     return kernel.arm_prk_steps(*arguments, inputs, *published)
 
 

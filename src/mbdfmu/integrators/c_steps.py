@@ -21,7 +21,7 @@ from ..equations.ckernel.adaptive import prk_run as ckernel_prk_run
 from ..equations.projection import PROJECTION_MAX_ITER
 from . import singular_zone
 from .adaptive import accepted_step, rejected_step
-from .base import STEP_COUNT_SLACK, Integrator
+from .base import Integrator
 from .dense_output import DenseStep
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF, ENERGY_STEP_FACTOR
 from .stated_accuracy import adopt_c_estimate, c_estimate
@@ -79,7 +79,7 @@ def rk4p_run(rk, t0: float, h: float, k: int, stop: int, n: int, t_target: float
     k + 1 .. stop of the grid t0 + j h (n steps to t_target); returns stop."""
     while k < stop:            # the kernel checks the energy (stepping.h total_energy)
         count = min(RUN_LENGTH, stop - k)
-        done, status = _rk4p_run(rk, t0, h, k, count)
+        done, status = rk4p_c_steps(rk, t0, h, k, count)
         k += done
         rk.t = t0 + k * h if k < n else t_target
         rk.stats.nsteps += done
@@ -95,11 +95,11 @@ def rk4p_run(rk, t0: float, h: float, k: int, stop: int, n: int, t_target: float
 def rk4p_check_step(rk, h: float) -> bool:
     """One rk4p step of h from (rk.t, q, q') in C for the step-doubling check
     (``stated_accuracy.py``); False (nothing changed) when the Python step must take it."""
-    done, status = _rk4p_run(rk, rk.t, h, 0, 1)
+    done, status = rk4p_c_steps(rk, rk.t, h, 0, 1)
     return done == 1 and status in (ckernel.OK, ckernel.ENERGY)
 
 
-def _rk4p_run(rk, t0: float, h: float, k: int, count: int) -> tuple[int, int]:
+def rk4p_c_steps(rk, t0: float, h: float, k: int, count: int) -> tuple[int, int]:
     """Steps k .. k + count - 1 of the grid t0 + j h in one C call: (steps done, status)."""
     eq = rk.equations
     if count == 1:
@@ -244,33 +244,6 @@ def wrapper_attempts(limit) -> int | None:
     if attempts is not None and limit is not None and limit.max_cpu is not None:
         attempts = min(attempts, PRK_RUN_LENGTH)
     return attempts
-
-
-def fast_run(rk, limit, time_tol: float) -> dict | None:
-    """What ``ckernel/fixed.h`` needs to take rk4p's coming communication steps as
-    ``_advance_fixed`` would (its grid, its step-doubling checks, its work limit), or None
-    when they must go through Python: another method, an energy audit (checked in Python
-    after each step), no constraints, a short CPU limit."""
-    eq = rk.equations
-    if rk.name != "rk4p" or rk.audit is not None or eq.m == 0 or eq.ckernel is None or \
-            rk.out is not None:
-        return None
-    max_steps = wrapper_steps(limit)
-    if max_steps is None:
-        return None
-    return dict(t_now=rk.t, time_tol=time_tol, h_max=rk.h, slack=STEP_COUNT_SLACK,
-                max_steps=max_steps, tol=rk._projection_tol(), max_iter=PROJECTION_MAX_ITER,
-                estimate=c_estimate(rk), y=np.concatenate((rk.q, rk.qd)), f=rk.f)
-
-
-def adopt_fast_run(rk, steps: int, t: float, y, f, estimate: dict) -> None:
-    """The state, counters and error estimate after ``steps`` rk4p steps and the checks
-    among them the FMU's wrapper took in C (``fast_run``), as ``_advance_fixed`` with
-    ``rk4p_run`` leaves them (a check: three steps' work)."""
-    n = rk.q.size
-    rk.q, rk.qd, rk.f, rk.t = y[:n].copy(), y[n:].copy(), f, t
-    count_rk4p_work(rk.stats, steps, estimate["checks"])
-    adopt_c_estimate(rk, estimate)
 
 
 def count_rk4p_work(stats, steps: int, checks: int) -> None:

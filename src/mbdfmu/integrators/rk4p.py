@@ -92,11 +92,13 @@ class RK4P(ProjectedRK):
         return eq.kernel == "numba" and eq.m > 0 and eq.applied.is_constant
 
     def _fixed_run(self, t0, h, k, stop, n, t_target):
-        """The base class's run of steps, compiled in one call when possible (not when the
-        events watch each step: its one-step C calls are ``check_step``'s)."""
+        """The base class's run of steps, compiled in one call when possible; one C call a
+        step when the events watch each step."""
+        in_c = self.equations.ckernel is not None and self.equations.m > 0
         if self.watch_each_step:
-            return super()._fixed_run(t0, h, k, stop, n, t_target)
-        if self.equations.ckernel is not None and self.equations.m > 0:
+            return rk4p_c.watched_run(self, t0, h, k, stop, n, t_target) if in_c else \
+                super()._fixed_run(t0, h, k, stop, n, t_target)
+        if in_c:
             return c_steps.rk4p_run(self, t0, h, k, stop, n, t_target)   # the C kernel
         if not self.compiled_steps:
             return super()._fixed_run(t0, h, k, stop, n, t_target)

@@ -12,10 +12,14 @@ run (Python's check and charge then say why).
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..equations import ckernel
 from ..equations.ckernel.fixed import CHECK, ESTIMATE
 from ..equations.projection import PROJECTION_MAX_ITER
-from .c_steps import RUN_LENGTH, audit_back, audit_state, count_rk4p_work
+from .base import STEP_COUNT_SLACK, Integrator
+from .c_steps import (RUN_LENGTH, audit_back, audit_state, count_rk4p_work, rk4p_c_steps,
+                      wrapper_steps)
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
 from .stated_accuracy import adopt_c_estimate, c_estimate
 
@@ -88,3 +92,55 @@ def _turns(rk, held, grid, k: int, pause: int) -> tuple[int, int, int]:
         if status == ckernel.ENERGY:      # _after_step checks this state again: count it once
             rk.audit.checks -= 1
     return status, k, stop
+
+
+def watched_run(rk, t0: float, h: float, k: int, stop: int, n: int, t_target: float) -> int:
+    """``_fixed_run`` with the event runner's watch after each step (``watch_each_step``):
+    steps k + 1 .. stop of the grid t0 + j h (n steps to t_target), each one C call, so
+    that they are the arithmetic of the FMU wrapper's (fixed.h), which watches the same
+    event functions in C; returns stop. The energy check is the kernel's, after the watch
+    as in ``_after_step`` (fixed.h checks in that order too)."""
+    for j in range(k, stop):
+        done, status = rk4p_c_steps(rk, t0, h, j, 1)
+        if done == 1 and status in (ckernel.OK, ckernel.ENERGY):
+            rk.t = t0 + (j + 1) * h if j + 1 < n else t_target
+            rk.stats.nsteps += 1
+            if status == ckernel.OK:
+                rk.watch(rk)
+            else:
+                rk._after_step()                  # the watch, then the audit says why
+        else:                                     # this step on the Python path
+            Integrator._fixed_run(rk, t0, h, j, j + 1, n, t_target)
+        if rk.limit is not None:
+            rk.limit.check(rk.stats, rk.t, t_target)
+    return stop
+
+
+def fast_run(rk, limit, time_tol: float) -> dict | None:
+    """What ``ckernel/fixed.h`` needs to take rk4p's coming communication steps as
+    ``_advance_fixed`` would (its grid, its step-doubling checks, its energy audit's
+    state or None, its work limit), or None when they must go through Python: another
+    method, no constraints, a short CPU limit."""
+    eq = rk.equations
+    if rk.name != "rk4p" or eq.m == 0 or eq.ckernel is None or rk.out is not None:
+        return None
+    max_steps = wrapper_steps(limit)
+    if max_steps is None:
+        return None
+    return dict(t_now=rk.t, time_tol=time_tol, h_max=rk.h, slack=STEP_COUNT_SLACK,
+                max_steps=max_steps, tol=rk._projection_tol(), max_iter=PROJECTION_MAX_ITER,
+                estimate=c_estimate(rk), y=np.concatenate((rk.q, rk.qd)), f=rk.f,
+                audit=None if rk.audit is None else audit_state(rk.audit),
+                divergence=ENERGY_DIVERGENCE_FRACTION, roundoff=ENERGY_ROUNDOFF)
+
+
+def adopt_fast_run(rk, steps: int, t: float, y, f, estimate: dict, audit) -> None:
+    """The state, counters, error estimate and energy audit (``audit``: its state, or
+    None) after ``steps`` rk4p steps and the checks among them the FMU's wrapper took in C
+    (``fast_run``), as ``_advance_fixed`` with ``rk4p_run`` leaves them."""
+    n = rk.q.size
+    rk.q, rk.qd, rk.f, rk.t = y[:n].copy(), y[n:].copy(), f, t
+    count_rk4p_work(rk.stats, steps, estimate["checks"])
+    adopt_c_estimate(rk, estimate)
+    if rk.audit is not None:
+        audit_back(rk.audit, audit)

@@ -236,12 +236,8 @@ typedef struct {
     I ngaps; const double *gap_mid, *gap_width;   /* singular_zone.gaps of the nodes */
     double cpu_limit, cpu_start; /* > 0: RUN_WORK once the thread's CPU time since cpu_start
                                   * passes cpu_limit (s; WorkLimit's max_cpu), else unchecked */
-    I nevent;                    /* event functions watched after each step (events.h) */
-    const I *ev_int; const double *ev_real;
-    double *ev_g;                /* their values at the last step's end, then scratch */
+    EventWatch ev;               /* event functions watched after each step (events.h) */
 } PrkPy;
-
-#include "events.h"
 
 /* The calling thread's CPU time (s): WorkLimit's clock (time.thread_time). */
 static double thread_cpu(void) {
@@ -423,8 +419,8 @@ int mbd_prk_run(const Model *M, PrkPy *p) {
         int cut = hh < proposal && h_next >= hh;
         r->h = cut ? proposal : h_next;
         if (!cut) r->err_old = fmax(err, ERR_OLD_MIN);
-        if (p->nevent) {                 /* the event runner's watch, before the audit */
-            int crossed = events_crossed(M, p, &s, y);
+        if (p->ev.nevent) {              /* the event runner's watch, before the audit */
+            int crossed = events_crossed(M, &p->ev, r->motion, r->ufs, &s, y);
             if (crossed) return crossed > 0 ? RUN_EVENT : RUN_PYTHON;
         }
         if (p->audit && p->audit[A_ACTIVE] != 0.0 &&

@@ -87,7 +87,7 @@ static void save_run(const Model *M, const DenseRun *R, double *b) {
     memcpy(b, p->y_old, (size_t)n2 * sizeof(double)); b += n2;
     memcpy(b, p->y_end, (size_t)n2 * sizeof(double)); b += n2;
     memcpy(b, p->K_old, (size_t)(rows * n2) * sizeof(double)); b += rows * n2;
-    if (p->audit) memcpy(b, p->audit, 13 * sizeof(double));
+    if (p->audit) memcpy(b, p->audit, A_FIELDS * sizeof(double));
     b += 13;
     double scalars[RUN_SCALARS] = {
         r->h, r->err_old, r->indicator, (double)r->landing, p->t, p->energy_rejected,
@@ -96,7 +96,7 @@ static void save_run(const Model *M, const DenseRun *R, double *b) {
         R->horizon};
     memcpy(b, scalars, sizeof scalars);
     b += RUN_SCALARS;
-    if (p->nevent) memcpy(b, p->ev_g, (size_t)p->nevent * sizeof(double));
+    if (p->ev.nevent) memcpy(b, p->ev.ev_g, (size_t)p->ev.nevent * sizeof(double));
 }
 
 static void restore_run(const Model *M, DenseRun *R, const double *b) {
@@ -108,7 +108,7 @@ static void restore_run(const Model *M, DenseRun *R, const double *b) {
     memcpy(p->y_old, b, (size_t)n2 * sizeof(double)); b += n2;
     memcpy(p->y_end, b, (size_t)n2 * sizeof(double)); b += n2;
     memcpy(p->K_old, b, (size_t)(rows * n2) * sizeof(double)); b += rows * n2;
-    if (p->audit) memcpy(p->audit, b, 13 * sizeof(double));
+    if (p->audit) memcpy(p->audit, b, A_FIELDS * sizeof(double));
     b += 13;
     r->h = b[0]; r->err_old = b[1]; r->indicator = b[2]; r->landing = (I)b[3];
     p->t = b[4]; p->energy_rejected = b[5]; p->t_old = b[6]; p->h_old = b[7];
@@ -116,7 +116,7 @@ static void restore_run(const Model *M, DenseRun *R, const double *b) {
     r->nprojections = (I)b[12]; R->d.t_old = b[13]; R->d.h = b[14]; R->taken = (I)b[15];
     R->horizon = b[16];
     b += RUN_SCALARS;
-    if (p->nevent) memcpy(p->ev_g, b, (size_t)p->nevent * sizeof(double));
+    if (p->ev.nevent) memcpy(p->ev.ev_g, b, (size_t)p->ev.nevent * sizeof(double));
 }
 
 /* The wrapper's doStep from t over h (dense.h's mbd_dense_step inside the step read; past

@@ -16,6 +16,7 @@ import numpy as np
 
 from .adaptive import PrkPy, PrkRunBuffers, point_run
 from .dense import DenseRead
+from .model import watch_events
 
 _P, _I = ctypes.c_void_p, ctypes.c_int64
 ST_OK = 0                               # kernel.c's ST_OK
@@ -111,20 +112,11 @@ class DenseRuns:
     @staticmethod
     def _watch_events(run: DenseRun, b: RunBuffers, events) -> None:
         """Point the run at the event functions it watches (kept in b), or at none."""
-        p = run.p
-        if events is None:
-            p.nevent, b.events = 0, None
-            return
-        ints, reals, values = events
-        ne = len(values)
-        b.events = (np.ascontiguousarray(ints, dtype=np.int64),
-                    np.ascontiguousarray(reals, dtype=float), np.zeros(2 * ne))
-        b.events[2][:ne] = values
+        b.events = watch_events(run.p, events)
+        ne = 0 if events is None else len(events[2])
         if b.saved.size < b.saved_base + ne:
             b.saved = np.zeros(b.saved_base + ne)
             run.saved = b.saved.ctypes.data
-        p.nevent = ne
-        p.ev_int, p.ev_real, p.ev_g = (a.ctypes.data for a in b.events)
 
     @staticmethod
     def _point_interpolant(run: DenseRun, b: RunBuffers, a_extra, D) -> None:

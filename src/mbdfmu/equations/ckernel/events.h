@@ -1,9 +1,10 @@
 /*
  * events.h (part of kernel.c): the event functions of a contact mode (modes.ContactModes.
  * values, formulation.md eq. 33), checked after each step of an FMU wrapper's dense run
- * (dense_run.h) as the event runner's watch does after each of Python's: a step in which
- * one changes sign (v < 0 where it was not, or fell further) ends the run, which then puts
- * everything back for Python to take the doStep, locate the event and change the mode.
+ * (dense_run.h) and of its rk4p steps (fixed.h), as the event runner's watch does after each
+ * of Python's: a step in which one changes sign (v < 0 where it was not, or fell further)
+ * ends the run, which then puts everything back for Python to take the doStep, locate the
+ * event and change the mode.
  * Per event (events.py c_events): its kind, the held coordinate's row, the joint as
  * friction.h reads it; the limit and the sign.
  */
@@ -12,6 +13,14 @@ enum { EV_DISTANCE, EV_HELD, EV_STICK, EV_RATE };
 enum { EV_KIND, EV_ROW, EV_JOINT, EV_INTS = EV_JOINT + SL_INTS };
 enum { EV_LIMIT = SL_REALS, EV_SIGN, EV_REALS };
 enum { RUN_EVENT = 5 };          /* mbd_prk_run: a step changed an event function's sign */
+
+/* The event functions a run watches (none when nevent is 0) and their values: at the last
+ * step's end (ev_g[0, nevent)), then room for the next (ev_g[nevent, 2 nevent)). */
+typedef struct {
+    I nevent;
+    const I *ev_int; const double *ev_real;
+    double *ev_g;
+} EventWatch;
 
 /* The joint's coordinate (limits.Coordinate.value, in its arithmetic). */
 static double coordinate_value(const I *si, const double *sr, const double *q) {
@@ -27,19 +36,18 @@ static double coordinate_value(const I *si, const double *sr, const double *q) {
     return (ci * u[0] - sn_i * u[1]) * dx + (sn_i * u[0] + ci * u[1]) * dy;
 }
 
-/* The event functions at the state y (2n) into g. A held coordinate's effort is -lam of
- * eq. (14) there with the run's held inputs: the kept evaluation's (the step's end), as
- * Python's watch reads it (mbd_accelerations), else a new one; a sticking joint's bound
- * also needs Psi_q's data there. */
-static int event_values(const Model *M, const PrkPy *p, Scratch *s, const double *y,
-                        double *g) {
-    const PrkRun *r = &p->r;
+/* The event functions at the state y (2n) into g, with the step end's motion (c, c', c'':
+ * 3m) and force inputs uf. A held coordinate's effort is -lam of eq. (14) there: the kept
+ * evaluation's (the step's end), as Python's watch reads it (mbd_accelerations), else a
+ * new one; a sticking joint's bound also needs Psi_q's data there. */
+static int event_values(const Model *M, const EventWatch *w, const double *motion,
+                        const double *uf, Scratch *s, const double *y, double *g) {
     I n = M->n, m = M->m;
-    const double *lam = NULL, *cval = r->motion, *cdd = r->motion + 2 * m;
+    const double *lam = NULL, *cval = motion, *cdd = motion + 2 * m;
     int data = 0;
-    for (I e = 0; e < p->nevent; e++) {
-        const I *ei = p->ev_int + EV_INTS * e, *si = ei + EV_JOINT;
-        const double *er = p->ev_real + EV_REALS * e;
+    for (I e = 0; e < w->nevent; e++) {
+        const I *ei = w->ev_int + EV_INTS * e, *si = ei + EV_JOINT;
+        const double *er = w->ev_real + EV_REALS * e;
         I kind = ei[EV_KIND];
         if (kind == EV_DISTANCE) {
             g[e] = er[EV_SIGN] * (coordinate_value(si, er, y) - er[EV_LIMIT]);
@@ -52,10 +60,10 @@ static int event_values(const Model *M, const PrkPy *p, Scratch *s, const double
             g[e] = er[EV_SIGN] * rate;
             continue;
         }
-        if (!lam && memo_hit(M, y, y + n, cval, cdd, r->ufs)) {
+        if (!lam && memo_hit(M, y, y + n, cval, cdd, uf)) {
             lam = M->memo + 1 + 3 * n + 2 * m + M->nf;
         } else if (!lam) {
-            int st = accelerations(M, s, y, y + n, cval, cdd, r->ufs, s->qv, s->lam);
+            int st = accelerations(M, s, y, y + n, cval, cdd, uf, s->qv, s->lam);
             if (st != ST_OK) return st;
             lam = s->lam;
             data = 1;
@@ -76,13 +84,15 @@ static int event_values(const Model *M, const PrkPy *p, Scratch *s, const double
     return ST_OK;
 }
 
-/* After an accepted step ending at y: 1 when an event function changed sign since the last
- * step's end (p->ev_g, then updated), 0 when none did, -1 when they cannot be evaluated. */
-static int events_crossed(const Model *M, PrkPy *p, Scratch *s, const double *y) {
-    double *g0 = p->ev_g, *g = p->ev_g + p->nevent;
-    if (event_values(M, p, s, y, g) != ST_OK) return -1;
-    for (I e = 0; e < p->nevent; e++)
+/* After an accepted step ending at y (motion and uf as event_values takes them): 1 when an
+ * event function changed sign since the last step's end (w->ev_g, then updated), 0 when
+ * none did, -1 when they cannot be evaluated. */
+static int events_crossed(const Model *M, const EventWatch *w, const double *motion,
+                          const double *uf, Scratch *s, const double *y) {
+    double *g0 = w->ev_g, *g = w->ev_g + w->nevent;
+    if (event_values(M, w, motion, uf, s, y, g) != ST_OK) return -1;
+    for (I e = 0; e < w->nevent; e++)
         if (g[e] < 0.0 && (g0[e] >= 0.0 || g[e] < g0[e])) return 1;
-    memcpy(g0, g, (size_t)p->nevent * sizeof(double));
+    memcpy(g0, g, (size_t)w->nevent * sizeof(double));
     return 0;
 }

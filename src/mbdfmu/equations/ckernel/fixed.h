@@ -43,9 +43,12 @@ typedef struct {
     I restarts;              /* steps since armed that began with a restart */
     struct Estimate *est;    /* the step-doubling estimate (ErrorEstimate) */
     double *check;           /* a check's room: y and f saved (4n), then its one step (2n) */
-    double *audit;           /* the energy check's state (rk4p runs) */
+    double *audit;           /* the energy check's state (A_FIELDS), or NULL; in the
+                              * wrapper's steps followed by its copy at the doStep's start */
     double divergence, roundoff;  /* ... its ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF */
     double *kept;            /* the last step's end for the restart (keep_step_end) */
+    EventWatch ev;           /* a contact mode's event functions (events.h), or none: set
+                              * anew at each arm, as a doStep handed back is followed by one */
 } FixedRun;
 
 /* stated_accuracy.ErrorEstimate: its fields, the run's step count (Counters.nsteps) and
@@ -275,13 +278,16 @@ static int est_check(const Model *M, FixedRun *r, Scratch *s, Estimate *E, doubl
 
 #define ST_CHECK 16      /* a check's step failed: Python takes this turn of the loop */
 #define ST_ESTIMATE 17   /* the next charge exceeds the allowance: Python's stops the run */
+#define ST_EVENT 18      /* a step changed an event function's sign: Python locates it */
 
 /* Integrator._advance_fixed's loop over the grid t0 + j step (n steps, the last ending at
  * end) from step *k, until a turn of it ends at or past step `pause`: a check when due,
- * the steps to the next (the energy check after each with r->audit), their charge. ST_OK
- * at the end of a turn; ST_CHECK at its start; ST_ESTIMATE with the turn's steps taken
- * (up to *stop) and not charged; ST_ENERGY after step *k, a step's failure at it, both
- * with the turn's steps before it taken and not charged (Python takes the rest). */
+ * the steps to the next (after each the event runner's watch with r->ev, then the energy
+ * check with r->audit, in Python's order), their charge. ST_OK at the end of a turn;
+ * ST_CHECK at its start; ST_ESTIMATE with the turn's steps taken (up to *stop) and not
+ * charged; ST_EVENT (or ST_ERROR_NORM where the event functions cannot be evaluated) and
+ * ST_ENERGY after step *k, a step's failure at it, all with the turn's steps before it
+ * taken and not charged (Python takes the rest). */
 static int fixed_loop(const Model *M, FixedRun *r, Scratch *s, Estimate *E, double t0,
                       double step, I n, double end, I pause, I *k, I *stop) {
     I n2 = 2 * M->n;
@@ -296,6 +302,11 @@ static int fixed_loop(const Model *M, FixedRun *r, Scratch *s, Estimate *E, doub
             if (st != ST_OK) return st;
             *k += 1;
             E->nsteps += 1;
+            if (r->ev.nevent) {
+                int crossed = events_crossed(M, &r->ev, r->motions + 6 * M->m,
+                                             r->ufs + 2 * M->nf, s, r->y);
+                if (crossed) return crossed > 0 ? ST_EVENT : ST_ERROR_NORM;
+            }
             if (r->audit != NULL && r->audit[A_ACTIVE] != 0.0 &&
                     !energy_check(M, r->y, r->y + M->n, r->audit, r->divergence, r->roundoff))
                 return ST_ENERGY;
@@ -331,6 +342,8 @@ int mbd_fixed_step(const Model *M, FixedRun *r, double t, double h, double *valu
     memcpy(r->save, r->y, (size_t)n2 * sizeof(double));
     memcpy(r->save + n2, r->f, (size_t)n2 * sizeof(double));
     Estimate E = *r->est;     /* kept only when the whole step is */
+    if (r->audit)             /* the energy check's state too: the slave takes it back */
+        memcpy(r->audit + A_FIELDS, r->audit, A_FIELDS * sizeof(double));
     int st = r->changed ? fixed_restart(M, r, &s, t0) : ST_OK;
     I k = 0, stop = 0;
     if (st == ST_OK) st = fixed_loop(M, r, &s, &E, t0, step, steps, end, steps, &k, &stop);
@@ -343,6 +356,7 @@ int mbd_fixed_step(const Model *M, FixedRun *r, double t, double h, double *valu
     if (st != ST_OK) {
         memcpy(r->y, r->save, (size_t)n2 * sizeof(double));
         memcpy(r->f, r->save + n2, (size_t)n2 * sizeof(double));
+        if (r->audit) memcpy(r->audit, r->audit + A_FIELDS, A_FIELDS * sizeof(double));
         return st;
     }
     r->t_now = end;

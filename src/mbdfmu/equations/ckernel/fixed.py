@@ -16,11 +16,14 @@ import ctypes
 import numpy as np
 
 from ...model.motion import ConstantMotion, HarmonicMotion, LinearMotion
+from .model import watch_events
 
 _P, _I, _D = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
 # fixed.h's MOTION_* codes of the motions it evaluates; any other kind stays with Python.
-# fixed.h's statuses beyond kernel.c's: a check's step failed; the next charge stops the run.
-CHECK, ESTIMATE = 16, 17
+# fixed.h's statuses beyond kernel.c's: a check's step failed; the next charge stops the
+# run; a step changed an event function's sign.
+CHECK, ESTIMATE, EVENT = 16, 17, 18
+AUDIT_SIZE = 13                 # kernel.c's A_FIELDS: the energy check's state
 MOTION_CODES = {ConstantMotion: 0, LinearMotion: 1, HarmonicMotion: 2}
 
 
@@ -35,7 +38,7 @@ class FixedRun(ctypes.Structure):
                 ("pub_src", _P), ("V", _P), ("uf", _P), ("nvr", _I),
                 ("vrs", _P), ("slots", _P), ("set", _P), ("changed", _I), ("restarts", _I),
                 ("est", _P), ("check", _P), ("audit", _P), ("divergence", _D), ("roundoff", _D),
-                ("kept", _P)]
+                ("kept", _P), ("nevent", _I), ("ev_int", _P), ("ev_real", _P), ("ev_g", _P)]
 
 
 class Estimate(ctypes.Structure):
@@ -113,7 +116,7 @@ class FixedSteps:
         return r, estimate, arrays
 
     def arm_fixed_steps(self, run: dict, table, offsets, uf, pub_dst, pub_src,
-                        inputs=None) -> tuple:
+                        inputs=None, events=None) -> tuple:
         """Let an FMU's wrapper take rk4p's communication steps (``mbd_fixed_step``) from
         the state in ``run`` (t_now, time_tol, h_max, slack, max_steps, tol, max_iter, y,
         f and ``estimate``: ``Estimate``'s fields), the drivers' motion ``table``
@@ -121,18 +124,24 @@ class FixedSteps:
         publishing as ``DenseReads.arm_dense_steps`` does. With ``inputs`` (value
         references and places in uf of the inputs fmi2SetReal may set here) the wrapper
         takes those sets too (``mbd_fixed_set``; the steps then restart without a
-        projection, as ``Simulation._reinitialize``). Returns (the address of
-        ``mbd_fixed_step``, of the model, of the FixedRun), then that of ``mbd_fixed_set``
-        with ``inputs``."""
+        projection, as ``Simulation._reinitialize``). In a scene with end stops or
+        friction, ``events`` are the contact mode's event functions the steps watch
+        (``ContactModes.c_events``): a step that changes a sign hands the doStep to Python.
+        Returns (the address of ``mbd_fixed_step``, of the model, of the FixedRun), then
+        that of ``mbd_fixed_set`` with ``inputs``."""
         vrs, slots = (np.ascontiguousarray(a, dtype=np.int64) for a in
                       (inputs if inputs is not None else ([], [])))
         dst, src = (np.ascontiguousarray(a, dtype=np.int64) for a in (pub_dst, pub_src))
         size = self.library.mbd_fixed_kept_size
         size.restype, size.argtypes = _I, [_P]
         kept = np.zeros(size(self.address))        # nothing kept yet (its flag 0)
+        audit = run.pop("audit", None)        # the energy check's state, then its copy
+        checks = np.zeros(2 * AUDIT_SIZE)
+        checks[:AUDIT_SIZE] = audit if audit is not None else 0.0
         r, estimate, arrays = self._fixed_struct(run, table, offsets, uf, (
-            dst, src, vrs, slots, np.zeros(max(vrs.size, 1), dtype=np.int64), kept))
-        self.fixed, self._fixed_arrays = r, (*arrays, estimate)    # what r points at
+            dst, src, vrs, slots, np.zeros(max(vrs.size, 1), dtype=np.int64), kept, checks))
+        r.audit = None if audit is None else checks.ctypes.data
+        self.fixed, self._fixed_arrays = r, (*arrays, watch_events(r, events), estimate)
         r.kept = kept.ctypes.data
         r.pub_dst, r.pub_src, r.vrs, r.slots, r.set = (a.ctypes.data for a in arrays[7:12])
         r.npub, r.nout, r.V = dst.size, self.nout, self._dense_scratch.ctypes.data
@@ -193,8 +202,8 @@ class FixedSteps:
 
     def fixed_taken(self):
         """What the wrapper did since arming or the last call: ((steps taken, t reached, y,
-        f, ``Estimate``'s fields, restarts after a set, the force inputs the last step
-        held) or None without steps, and [(value reference, value)] of the inputs set
+        f, ``Estimate``'s fields, the energy check's state, restarts after a set, the force
+        inputs the last step held) or None without steps, and [(value reference, value)] of the inputs set
         since its last step). The run stays where the wrapper points until armed anew;
         the estimate's count of checks starts again."""
         r = self.fixed
@@ -207,9 +216,9 @@ class FixedSteps:
         flags[:] = 0
         if r.steps == 0:
             return None, pending
-        n2, y, estimate = 2 * self.n, a[5], a[-1]
+        n2, y, estimate, audit = 2 * self.n, a[5], a[-1], a[13]
         steps, restarts, r.steps, r.restarts = int(r.steps), int(r.restarts), 0, 0
         values = estimate_values(estimate)
         estimate.checks = 0
         return (steps, float(r.t_now), y[:n2].copy(), y[n2:2 * n2].copy(), values,
-                restarts, forces[:self.nf].copy()), pending
+                audit[:AUDIT_SIZE].copy(), restarts, forces[:self.nf].copy()), pending

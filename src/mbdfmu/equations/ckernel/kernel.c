@@ -51,7 +51,7 @@ enum { ST_OK = 0, ST_SINGULAR = 1, ST_PROJECTION = 2, ST_NOT_FINITE = 3, ST_SPRI
 enum { F_POINT = 0, F_TORQUE = 1, F_SPRING = 2, F_TORSION = 3 };
 /* slots of the energy check's running state (rk4p_compiled.AuditField) */
 enum { A_ACTIVE, A_E0, A_V0, A_KINETIC_MAX, A_POTENTIAL_SWING, A_MAGNITUDE, A_CHECKS,
-       A_WORST, A_LAST_ENERGY, A_RTOL, A_ATOL, A_FACTOR, A_TOLERANCE_JOULES };
+       A_WORST, A_LAST_ENERGY, A_RTOL, A_ATOL, A_FACTOR, A_TOLERANCE_JOULES, A_FIELDS };
 #define MIN_SPRING_LENGTH 1e-12
 
 typedef struct {
@@ -570,6 +570,7 @@ int mbd_singularity_indicator(const Model *M, const double *q, const double *cva
 #include "stepping.h"
 #include "outputs.h"
 #include "dense.h"
+#include "events.h"
 #include "fixed.h"
 #include "adaptive.h"
 #include "dense_run.h"

@@ -154,6 +154,24 @@ def event_table(eq, events: list[tuple]) -> tuple[np.ndarray, np.ndarray]:
     return _ints(np.array(ints, dtype=np.int64)), _floats(np.array(reals, dtype=float))
 
 
+def watch_events(run, events) -> tuple | None:
+    """Point ``run`` (a ctypes struct with events.h's ``EventWatch`` fields: nevent, ev_int,
+    ev_real, ev_g) at the event functions ``events`` ((ints, reals, their values now):
+    ``ContactModes.c_events``), or at none (None). Returns the arrays it points at, which
+    must live as long as it does: ints, reals and the values, with room for the next."""
+    if events is None:
+        run.nevent = 0
+        return None
+    ints, reals, values = events
+    ne = len(values)
+    arrays = (np.ascontiguousarray(ints, dtype=np.int64),
+              np.ascontiguousarray(reals, dtype=float), np.zeros(2 * ne))
+    arrays[2][:ne] = values
+    run.nevent = ne
+    run.ev_int, run.ev_real, run.ev_g = (a.ctypes.data for a in arrays)
+    return arrays
+
+
 def _packed(arrays: dict) -> tuple[dict, list]:
     """``Model``'s fields from ``model_arrays``: counts as they are, each array copied into
     one int64 or one float64 block (as ``_ints`` / ``_floats`` would give it) and given by
