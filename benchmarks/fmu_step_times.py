@@ -12,7 +12,8 @@ measured alternately, ``--repeat`` rounds, and the round with the lowest mean ke
     python benchmarks/fmu_step_times.py [--set targets|events] [--method rk4p] [--t-end 10]
         [--repeat 3] [--python base=/path/python]
 
-``--set events`` times the shipped scenes with end stops and friction instead; ``--method``
+``--set events`` times the shipped scenes with end stops and friction instead (and
+crane_stop with its cylinder's force set before every doStep); ``--method``
 sets every FMU's ``solver.method`` (its scene's by default). Writes ``fmu_step_times.md``
 (``fmu_step_times_events.md``; with ``--method M``, ``..._M.md``), ``.csv`` and ``.png``
 into ``-o`` (default docs/figures/performance).
@@ -39,18 +40,47 @@ from fmpy import extract, read_model_description  # noqa: E402
 from fmpy.fmi2 import FMU2Slave  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-CASES = {"slider-crank (P4)": (ROOT / "scenes" / "slider_crank.toml", None),
-         "P2 N = 2": (ROOT / "scenes" / "n_four_bar_2.toml", None),
-         "crane mechanism": (ROOT / "scenarios" / "hydraulic_crane" / "crane.toml",
-                             "cylinder.actuator")}
-# --set events: the shipped scenes with end stops and friction (impacts, rest on a stop,
-# sticking, sliding), default settings
-EVENT_CASES = {stem: (ROOT / "scenes" / f"{stem}.toml", None)
-               for stem in ("slider_stop", "crane_stop", "incline_stick", "incline_slide")}
-SETS = {"targets": (CASES, "fmu_step_times"), "events": (EVENT_CASES, "fmu_step_times_events")}
 H = 1e-3
 SLOW_US = 100.0
 HOLD, SWING = 8420.0, 0.05     # the crane's cylinder force (N) as fmu_speed.py sets it
+# crane_stop with an actuator force between its cylinder's barrel and rod (a hydraulic
+# cylinder with end stops), swinging about the 2309 N that hold the boom on its lower stop:
+# it leaves the stop, rests on the upper one, falls back onto the lower one, bounces, rests
+CYLINDER = """
+[[force]]
+name = "cylinder"
+type = "spring_damper"
+body_i = "barrel"
+point_i = [0.0, 0.0]
+body_j = "rod"
+point_j = [0.0, 0.0]
+stiffness = 0.0
+damping = 0.0
+rest_length = 0.0
+actuator_input = true
+"""
+
+
+def crane_force(t: float) -> float:
+    return HOLD * (1.0 + SWING * math.sin(2.0 * math.pi * t))
+
+
+def cylinder_force(t: float) -> float:
+    return 2300.0 + 4000.0 * math.sin(math.pi * t)
+
+
+# case: (scene, TOML appended to it, the input set before every doStep, its value at t)
+CASES = {"slider-crank (P4)": (ROOT / "scenes" / "slider_crank.toml", "", None, None),
+         "P2 N = 2": (ROOT / "scenes" / "n_four_bar_2.toml", "", None, None),
+         "crane mechanism": (ROOT / "scenarios" / "hydraulic_crane" / "crane.toml", "",
+                             "cylinder.actuator", crane_force)}
+# --set events: the shipped scenes with end stops and friction (impacts, rest on a stop,
+# sticking, sliding), default settings; and crane_stop with its cylinder's force set
+EVENT_CASES = {stem: (ROOT / "scenes" / f"{stem}.toml", "", None, None)
+               for stem in ("slider_stop", "crane_stop", "incline_stick", "incline_slide")}
+EVENT_CASES["crane_stop, force set"] = (ROOT / "scenes" / "crane_stop.toml", CYLINDER,
+                                        "cylinder.actuator", cylinder_force)
+SETS = {"targets": (CASES, "fmu_step_times"), "events": (EVENT_CASES, "fmu_step_times_events")}
 
 
 def build(python: str, scene: Path, target: Path) -> Path:
@@ -61,10 +91,11 @@ def build(python: str, scene: Path, target: Path) -> Path:
     return target
 
 
-def step_times(fmu: Path, input_name: str | None, t_end: float,
+def step_times(fmu: Path, input_name: str | None, value, t_end: float,
                method: str | None = None) -> np.ndarray:
-    """CPU µs of each doStep (with its set and get) over t_end at H; ``method``: the
-    FMU's solver.method, set before initialization (None: its scene's)."""
+    """CPU µs of each doStep (with its set of ``input_name`` to ``value(t)`` and its get)
+    over t_end at H; ``method``: the FMU's solver.method, set before initialization (None:
+    its scene's)."""
     md = read_model_description(fmu)
     slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(fmu), instanceName="times",
                       modelIdentifier=md.coSimulation.modelIdentifier)
@@ -82,7 +113,7 @@ def step_times(fmu: Path, input_name: str | None, t_end: float,
     for k in range(n):
         start = time.thread_time()
         if vr is not None:
-            slave.setReal([vr], [HOLD * (1.0 + SWING * math.sin(2.0 * math.pi * t))])
+            slave.setReal([vr], [value(t)])
         slave.doStep(t, H)
         slave.getReal(outputs)
         times[k] = time.thread_time() - start
@@ -153,13 +184,18 @@ def main(argv=None) -> int:
     rows, samples = [], {}
     cases, stem = SETS[args.set]
     with tempfile.TemporaryDirectory() as tmp:
-        fmus = {(case, label): build(python, scene, Path(tmp) / f"c{i}b{j}.fmu")
-                for i, (case, (scene, _)) in enumerate(cases.items())
-                for j, (label, python) in enumerate(builds)}
-        for case, (_, input_name) in cases.items():
+        fmus = {}
+        for i, (case, (scene, added, _, _)) in enumerate(cases.items()):
+            if added:
+                scene = Path(tmp) / f"c{i}.toml"
+                scene.write_text(cases[case][0].read_text() + added)
+            for j, (label, python) in enumerate(builds):
+                fmus[case, label] = build(python, scene, Path(tmp) / f"c{i}b{j}.fmu")
+        for case, (_, _, input_name, value) in cases.items():
             for _ in range(args.repeat):
                 for label, _ in builds:
-                    times = step_times(fmus[case, label], input_name, args.t_end, args.method)
+                    times = step_times(fmus[case, label], input_name, value, args.t_end,
+                                       args.method)
                     best = samples.get((case, label))
                     if best is None or times.mean() < best.mean():
                         samples[case, label] = times

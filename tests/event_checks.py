@@ -188,6 +188,32 @@ def crane_stop(t, res):
     close_rel(res["stroke.limit"], np.where(t > rest, limit, 0.0), limit)
 
 
+# crane_stop with an actuator force between barrel and rod along the stroke (N, positive
+# pushing them apart, as a hydraulic cylinder's): resting on the lower stop, the stop's
+# force and the actuator's add up to the one that holds the boom, so the stop's force is
+# CRANE_HOLD - u, and the boom leaves the stop at the first input above CRANE_HOLD
+CRANE_HOLD = CRANE_GRAVITY_LOAD * math.cos(CRANE[2]) / crane_length_rate(CRANE[2])
+CRANE_ACTUATOR = '''
+[[force]]
+name = "cylinder"
+type = "spring_damper"
+body_i = "barrel"
+point_i = [0.0, 0.0]
+body_j = "rod"
+point_j = [0.0, 0.0]
+stiffness = 0.0
+damping = 0.0
+rest_length = 0.0
+actuator_input = true
+'''
+
+
+def crane_actuator(k: int, h: float = 1e-3) -> float:
+    """The cylinder force (N) set before communication step k of h: pulling in while the
+    boom falls onto its lower stop and comes to rest, then rising past CRANE_HOLD."""
+    return -1000.0 if k < 800 else 1e5 * (k - 800) * h
+
+
 CHECKS = {"slider_stop": slider_stop, "incline_stick": _incline(0.8),
           "incline_slide": _incline(0.2), "crane_stop": crane_stop}
 

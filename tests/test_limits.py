@@ -18,7 +18,7 @@ import mbdfmu
 from mbdfmu.errors import MbdfmuError
 
 import exact_solutions as ref
-from event_checks import CHECKS, check_events
+from event_checks import CHECKS, CRANE_ACTUATOR, CRANE_HOLD, check_events, crane_actuator
 
 # "C kernel": the modes with a stop or a sticking joint evaluated in C (each attempt a C
 # call), the sliding ones on the numpy kernel; what every FMU runs by default
@@ -291,3 +291,31 @@ def test_sliding_friction_in_c_on_a_turning_guide():
         got[kernel] = np.concatenate((qdd, lam, eq.last_friction))
     np.testing.assert_allclose(got["c"], got["numpy"], rtol=1e-11, atol=1e-11)
     assert got["c"][-1] > 0.3                 # sliding down: the force pushes up, past F0
+
+
+@pytest.mark.parametrize("method", ["auto", "rk4p", "rk45p"])
+def test_an_input_that_releases_a_resting_stop_releases_it_at_that_instant(method, tmp_path):
+    """crane_stop with its cylinder force as an input, set before every 1 ms step: the boom
+    falls onto its lower stop and rests there, the stop's force CRANE_HOLD - u (closed
+    form: the stop and the actuator push along the same stroke); the first step whose force
+    exceeds CRANE_HOLD lets it leave at its start, with every method. Before, the watch
+    after a step missed a sign the input had changed at the step's start: the boom left
+    at times that depended on the method (dop853p and rk45p 0.07 s apart), and with rk4p
+    never."""
+    path = tmp_path / "crane_force.toml"
+    path.write_text((ref.SCENES / "crane_stop.toml").read_text() + CRANE_ACTUATOR)
+    sim = mbdfmu.Simulation(mbdfmu.load_scene(path), method=method, kernel="c")
+    limits = []
+    for k in range(900):
+        sim.set_input("cylinder.actuator", crane_actuator(k))
+        sim.advance((k + 1) * 1e-3)
+        limits.append(sim.outputs()["stroke.limit"])
+    leave = next(k for k in range(900) if crane_actuator(k) > CRANE_HOLD)
+    assert [e[1:] for e in sim.events.log if "leaves its" in e[2]] == [
+        ("stroke", "leaves its lower stop")]
+    assert [e[0] for e in sim.events.log if "leaves its" in e[2]] == [leave * 1e-3]
+    rest = next(e[0] for e in sim.events.log if "rests" in e[2])
+    resting = range(int(rest / 1e-3) + 1, leave)
+    np.testing.assert_allclose([limits[k] for k in resting],
+                               [CRANE_HOLD - crane_actuator(k) for k in resting],
+                               rtol=0, atol=1e-6 * CRANE_HOLD)

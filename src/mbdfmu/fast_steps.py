@@ -18,8 +18,8 @@ wrapper serves are Python's bit for bit (tests/test_fmu_fast.py):
 
 The last two take the force inputs the master sets before each step (the wrapper takes
 those fmi2SetReal calls too, then restarts as Python does; rk4p where the restart starts
-no energy audit), in scenes without end stops or friction (with them, a set input sends
-the step to Python, whose restart in a contact mode projects). All need no input changed
+no energy audit), and with end stops or friction watch the contact mode's event functions
+after each step, from their values at the restart with the new inputs. All need no input changed
 since the step, every force input held, no driver taking its motion from the inputs, and
 under ``auto`` a watcher at rest
 (no switch pending, no stiff step counted; dop853p's steps checked in C against its
@@ -107,25 +107,21 @@ def fast_steps_ahead(sim, limit, time_tol: float, inputs=None):
     u = sim.inputs_at(sim.t)
     table = motion_table(eq.constraint_set)
     run = None if table is None else fast_run(current, limit, time_tol)
-    arguments = (run, table, eq.constraint_set.offsets, u.forces)
-    if run is not None and sim.events is not None:
-        # the contact mode's event functions watched after each step; an input set goes
-        # through Python, whose restart in a mode projects (Simulation._reinitialize)
-        return "fixed", kernel, arguments, dict(events=sim.events.c_events(
-            current.t, current.q, current.qd))
+    # with end stops or friction, the contact mode's event functions watched after each step
+    events = {} if sim.events is None else dict(events=sim.events.c_events(
+        current.t, current.q, current.qd))
     if run is not None:
         sets = {} if inputs is None or not len(inputs[0]) or eq.nonconservative_reason() is None \
             else dict(inputs=inputs)
-        return "fixed", kernel, arguments, sets
-    if sim.events is not None:
-        return None
+        return "fixed", kernel, (run, table, eq.constraint_set.offsets, u.forces), \
+            {**sets, **events}
     stiff_limit = auto_stiff_limit(current, watcher)
     run = None if sim.scene.drivers or sim.inputs_known_ahead() or stiff_limit is None else \
         fast_prk_run(current, limit, time_tol, (SAFETY, MIN_FACTOR, MAX_FACTOR), stiff_limit)
     if run is None:
         return None
     run.update(motion=np.concatenate(eq.motion_values(sim.t, u)), uf=u.forces)
-    return "prk", kernel, (run, tableau(current)[:5]), {}
+    return "prk", kernel, (run, tableau(current)[:5]), events
 
 
 def arm(sim, limit, time_tol: float, inputs, published) -> tuple | None:
@@ -144,7 +140,7 @@ def arm(sim, limit, time_tol: float, inputs, published) -> tuple | None:
     kind, kernel, arguments, keywords = fast
     if kind == "fixed":
         return kernel.arm_fixed_steps(*arguments, *mode_published(sim, published), **keywords)
-    return kernel.arm_prk_steps(*arguments, inputs, *published)
+    return kernel.arm_prk_steps(*arguments, inputs, *mode_published(sim, published), **keywords)
 
 
 def mode_published(sim, published) -> tuple:

@@ -133,10 +133,10 @@ class Simulation(SimulationInputs):
         rk4p) restarts from its state as it is: the constraints do not depend on forces and
         its last step (or dense read) ended projected, so a projection there would only move
         q' by round-off (the FMU wrapper's restarts, ``ckernel/adaptive.h`` and
-        ``fixed.h``, do the same)."""
+        ``fixed.h``, do the same). In a contact mode too: its held rows are constraints
+        of the same kind, and a transition ends projected onto the new mode's."""
         current = getattr(self.integrator, "current", self.integrator)  # auto's of the moment
-        if self.events is None and not self._motion_changed and \
-                isinstance(current, ProjectedRK):
+        if not self._motion_changed and isinstance(current, ProjectedRK):
             self.integrator.reset_state(self.q, self.qd, self.t)
             self._inputs_changed = False
             return
@@ -182,7 +182,7 @@ class Simulation(SimulationInputs):
             if self.events is None:
                 self.integrator.advance(t_target, limit, dense=dense)
             else:       # located events: the steps land on them
-                self.events.advance(self.integrator, t_target, limit, dense)
+                self.events.advance(self.integrator, t_target, limit, dense, inputs_changed)
         except SolverError:
             if self.events is not None:
                 self.events.restore(self.integrator, saved)

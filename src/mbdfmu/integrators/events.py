@@ -63,9 +63,13 @@ class EventRunner(ContactModes):
 
     # ------------------------------------------------------------------ running
 
-    def advance(self, integrator, t_target: float, limit=None, dense: bool = False) -> None:
+    def advance(self, integrator, t_target: float, limit=None, dense: bool = False,
+                restarted: bool = False) -> None:
         """``integrator.advance(t_target, limit, dense=dense)`` with every event on the way
-        handled.
+        handled. ``restarted``: the inputs changed at the start (Simulation._reinitialize),
+        so that a held coordinate's effort jumped with them; one that a stop would now
+        have to pull, or that friction can no longer hold, changes its mode at once
+        (``_released``).
 
         With ``dense`` (an adaptive method, inputs known ahead) a step may end past
         t_target, its dense output giving the state there, when its event functions keep
@@ -76,6 +80,8 @@ class EventRunner(ContactModes):
         the steps close in on an event still to come while the communication steps before
         it read their dense output."""
         integrator.equations = self.equations
+        if restarted:
+            self._released(integrator)
         while integrator.t < t_target:
             self.watching = (integrator.rollback_point(),
                              self.values(integrator.t, integrator.q, integrator.qd), integrator.t)
@@ -107,6 +113,20 @@ class EventRunner(ContactModes):
                 integrator.watch, integrator.watch_each_step = None, False
                 if max_step is not None:
                     integrator.max_step = max_step
+
+    def _released(self, integrator) -> None:
+        """After an input change: each held coordinate whose event function (the stop's
+        force, the friction's margin) is now negative leaves its stop or slips, at once.
+        The watch after a step sees a sign change only within the step (or a value that
+        falls further), so a change the inputs made at the step's start went unseen until
+        the effort happened to fall: a crane resting on its stop under a rising cylinder
+        force left it at times that depended on the method, or never."""
+        while True:
+            g = self.values(integrator.t, integrator.q, integrator.qd)
+            held = [key for key, v in g.items() if v < 0 and key[1] in HELD]
+            if not held:
+                return
+            self._transition(integrator, held[0])
 
     def _state_at(self, integrator, start, t: float):
         integrator.set_state(start)

@@ -12,7 +12,9 @@
  * step factors. Anything else (a step near a singular configuration, where
  * singular_zone.py plans, a case the kernel hands back, too many rejections, the work
  * limit) returns non-zero with nothing changed, and Python takes the step and says why.
- * For scenes without drivers and without an energy audit (non-conservative forces).
+ * For scenes without drivers and without an energy audit (non-conservative forces); in a
+ * scene with end stops or friction, in the current contact mode with its event functions
+ * checked after each step (events.h), a step that changes a sign handing the doStep back.
  * Under auto (stiff_limit > 0, dop853p), a step that auto's stiffness rule would count
  * (auto_watch.stiffness above stiff_limit) hands the doStep back to Python as well.
  */
@@ -49,6 +51,8 @@ typedef struct {
     double *V;                     /* (outputs, q, q', q''), then lam */
     double stiff_limit;            /* > 0: auto's watch; Hairer's h |lambda| at most this */
     double *kept;                  /* the last accepted step's end (keep_end) */
+    EventWatch ev;                 /* a contact mode's event functions after each step
+                                    * (events.h), or none */
 } PrkRun;
 
 /* auto_watch.stiffness, Hairer's h |lambda| of a step of the pair (ns stages, A (ns, ns),
@@ -150,6 +154,8 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
         if (values) c0 = m ? indicator_of(M, &s, values) : INFINITY;
         else mbd_singularity_indicator(M, y, r->motion, &c0);
         landing = 0;
+        int released = r->ev.nevent ? events_restart(M, &r->ev, r->motion, r->uf, &s, y) : 0;
+        if (released) return released > 0 ? ST_EVENT : ST_ERROR_NORM;  /* events.h */
     }
     while (tt < end) {
         if (nsteps + nrej >= r->max_work) return ST_ERROR_NORM;      /* the work limit */
@@ -174,6 +180,10 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
             int cut = hh < proposal && h_next >= hh;
             h_ctl = cut ? proposal : h_next;
             if (!cut) err_old = fmax(err, ERR_OLD_MIN);
+            if (r->ev.nevent) {          /* the event runner's watch: Python locates it */
+                int crossed = events_crossed(M, &r->ev, r->motion, r->uf, &s, y);
+                if (crossed) return crossed > 0 ? ST_EVENT : ST_ERROR_NORM;
+            }
         } else {
             rejections++;
             nrej++;
@@ -236,7 +246,6 @@ typedef struct {
     I ngaps; const double *gap_mid, *gap_width;   /* singular_zone.gaps of the nodes */
     double cpu_limit, cpu_start; /* > 0: RUN_WORK once the thread's CPU time since cpu_start
                                   * passes cpu_limit (s; WorkLimit's max_cpu), else unchecked */
-    EventWatch ev;               /* event functions watched after each step (events.h) */
 } PrkPy;
 
 /* The calling thread's CPU time (s): WorkLimit's clock (time.thread_time). */
@@ -419,8 +428,8 @@ int mbd_prk_run(const Model *M, PrkPy *p) {
         int cut = hh < proposal && h_next >= hh;
         r->h = cut ? proposal : h_next;
         if (!cut) r->err_old = fmax(err, ERR_OLD_MIN);
-        if (p->ev.nevent) {              /* the event runner's watch, before the audit */
-            int crossed = events_crossed(M, &p->ev, r->motion, r->ufs, &s, y);
+        if (r->ev.nevent) {              /* the event runner's watch, before the audit */
+            int crossed = events_crossed(M, &r->ev, r->motion, r->ufs, &s, y);
             if (crossed) return crossed > 0 ? RUN_EVENT : RUN_PYTHON;
         }
         if (p->audit && p->audit[A_ACTIVE] != 0.0 &&

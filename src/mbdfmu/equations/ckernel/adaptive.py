@@ -15,6 +15,8 @@ import ctypes
 
 import numpy as np
 
+from .model import watch_events
+
 _P, _I, _D = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
 
 
@@ -31,7 +33,8 @@ class PrkRun(ctypes.Structure):
                 ("f1", _P), ("K", _P), ("y_new", _P), ("f_new", _P), ("steps", _I),
                 ("nsteps", _I), ("nrejected", _I), ("naccel", _I), ("nprojections", _I),
                 ("nout", _I), ("npub", _I), ("pub_dst", _P), ("pub_src", _P), ("V", _P),
-                ("stiff_limit", _D), ("kept", _P)]
+                ("stiff_limit", _D), ("kept", _P), ("nevent", _I), ("ev_int", _P),
+                ("ev_real", _P), ("ev_g", _P)]
 
 
 # How ``mbd_prk_run`` stopped (adaptive.h RUN_*).
@@ -45,14 +48,17 @@ class PrkSteps:
 
     prk: PrkRun | None = None
 
-    def arm_prk_steps(self, run: dict, tableau, inputs, pub_dst, pub_src) -> tuple:
+    def arm_prk_steps(self, run: dict, tableau, inputs, pub_dst, pub_src,
+                      events=None) -> tuple:
         """Let an FMU's wrapper take an embedded pair's communication steps
         (``mbd_prk_fast_step``) from the state in ``run`` (PrkRun's scalar fields, and y, f,
         motion: (c, c', c'') and uf: the held force inputs), with ``tableau`` (ns and the
         addresses of A, B, E, E3: ``Kernel.tableau``) and ``inputs`` (value references and
         places in uf of the inputs fmi2SetReal may set here), publishing as
-        ``DenseReads.arm_dense_steps`` does. Returns (the addresses of
-        ``mbd_prk_fast_step``, of the model, of the PrkRun, of ``mbd_prk_set``)."""
+        ``DenseReads.arm_dense_steps`` does; in a scene with end stops or friction,
+        ``events`` are the contact mode's event functions the steps watch
+        (``ContactModes.c_events``). Returns (the addresses of ``mbd_prk_fast_step``, of
+        the model, of the PrkRun, of ``mbd_prk_set``)."""
         r = self.prk = PrkRun()
         n2, ns, nf = 2 * self.n, tableau[0], max(self.nf, 1)
         states = np.zeros(4 * n2)                        # y, f, y1, f1
@@ -69,6 +75,7 @@ class PrkSteps:
                       states=states, K=np.zeros((ns + 1) * n2), y_new=np.zeros(n2),
                       f_new=np.zeros(n2), pub_dst=dst, pub_src=src,
                       kept=np.zeros(size(self.address)))           # nothing kept yet
+        arrays["events"] = watch_events(r, events)
         self._prk_arrays = arrays                       # what r points at
         for name, value in run.items():
             setattr(r, name, value)
@@ -130,8 +137,7 @@ class PrkPy(ctypes.Structure):
                 ("min_gain", _D), ("jump_limit", _D), ("divergence", _D), ("roundoff", _D),
                 ("t_old", _D), ("h_old", _D), ("y_old", _P), ("y_end", _P), ("K_old", _P),
                 ("stepped", _I), ("ngaps", _I), ("gap_mid", _P), ("gap_width", _P),
-                ("cpu_limit", _D), ("cpu_start", _D), ("nevent", _I), ("ev_int", _P),
-                ("ev_real", _P), ("ev_g", _P)]
+                ("cpu_limit", _D), ("cpu_start", _D)]
 
 
 class PrkRunBuffers:

@@ -96,7 +96,7 @@ static void save_run(const Model *M, const DenseRun *R, double *b) {
         R->horizon};
     memcpy(b, scalars, sizeof scalars);
     b += RUN_SCALARS;
-    if (p->ev.nevent) memcpy(b, p->ev.ev_g, (size_t)p->ev.nevent * sizeof(double));
+    if (p->r.ev.nevent) memcpy(b, p->r.ev.ev_g, (size_t)p->r.ev.nevent * sizeof(double));
 }
 
 static void restore_run(const Model *M, DenseRun *R, const double *b) {
@@ -116,7 +116,7 @@ static void restore_run(const Model *M, DenseRun *R, const double *b) {
     r->nprojections = (I)b[12]; R->d.t_old = b[13]; R->d.h = b[14]; R->taken = (I)b[15];
     R->horizon = b[16];
     b += RUN_SCALARS;
-    if (p->ev.nevent) memcpy(p->ev.ev_g, b, (size_t)p->ev.nevent * sizeof(double));
+    if (p->r.ev.nevent) memcpy(p->r.ev.ev_g, b, (size_t)p->r.ev.nevent * sizeof(double));
 }
 
 /* The wrapper's doStep from t over h (dense.h's mbd_dense_step inside the step read; past

@@ -112,7 +112,7 @@ class DenseRuns:
     @staticmethod
     def _watch_events(run: DenseRun, b: RunBuffers, events) -> None:
         """Point the run at the event functions it watches (kept in b), or at none."""
-        b.events = watch_events(run.p, events)
+        b.events = watch_events(run.p.r, events)
         ne = 0 if events is None else len(events[2])
         if b.saved.size < b.saved_base + ne:
             b.saved = np.zeros(b.saved_base + ne)

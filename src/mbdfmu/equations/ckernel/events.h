@@ -96,3 +96,19 @@ static int events_crossed(const Model *M, const EventWatch *w, const double *mot
     memcpy(g0, g, (size_t)w->nevent * sizeof(double));
     return 0;
 }
+
+/* After an input change: the event functions at the restart y with the new inputs into
+ * w->ev_g (the event runner's advance reads them so before its first step: a held
+ * coordinate's effort moves with the forces); 1 when a held coordinate's (a stop's force,
+ * a sticking joint's margin) is negative, so that it leaves its stop or slips at once
+ * (events.py EventRunner._released, which the doStep is handed to), 0 when none is, -1
+ * when they cannot be evaluated. */
+static int events_restart(const Model *M, const EventWatch *w, const double *motion,
+                          const double *uf, Scratch *s, const double *y) {
+    if (event_values(M, w, motion, uf, s, y, w->ev_g) != ST_OK) return -1;
+    for (I e = 0; e < w->nevent; e++) {
+        I kind = w->ev_int[EV_INTS * e + EV_KIND];
+        if ((kind == EV_HELD || kind == EV_STICK) && w->ev_g[e] < 0.0) return 1;
+    }
+    return 0;
+}

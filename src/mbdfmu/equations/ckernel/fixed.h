@@ -345,6 +345,10 @@ int mbd_fixed_step(const Model *M, FixedRun *r, double t, double h, double *valu
     if (r->audit)             /* the energy check's state too: the slave takes it back */
         memcpy(r->audit + A_FIELDS, r->audit, A_FIELDS * sizeof(double));
     int st = r->changed ? fixed_restart(M, r, &s, t0) : ST_OK;
+    if (st == ST_OK && r->changed && r->ev.nevent) {   /* events from the restart */
+        int released = events_restart(M, &r->ev, r->motions, r->uf, &s, r->y);
+        if (released) st = released > 0 ? ST_EVENT : ST_ERROR_NORM;
+    }
     I k = 0, stop = 0;
     if (st == ST_OK) st = fixed_loop(M, r, &s, &E, t0, step, steps, end, steps, &k, &stop);
     if (st == ST_OK) keep_step_end(M, r, &s);

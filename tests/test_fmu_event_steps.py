@@ -1,9 +1,11 @@
-"""rk4p's communication steps in the FMU's C wrapper (ckernel/fixed.h) for scenes with end
-stops and friction (the contact mode's event functions watched after each step in C,
-ckernel/events.h) and for scenes with an energy audit (its check after each step in C,
-its state carried back to Python). References: the same FMU sent through Python at every
-doStep (fmi2SetDebugLogging after each), the closed-form impact times of the slider
-(event_checks.py) and a Simulation stepped by Python alone; never the C run's own output."""
+"""The FMU's C wrapper in scenes with end stops and friction beyond the dense runs
+(test_fmu_dense_run.py): rk4p's steps (ckernel/fixed.h), and the steps of every method
+after a force input the master sets before each step (fixed.h, adaptive.h), each
+watching the contact mode's event functions in C (ckernel/events.h); and rk4p's steps in
+scenes with an energy audit (its check in C, its state carried back to Python).
+References: the same FMU sent through Python at every doStep (fmi2SetDebugLogging after
+each), the closed forms of event_checks.py and a Simulation stepped by Python alone;
+never the C run's own output."""
 
 from __future__ import annotations
 
@@ -19,8 +21,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import mbdfmu  # noqa: E402
 from mbdfmu import fast_steps  # noqa: E402
 from mbdfmu.equations import ckernel  # noqa: E402
-from event_checks import SLIDER_T1, slider_impacts  # noqa: E402
+from event_checks import (CRANE_ACTUATOR, CRANE_HOLD, SLIDER_T1, crane_actuator,  # noqa: E402
+                          slider_impacts)
 from fmu_models.harness import OK  # noqa: E402
+from mbdfmu.fmu_build.scene_fmu import build_fmu  # noqa: E402
 from fmu_models.scenes import scene_fmu, scene_host  # noqa: E402,F401
 from test_fmu_dense_run import lockstep, taken_by_wrapper  # noqa: E402
 
@@ -28,9 +32,10 @@ pytestmark = pytest.mark.skipif(not ckernel.available(), reason="no C compiler f
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
 
-def rk4p_host(scene_host, path, name):
+def rk4p_host(scene_host, path, name, method="rk4p"):
     host = scene_host(path, name)
-    assert host.fmu.setString([host.vr["solver.method"]], ["rk4p"]) is None
+    if method is not None:
+        assert host.fmu.setString([host.vr["solver.method"]], [method]) is None
     return host.init()
 
 
@@ -89,3 +94,39 @@ def test_rk4p_wrapper_hands_back_the_impacts_step_with_the_audit_as_it_was():
     assert wrapper.events.log == python.events.log
     assert wrapper.events.log[0][0] == pytest.approx(slider_impacts(1)[0], abs=1e-9)
     np.testing.assert_array_equal(wrapper.q, python.q)
+
+
+
+@pytest.mark.parametrize("method", [None, "rk4p", "rk45p"])
+def test_a_force_set_before_every_step_keeps_the_steps_in_the_wrapper_through_events(
+        scene_host, tmp_path, method):
+    """crane_stop with its cylinder force as an input the master sets before every 1 ms
+    step (a hydraulic cylinder with end stops, event_checks.crane_actuator), with the
+    scene's method (auto: dop853p), rk4p and rk45p: the boom falls onto its lower stop,
+    bounces and rests, the rising force lifts it off at the first step whose force exceeds
+    CRANE_HOLD (closed form), and it comes to rest on the upper stop. The wrapper takes the
+    sets and the steps, watching the mode's event functions from their values at each
+    restart with the new force, and hands back the doSteps that change a sign: the one
+    the force lifts the boom at among them. Every value is Python's bit for bit. Before,
+    every doStep of this scene went through Python (a set input in a scene with stops)."""
+    scene = tmp_path / "crane_force.toml"
+    scene.write_text((SCENES / "crane_stop.toml").read_text() + CRANE_ACTUATOR)
+    path = build_fmu(scene, tmp_path / "crane_force.fmu")
+    fast, slow = (rk4p_host(scene_host, path, name, method) for name in ("fast", "slow"))
+    names, vr, steps = fast.outputs, (ctypes.c_uint * 1)(fast.vr["cylinder.actuator"]), 1400
+    for k in range(steps):
+        for host in (fast, slow):
+            value = (ctypes.c_double * 1)(crane_actuator(k))
+            assert host.status("fmi2SetReal", vr, 1, value) == OK
+            assert host.step(1e-3) == OK, host.messages[-3:]
+        assert fast.real(*names) == slow.real(*names), k
+        assert slow.status("fmi2SetDebugLogging", True, 0, None) == OK
+    assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK
+    logged = [[m for _, _, m in h.messages if m.startswith("t = ") and "joint" in m]
+              for h in (fast, slow)]
+    assert logged[0] == logged[1]
+    leave = next(k for k in range(steps) if crane_actuator(k) > CRANE_HOLD)
+    left = [float(m.split()[2]) for m in logged[0] if "leaves its lower stop" in m]
+    assert left == [pytest.approx(leave * 1e-3, abs=1e-12)]
+    assert "rests against it" in logged[0][-1] and "upper stop" in logged[0][-1]
+    assert taken_by_wrapper(fast) >= steps - 1 - len(logged[0]), taken_by_wrapper(fast)
