@@ -206,8 +206,9 @@ def main(argv=None) -> int:
         stem = f"{stem}_{args.method}"
     method = "" if args.method is None else f" --method {args.method}"
     header = (f"`python benchmarks/fmu_step_times.py --set {args.set}{method} --t-end "
-              f"{args.t_end:g} --repeat {args.repeat}`: CPU time of each 1 ms doStep in fmpy (set, step, get "
-              f"of every output), the round with the lowest mean of {args.repeat}.")
+              f"{args.t_end:g} --repeat {args.repeat}`: CPU time of each 1 ms doStep in fmpy "
+              f"(set, step, get of every output), the round with the lowest mean of "
+              f"{args.repeat}.")
     text = markdown(rows, header)
     print(text)
     out = Path(args.output)

@@ -177,7 +177,8 @@ def test_auto_retries_a_fixed_step_that_breaks_its_stated_accuracy_at_half_the_s
             each.advance(0.05 * k)
     (t, old, to, reason), = sim.integrator.switches[1:]
     assert old == to == "genalpha" and 0.15 <= t <= 0.25, (t, reason)
-    assert "energy balance broken" in reason and f"retried from t = {t:.9g} s with step 0.002 s" in reason
+    assert "energy balance broken" in reason
+    assert f"retried from t = {t:.9g} s with step 0.002 s" in reason
     assert sim.integrator.h == 2e-3 and sim.method_name == "auto->dop853p->genalpha->genalpha"
     assert np.max(np.abs(sim.q - reference.q)) < 1e-4
 

@@ -27,8 +27,8 @@ def __getattr__(name: str):
         return getattr(analysis, name)
     raise AttributeError(f"module 'mbdfmu' has no attribute {name!r}")
 
-__all__ = ["AccuracyError", "AssemblyError", "InputError", "MbdfmuError", "SceneError", "SettingError",
-           "SolverError", "METHODS", "METHOD_NAMES", "SolverSettings", "Result", "read_csv",
+__all__ = ["AccuracyError", "AssemblyError", "InputError", "MbdfmuError", "SceneError",
+           "SettingError", "SolverError", "METHODS", "METHOD_NAMES", "SolverSettings", "Result", "read_csv",
            "Scene", "load_scene", "parameters", "rod_inertia", "with_parameters",
            "Simulation", "simulate", "Equilibrium", "Linearization", "equilibrium", "linearize",
            "__version__"]

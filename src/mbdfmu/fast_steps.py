@@ -18,14 +18,14 @@ wrapper serves are Python's bit for bit (tests/test_fmu_fast.py):
 
 The last two take the force inputs the master sets before each step (the wrapper takes
 those fmi2SetReal calls too, then restarts as Python does; rk4p where the restart starts
-no energy audit), and with end stops or friction watch the contact mode's event functions
-after each step, from their values at the restart with the new inputs. All need no input changed
-since the step, every force input held, no driver taking its motion from the inputs, and
-under ``auto`` a watcher at rest
-(no switch pending, no stiff step counted; dop853p's steps checked in C against its
-stiffness test, ``auto_stiff_limit``); ``rk4p_c.fast_run`` and ``c_steps.fast_prk_run``
-say the rest. This module reads ``Simulation``'s input
-bookkeeping (its ``_inputs_changed``, ``_drivers``, ``_forces``) as the class itself does.
+no energy audit), and with end stops or friction watch the contact mode's event
+functions after each step, from their values at the restart with the new inputs. All
+need no input changed since the step, every force input held, no driver taking its motion
+from the inputs, and under ``auto`` a watcher at rest (no switch pending, no stiff step
+counted; dop853p's steps checked in C against its stiffness test, ``auto_stiff_limit``);
+``rk4p_c.fast_run`` and ``c_steps.fast_prk_run`` say the rest. This module reads
+``Simulation``'s input bookkeeping (its ``_inputs_changed``, ``_drivers``, ``_forces``) as
+the class itself does.
 """
 
 from __future__ import annotations
@@ -95,7 +95,8 @@ def auto_stiff_limit(integrator, watcher) -> float | None:
 def fast_steps_ahead(sim, limit, time_tol: float, inputs=None):
     """("fixed", kernel, the arguments of ``arm_fixed_steps`` before the published values,
     and the keywords after them), ("prk", kernel, those of ``arm_prk_steps`` before the
-    inputs, and {}), or None. ``inputs``: ``settable_inputs``, which rk4p's steps take
+    inputs, and the keywords after them: with end stops or friction the contact mode's
+    event functions), or None. ``inputs``: ``settable_inputs``, which rk4p's steps take
     from fmi2SetReal too where a restart starts no energy audit."""
     integrator, eq = sim.integrator, sim.stepped_equations
     kernel, watcher = eq.ckernel, getattr(integrator, "watcher", None)

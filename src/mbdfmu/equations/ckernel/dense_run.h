@@ -88,7 +88,7 @@ static void save_run(const Model *M, const DenseRun *R, double *b) {
     memcpy(b, p->y_end, (size_t)n2 * sizeof(double)); b += n2;
     memcpy(b, p->K_old, (size_t)(rows * n2) * sizeof(double)); b += rows * n2;
     if (p->audit) memcpy(b, p->audit, A_FIELDS * sizeof(double));
-    b += 13;
+    b += A_FIELDS;
     double scalars[RUN_SCALARS] = {
         r->h, r->err_old, r->indicator, (double)r->landing, p->t, p->energy_rejected,
         p->t_old, p->h_old, (double)p->stepped, (double)r->nsteps, (double)r->nrejected,
@@ -109,7 +109,7 @@ static void restore_run(const Model *M, DenseRun *R, const double *b) {
     memcpy(p->y_end, b, (size_t)n2 * sizeof(double)); b += n2;
     memcpy(p->K_old, b, (size_t)(rows * n2) * sizeof(double)); b += rows * n2;
     if (p->audit) memcpy(p->audit, b, A_FIELDS * sizeof(double));
-    b += 13;
+    b += A_FIELDS;
     r->h = b[0]; r->err_old = b[1]; r->indicator = b[2]; r->landing = (I)b[3];
     p->t = b[4]; p->energy_rejected = b[5]; p->t_old = b[6]; p->h_old = b[7];
     p->stepped = (I)b[8]; r->nsteps = (I)b[9]; r->nrejected = (I)b[10]; r->naccel = (I)b[11];

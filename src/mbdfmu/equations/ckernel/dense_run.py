@@ -16,6 +16,7 @@ import numpy as np
 
 from .adaptive import PrkPy, PrkRunBuffers, point_run
 from .dense import DenseRead
+from .fixed import AUDIT_SIZE
 from .model import watch_events
 
 _P, _I = ctypes.c_void_p, ctypes.c_int64
@@ -43,7 +44,7 @@ class RunBuffers(PrkRunBuffers):
         self.node_motions, self.node_ufs = np.zeros((3, 3 * m)), np.zeros((3, max(nf, 1)))
         self.coef = np.zeros((2, DENSE_ROWS, n2))
         self.Kx, self.ys = np.zeros((DENSE_STAGES, n2)), np.zeros(n2)
-        self.saved_base = 4 * n2 + (ns + 1) * n2 + 13 + RUN_SCALARS
+        self.saved_base = 4 * n2 + (ns + 1) * n2 + AUDIT_SIZE + RUN_SCALARS
         self.saved = np.zeros(self.saved_base)      # and the watched event functions'
         self.events = None
 

@@ -1,10 +1,11 @@
 /*
  * events.h (part of kernel.c): the event functions of a contact mode (modes.ContactModes.
- * values, formulation.md eq. 33), checked after each step of an FMU wrapper's dense run
- * (dense_run.h) and of its rk4p steps (fixed.h), as the event runner's watch does after each
- * of Python's: a step in which one changes sign (v < 0 where it was not, or fell further)
- * ends the run, which then puts everything back for Python to take the doStep, locate the
- * event and change the mode.
+ * values, formulation.md eq. 33), checked after each step an FMU's wrapper takes (its dense
+ * runs, dense_run.h; rk4p's steps, fixed.h; an embedded pair's landing steps, adaptive.h)
+ * as the event runner's watch does after each of Python's: a step in which one changes
+ * sign (v < 0 where it was not, or fell further) ends the run, which then puts everything
+ * back for Python to take the doStep, locate the event and change the mode. After a force
+ * input is set they are read again at the restart (events_restart).
  * Per event (events.py c_events): its kind, the held coordinate's row, the joint as
  * friction.h reads it; the limit and the sign.
  */

@@ -203,9 +203,9 @@ class FixedSteps:
     def fixed_taken(self):
         """What the wrapper did since arming or the last call: ((steps taken, t reached, y,
         f, ``Estimate``'s fields, the energy check's state, restarts after a set, the force
-        inputs the last step held) or None without steps, and [(value reference, value)] of the inputs set
-        since its last step). The run stays where the wrapper points until armed anew;
-        the estimate's count of checks starts again."""
+        inputs the last step held) or None without steps, and [(value reference, value)]
+        of the inputs set since its last step). The run stays where the wrapper points
+        until armed anew; the estimate's count of checks starts again."""
         r = self.fixed
         if r is None:
             return None, []
