@@ -319,3 +319,32 @@ def test_an_input_that_releases_a_resting_stop_releases_it_at_that_instant(metho
     np.testing.assert_allclose([limits[k] for k in resting],
                                [CRANE_HOLD - crane_actuator(k) for k in resting],
                                rtol=0, atol=1e-6 * CRANE_HOLD)
+
+
+@pytest.mark.parametrize("method", ["auto", "rk4p", "rk45p"])
+def test_an_input_that_breaks_static_friction_slips_the_block_at_that_instant(method, tmp_path):
+    """incline_stick (mu = 0.8 on 30 degrees) with a force input on the block along the
+    ramp, downhill, rising by 0.01 N a 1 ms step from t = 0.8 s: sticking, the friction
+    holds m g sin 30 + F (closed form) within its bound mu m g cos 30, and the block slips
+    downhill at the start of the first step whose force exceeds the bound, with every
+    method (the friction's margin that the input made negative at a step's start)."""
+    path = tmp_path / "incline_pull.toml"
+    path.write_text((ref.SCENES / "incline_stick.toml").read_text()
+                    + '[[force]]\nname = "pull"\ntype = "force"\nbody = "block"\ninput = true\n')
+    sim = mbdfmu.Simulation(mbdfmu.load_scene(path), method=method, kernel="c")
+    weight, bound = 9.81 * 0.5, 0.8 * 9.81 * math.cos(math.pi / 6)
+
+    def pull(k):
+        return 0.0 if k < 800 else 0.01 * (k - 800)
+    friction = []
+    for k in range(1100):
+        sim.set_input("pull.fx", pull(k) * math.cos(math.pi / 6))
+        sim.set_input("pull.fy", -pull(k) * 0.5)
+        sim.advance((k + 1) * 1e-3)
+        friction.append(sim.outputs()["ramp.friction"])
+    slip = next(k for k in range(1100) if weight + pull(k) > bound)
+    assert [e[1:] for e in sim.events.log[2:]] == [("ramp", "slips: its coordinate rising")]
+    assert sim.events.log[2][0] == slip * 1e-3
+    sticking = range(200, slip)
+    np.testing.assert_allclose([friction[k] for k in sticking],
+                               [-(weight + pull(k)) for k in sticking], rtol=1e-9)
