@@ -32,7 +32,8 @@ pytestmark = pytest.mark.skipif(not ckernel.available(), reason="no C compiler f
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
 
-def rk4p_host(scene_host, path, name, method="rk4p"):
+def method_host(scene_host, path, name, method="rk4p"):
+    """An initialized host of the FMU at path with solver.method set (None: the scene's)."""
     host = scene_host(path, name)
     if method is not None:
         assert host.fmu.setString([host.vr["solver.method"]], [method]) is None
@@ -51,7 +52,7 @@ def test_rk4p_steps_are_the_wrappers_through_events_and_energy_checks(
     Before, every doStep of these went through Python (an event watch or an energy audit
     kept rk4p's steps there)."""
     path = scene_fmu(stem)
-    fast, slow = rk4p_host(scene_host, path, "fast"), rk4p_host(scene_host, path, "slow")
+    fast, slow = method_host(scene_host, path, "fast"), method_host(scene_host, path, "slow")
     lockstep(fast, slow, steps)
     assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK
     logged = [[m for _, _, m in h.messages if m.startswith("t = ") and "joint" in m]
@@ -112,7 +113,7 @@ def test_a_force_set_before_every_step_keeps_the_steps_in_the_wrapper_through_ev
     scene = tmp_path / "crane_force.toml"
     scene.write_text((SCENES / "crane_stop.toml").read_text() + CRANE_ACTUATOR)
     path = build_fmu(scene, tmp_path / "crane_force.fmu")
-    fast, slow = (rk4p_host(scene_host, path, name, method) for name in ("fast", "slow"))
+    fast, slow = (method_host(scene_host, path, name, method) for name in ("fast", "slow"))
     names, vr, steps = fast.outputs, (ctypes.c_uint * 1)(fast.vr["cylinder.actuator"]), 1400
     for k in range(steps):
         for host in (fast, slow):
