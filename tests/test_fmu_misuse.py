@@ -12,6 +12,7 @@ import json
 import math
 import sys
 import time
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -97,6 +98,23 @@ def test_steps_that_hung_return_discard_promptly_and_the_fmu_goes_on(scene_fmu, 
     last = ctypes.c_double()
     assert h.status("fmi2GetRealStatus", 2, ctypes.byref(last)) == OK and last.value == 0.0
     assert h.step(H) == OK
+
+
+def test_a_diverging_step_is_an_error_with_its_reason_and_no_python_warning(scene_fmu,
+                                                                            scene_host):
+    """A torque of 1e200 N m makes the pendulum's state overflow: fmi2Error with the
+    solver's reason in the log, and no numpy RuntimeWarning, which the FMU's Python would
+    print to the host's stderr (an FMU reports through its logger; before, every overflow
+    and invalid value inside the step raised one). The FMU runs in this interpreter, so
+    its warnings are this process's."""
+    h = _init(scene_host(scene_fmu("pendulum_torque")))
+    assert h.step(H) == OK
+    assert h.set_real([h.vr["drive.torque"]], [1e200]) == OK
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert h.step(H) == ERROR
+    assert h.last()[:2] == (ERROR, "logStatusError") and "non-finite" in h.last()[2], h.last()
+    assert not [w for w in caught if issubclass(w.category, RuntimeWarning)], caught[:3]
 
 
 def test_a_huge_step_of_a_slider_at_rest_returns_promptly_where_it_was(scene_fmu, scene_host):

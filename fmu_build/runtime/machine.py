@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import functools
 
+import numpy as np
+
 from . import status
 from .status import Discard, FmiError
 
@@ -86,7 +88,10 @@ def refusal(function: str, state: str) -> str | None:
 
 
 def fmi_function(name: str):
-    """Decorate a protocol method: state check, status from exceptions, Error state."""
+    """Decorate a protocol method: state check, status from exceptions, Error state.
+    numpy's floating-point warnings are off inside (``np.errstate``, local to the calling
+    thread): a diverging state would print RuntimeWarnings to the host's stderr, while the
+    solver's own checks already stop the call with fmi2Error and a logged reason."""
     def decorate(method):
         allowed = ALLOWED[name]
 
@@ -95,7 +100,8 @@ def fmi_function(name: str):
             if self._fmi_state not in allowed:
                 return self._fmi_error(refusal(name, self._fmi_state)), None
             try:
-                return method(self, *args)
+                with np.errstate(all="ignore"):
+                    return method(self, *args)
             except Discard as exc:
                 self._fmi_terminate |= exc.terminate
                 self._fmi_log.status(status.DISCARD, f"{name}: {exc}")
