@@ -131,3 +131,28 @@ def test_a_force_set_before_every_step_keeps_the_steps_in_the_wrapper_through_ev
     assert left == [pytest.approx(leave * 1e-3, abs=1e-12)]
     assert "rests against it" in logged[0][-1] and "upper stop" in logged[0][-1]
     assert taken_by_wrapper(fast) >= steps - 1 - len(logged[0]), taken_by_wrapper(fast)
+
+
+@pytest.mark.parametrize("stem, steps, wrapper", [
+    ("n_four_bar_2", 1200, 0.99), ("slider_stop", 3600, 0.95), ("incline_slide", 1000, 0.95)])
+def test_rk45p_steps_past_the_read_are_the_wrappers(scene_fmu, scene_host, stem, steps, wrapper):
+    """rk45p at 1 ms: the wrapper's dense runs take its steps past the step it reads too,
+    with Dormand-Prince 5(4)'s interpolant (``mbd_rk45_dense``, which Python's
+    RK45P._interpolant calls), through P2's singular crossing and the slider's impacts and
+    the block's slip: every value Python's bit for bit. Before, every doStep past an rk45p
+    step went through Python."""
+    path = scene_fmu(stem)
+    fast, slow = (method_host(scene_host, path, name, "rk45p") for name in ("fast", "slow"))
+    lockstep(fast, slow, steps)
+    assert fast.status("fmi2SetDebugLogging", True, 0, None) == OK
+    assert taken_by_wrapper(fast) >= wrapper * steps, taken_by_wrapper(fast)
+
+
+def test_the_rk45_interpolant_in_c_is_k_transposed_times_p():
+    """``mbd_rk45_dense`` against numpy's K^T P (dense_output.rk45_interpolant) on random
+    stages: the same to round-off, in the (2n, 4) layout dense.h reads."""
+    from mbdfmu.integrators.tableaux import RK45_P
+    sim = mbdfmu.Simulation(mbdfmu.load_scene(SCENES / "n_four_bar_2.toml"), kernel="c")
+    K = np.random.default_rng(7).normal(size=(RK45_P.shape[0], 2 * sim.equations.n))
+    Q = sim.equations.ckernel.rk45_dense(K, RK45_P)
+    np.testing.assert_allclose(Q, K.T @ RK45_P, rtol=1e-14, atol=1e-14)

@@ -2,29 +2,35 @@
 (``equations/ckernel/dense_run.h``), seen from the integrator: the settings they start
 from (``dense_run``) and the state to take over after them (``adopt_dense_run``).
 
-The wrapper reads dop853p's dense output inside a step without Python (``ckernel/dense.h``);
-a read past the step's end needed Python's next step and its interpolant. The C run takes
-those steps with ``prk_run``'s decisions and builds the interpolant with the function
-``DOP853P._interpolant`` calls, so the values it serves are Python's bit for bit.
+The wrapper reads an embedded pair's dense output inside a step without Python
+(``ckernel/dense.h``); a read past the step's end needed Python's next step and its
+interpolant. The C run takes those steps with ``prk_run``'s decisions and builds the
+interpolant with the function ``DOP853P._interpolant`` or ``RK45P._interpolant`` calls, so
+the values it serves are Python's bit for bit.
 """
 
 from __future__ import annotations
+
+import numpy as np
 
 from . import c_steps
 from .singular_zone import gaps
 from .dense_output import DenseStep
 from .projected_rk import (DOP853P, ENERGY_JUMP_LIMIT, ENERGY_MIN_GAIN, MAX_FACTOR, MIN_FACTOR,
-                           SAFETY)
+                           RK45P, SAFETY)
 from .tableaux import DOP853_A_EXTRA, DOP853_D
+
+# rk45p's interpolant needs no extra stages (dense_run.h reads D as its P)
+NO_EXTRA = np.zeros(1)
 
 
 def dense_run(rk, limit, stiff_limit: float | None) -> tuple | None:
     """The arguments of ``Kernel.arm_dense_run`` after (y, f, motion, uf) are added by the
     caller, for rk's coming steps past the step the wrapper reads, or None when they must
-    go through Python: another method than dop853p, a watch after each step that is not
-    auto's at rest (``stiff_limit`` None), no interpolant loaded, a short CPU limit."""
+    go through Python: another method than dop853p or rk45p, a watch after each step that
+    is not auto's at rest (``stiff_limit`` None), no interpolant loaded, a short CPU limit."""
     eq = rk.equations
-    if type(rk) is not DOP853P or stiff_limit is None or eq.ckernel is None or eq.m == 0 or \
+    if type(rk) not in (DOP853P, RK45P) or stiff_limit is None or eq.ckernel is None or eq.m == 0 or \
             rk.dense is None or rk.dense.coefficients is None:
         return None
     max_work = c_steps.wrapper_steps(limit)
@@ -37,8 +43,8 @@ def dense_run(rk, limit, stiff_limit: float | None) -> tuple | None:
     cpu_limit = limit.max_cpu if limit is not None and limit.max_cpu is not None else 0.0
     settings.update(t_target=rk.t, dense=1, rejections=0, cpu_limit=cpu_limit)
     audit = c_steps.audit_state(rk.audit) if rk.audit is not None else None
-    return (settings, c_steps.tableau(rk), gaps(rk.C[:rk.n_stages]), audit,
-            DOP853_A_EXTRA, DOP853_D)
+    dense = (DOP853_A_EXTRA, DOP853_D) if type(rk) is DOP853P else (NO_EXTRA, rk.P)
+    return (settings, c_steps.tableau(rk), gaps(rk.C[:rk.n_stages]), audit, *dense)
 
 
 def adopt_dense_run(rk, state: dict) -> None:

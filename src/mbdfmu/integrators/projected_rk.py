@@ -326,6 +326,10 @@ class RK45P(ProjectedRK):
         return float(np.sqrt(np.mean((e / scale) ** 2)))
 
     def _interpolant(self, step):
+        # with the C kernel its function, which the FMU wrapper's dense runs call too
+        kernel = self.equations.ckernel
+        if kernel is not None:
+            return kernel.rk45_dense(step.K, self.P)
         return dense_output.rk45_interpolant(step, self.P)
 
     def _interpolated(self, step, x):

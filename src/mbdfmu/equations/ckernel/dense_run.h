@@ -3,7 +3,8 @@
  * step whose dense output the wrapper reads (dense.h), taken by the wrapper without Python:
  * the pair's next steps with mbd_prk_run's decisions in dense mode (the steps go past the
  * communication point, as AdaptiveStepping._advance_adaptive's do with dense output), the
- * last one's DOP853 interpolant (dop853_dense below), then the read at the point. For a
+ * last one's interpolant (DOP853's, dop853_dense below, or Dormand-Prince 5(4)'s,
+ * mbd_rk45_dense), then the read at the point. For a
  * scene without drivers whose inputs are held; under auto (stiff_limit) a step auto's
  * stiffness rule would count goes to Python. Anything mbd_prk_run hands back, a failed
  * evaluation or read, and a point that is the last step's end leave everything as it was
@@ -13,12 +14,13 @@
  * run watches the contact mode's event functions after each step (events.h) and keeps its
  * steps within the event runner's horizon; a step that changes a sign is Python's too.
  *
- * Python's own interpolant (DOP853P._interpolant with the C kernel) calls dop853_dense
- * too, so a value read here is the one Python reads, bit for bit.
+ * Python's own interpolants (DOP853P._interpolant, RK45P._interpolant with the C kernel)
+ * call the same functions, so a value read here is the one Python reads, bit for bit.
  */
 
 #define DENSE_STAGES 16          /* DOP853's 12 stages, f at the end and 3 more */
 #define DENSE_ROWS 7             /* rows of its interpolant F */
+#define RK45_ROWS 4              /* powers of x in Dormand-Prince 5(4)'s interpolant */
 
 /* The three extra stages and F (7 x n2) of scipy's Dop853DenseOutput for the step from
  * y_old over h whose stages are K (13 rows: the last f at the unprojected end y_end):
@@ -52,6 +54,19 @@ static int dop853_dense(const Model *M, Scratch *s, const double *K, const doubl
     return ST_OK;
 }
 
+/* Q (n2 x rows) of the Dormand-Prince 5(4) interpolant, y(t_old + x h) = y_old +
+ * h Q [x, x^2, ...] (dense_output.rk45_interpolant: K^T P), from the step's stages K
+ * (nk rows of n2) and P (nk x rows), each entry summed over the stages in their order.
+ * Python's RK45P._interpolant with the C kernel calls it too. */
+void mbd_rk45_dense(I n2, I nk, I rows, const double *K, const double *P, double *Q) {
+    for (I i = 0; i < n2; i++)
+        for (I j = 0; j < rows; j++) {
+            double s = 0.0;
+            for (I k = 0; k < nk; k++) s += K[k * n2 + i] * P[k * rows + j];
+            Q[i * rows + j] = s;
+        }
+}
+
 /* Python's DOP853P._interpolant with the C kernel: F (7 x n2) as dop853_dense. */
 int mbd_dop853_dense(const Model *M, const double *K, const double *y_old, const double *y_end,
                      double h, const double *a_extra, const double *D, const double *motions,
@@ -63,7 +78,9 @@ int mbd_dop853_dense(const Model *M, const double *K, const double *y_old, const
 typedef struct {
     DenseRead d;                 /* the step being read (dense.h): first, the wrapper's context */
     PrkPy p;                     /* the pair's state and decisions (adaptive.h), dense mode */
-    const double *a_extra, *D;   /* DOP853's dense output tableau (3 x 16, 4 x 16) */
+    const double *a_extra, *D;   /* DOP853's dense output tableau (3 x 16, 4 x 16); with
+                                  * d.kind DENSE_RK45, D is Dormand-Prince's P ((ns + 1) x
+                                  * RK45_ROWS) and the interpolant is free */
     double *motions, *ufs;       /* the inputs at its three extra nodes (held: all alike) */
     double *coef[2];             /* F of the steps taken here: the one read, the next */
     I which;                     /* the one read (when d.coef is one of them) */
@@ -142,7 +159,9 @@ int mbd_dense_run_step(const Model *M, DenseRun *R, double t, double h, double *
              : ST_ERROR_NORM;
     p->r.max_step = max_step;
     I w = d->coef == R->coef[R->which] ? !R->which : R->which;
-    if (st == ST_OK) {
+    if (st == ST_OK && d->kind == DENSE_RK45) {
+        mbd_rk45_dense(2 * M->n, p->r.ns + 1, RK45_ROWS, p->K_old, R->D, R->coef[w]);
+    } else if (st == ST_OK) {
         Scratch s = scratch(M, M->work);
         st = dop853_dense(M, &s, p->K_old, p->y_old, p->y_end, p->h_old, R->a_extra, R->D,
                           R->motions, R->ufs, R->coef[w], R->Kx, R->ys);
@@ -160,7 +179,8 @@ int mbd_dense_run_step(const Model *M, DenseRun *R, double t, double h, double *
         d->y_old = y_old;
         return st;
     }
-    p->r.naccel += 3;               /* the interpolant's stages, as Python counts them */
+    if (d->kind == DENSE_DOP853)
+        p->r.naccel += 3;           /* the interpolant's stages, as Python counts them */
     R->which = w;
     R->taken = 1;
     return ST_OK;

@@ -15,7 +15,7 @@ import ctypes
 import numpy as np
 
 from .adaptive import PrkPy, PrkRunBuffers, point_run
-from .dense import DenseRead
+from .dense import DENSE_KINDS, DenseRead
 from .fixed import AUDIT_SIZE
 from .model import watch_events
 
@@ -71,6 +71,18 @@ class DenseRuns:
                           Kx.ctypes.data, ys.ctypes.data)
         return F if status == ST_OK else None
 
+    def rk45_dense(self, K, P):
+        """Q (2n, 4) of Dormand-Prince 5(4)'s interpolant from a step's stages K (7 rows,
+        the last f at the unprojected end) and its P (7, 4): ``mbd_rk45_dense``, the
+        function the wrapper's dense runs call."""
+        K, P = (np.ascontiguousarray(a, dtype=float) for a in (K, P))
+        n2, rows = K.shape[1], P.shape[1]
+        Q = np.zeros((n2, rows))
+        function = self.library.mbd_rk45_dense
+        function.argtypes, function.restype = [_I, _I, _I, _P, _P, _P], None
+        function(n2, K.shape[0], rows, K.ctypes.data, P.ctypes.data, Q.ctypes.data)
+        return Q
+
     def arm_dense_run(self, settings: dict, tableau, gaps, y, f, motion, uf, audit,
                       a_extra, D, events=None, horizon: float | None = None) -> tuple:
         """Let an FMU's wrapper also take the communication steps past the step
@@ -78,11 +90,12 @@ class DenseRuns:
         ``tableau`` (``Kernel.tableau``) from (y, f) with ``settings`` (PrkPy's scalar
         fields, PrkRun's in ``settings["run"]``: c_steps.run_settings), the gaps between
         its nodes, the held inputs (motion: (c, c', c''), uf), the energy audit's state
-        (13 values) or None, DOP853's dense tableau (a_extra, D); in a scene with end stops or
-        friction, the contact mode's event functions (``events``: events.h's ints and reals
-        and their values now, ``ContactModes.c_events``) and the event runner's horizon (s,
-        or None). Returns (the addresses of ``mbd_dense_run_step``, of the model, of the
-        DenseRun)."""
+        (13 values) or None, DOP853's dense tableau (a_extra, D; for rk45p, whose
+        interpolant ``load_dense`` named, D is its P and a_extra is unused); in a scene
+        with end stops or friction, the contact mode's event functions (``events``:
+        events.h's ints and reals and their values now, ``ContactModes.c_events``) and the
+        event runner's horizon (s, or None). Returns (the addresses of
+        ``mbd_dense_run_step``, of the model, of the DenseRun)."""
         run, ns = self.run, tableau[0]
         b = self.run_buffers
         if b is None or b.K.shape[0] != ns + 1:
@@ -119,6 +132,14 @@ class DenseRuns:
             b.saved = np.zeros(b.saved_base + ne)
             run.saved = b.saved.ctypes.data
 
+    def _run_coefficients(self, coef):
+        """A run's interpolant as Python keeps it: DOP853's F (7, 2n), or Dormand-Prince
+        5(4)'s Q (2n, 4) in the first 8n doubles (dense.h's DENSE_RK45)."""
+        if self.run.d.kind == DENSE_KINDS["rk45"]:
+            rows = self.run.d.rows
+            return coef.ravel()[:2 * self.n * rows].reshape(2 * self.n, rows).copy()
+        return coef.copy()
+
     @staticmethod
     def _point_interpolant(run: DenseRun, b: RunBuffers, a_extra, D) -> None:
         b.tableau = [np.ascontiguousarray(a, dtype=float) for a in (a_extra, D)]
@@ -142,7 +163,7 @@ class DenseRuns:
                      float(p.energy_rejected), y=b.y.copy(), f=b.f.copy(),
                      t_old=float(p.t_old), h_old=float(p.h_old), y_old=b.y_old.copy(),
                      y_end=b.y_end.copy(), K_old=b.K_old.copy(),
-                     coefficients=b.coef[which].copy(),
+                     coefficients=self._run_coefficients(b.coef[which]),
                      audit=b.audit.copy() if p.audit else None,
                      horizon=None if np.isnan(run.horizon) else float(run.horizon),
                      counters={k: int(getattr(r, k)) for k in COUNTERS})
