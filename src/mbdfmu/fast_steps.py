@@ -108,21 +108,26 @@ def fast_steps_ahead(sim, limit, time_tol: float, inputs=None):
     u = sim.inputs_at(sim.t)
     table = motion_table(eq.constraint_set)
     run = None if table is None else fast_run(current, limit, time_tol)
-    # with end stops or friction, the contact mode's event functions watched after each step
-    events = {} if sim.events is None else dict(events=sim.events.c_events(
-        current.t, current.q, current.qd))
     if run is not None:
         sets = {} if inputs is None or not len(inputs[0]) or eq.nonconservative_reason() is None \
             else dict(inputs=inputs)
         return "fixed", kernel, (run, table, eq.constraint_set.offsets, u.forces), \
-            {**sets, **events}
+            {**sets, **watched_events(sim, current)}
     stiff_limit = auto_stiff_limit(current, watcher)
     run = None if sim.scene.drivers or sim.inputs_known_ahead() or stiff_limit is None else \
         fast_prk_run(current, limit, time_tol, (SAFETY, MIN_FACTOR, MAX_FACTOR), stiff_limit)
     if run is None:
         return None
     run.update(motion=np.concatenate(eq.motion_values(sim.t, u)), uf=u.forces)
-    return "prk", kernel, (run, tableau(current)[:5]), events
+    return "prk", kernel, (run, tableau(current)[:5]), watched_events(sim, current)
+
+
+def watched_events(sim, integrator) -> dict:
+    """The keywords that make a run watch the contact mode's event functions after each
+    step, from their values at the integrator's state ({} without end stops or friction)."""
+    if sim.events is None:
+        return {}
+    return dict(events=sim.events.c_events(integrator.t, integrator.q, integrator.qd))
 
 
 def arm(sim, limit, time_tol: float, inputs, published) -> tuple | None:
@@ -185,8 +190,7 @@ def dense_run_ahead(sim, limit) -> tuple | None:
     settings, tableau, gaps, audit, a_extra, D = run
     # with stops or friction the run watches the mode's event functions after each step,
     # from their values at the last step's end, within the event runner's horizon
-    events = None if sim.events is None else sim.events.c_events(
-        integrator.t, integrator.q, integrator.qd)
+    events = watched_events(sim, integrator).get("events")
     return (settings, tableau[:5], gaps, np.concatenate((integrator.q, integrator.qd)),
             integrator.f, np.concatenate(eq.motion_values(sim.t, u)), u.forces,
             audit, a_extra, D, events, None if sim.events is None else sim.events.horizon)

@@ -211,7 +211,7 @@ class Integrator:
                               "(half the mechanism's size): the solution has diverged", t)
         allowed = allowed_error(self)
         if not err <= allowed:
-            raise SolverError(
+            raise AccuracyError(
                 f"{self.name}: constraint violation {err:.3g} exceeds {allowed:.3g}, what the "
                 f"stated accuracy rtol = {self.rtol:g}, atol = {self.atol:g} allows: the step "
                 f"{self.h:g} s is too large for it; use a smaller step or a projected method", t)

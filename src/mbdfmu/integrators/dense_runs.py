@@ -30,8 +30,8 @@ def dense_run(rk, limit, stiff_limit: float | None) -> tuple | None:
     go through Python: another method than dop853p or rk45p, a watch after each step that
     is not auto's at rest (``stiff_limit`` None), no interpolant loaded, a short CPU limit."""
     eq = rk.equations
-    if type(rk) not in (DOP853P, RK45P) or stiff_limit is None or eq.ckernel is None or eq.m == 0 or \
-            rk.dense is None or rk.dense.coefficients is None:
+    if type(rk) not in (DOP853P, RK45P) or stiff_limit is None or eq.ckernel is None or \
+            eq.m == 0 or rk.dense is None or rk.dense.coefficients is None:
         return None
     max_work = c_steps.wrapper_steps(limit)
     if max_work is None:
