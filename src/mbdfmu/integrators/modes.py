@@ -167,9 +167,9 @@ class ContactModes:
         return out
 
     def c_events(self, t, q, qd) -> tuple:
-        """The event functions of the current mode as the C kernel's dense runs watch them
-        (events.h; ``ckernel.model.event_table``), in the order of ``values``, and their
-        values at (t, q, q'): (ints, reals, values)."""
+        """The event functions of the current mode as the FMU wrapper's runs in C watch them
+        (dense runs, rk4p's and landing steps: events.h; ``ckernel.model.event_table``), in
+        the order of ``values``, and their values at (t, q, q'): (ints, reals, values)."""
         key = tuple((k, m.state) for k, m in self.mode.items())   # not the held values
         tables = self._event_tables.get(key)
         if tables is None:
