@@ -77,3 +77,32 @@ def test_sampled_driver_reproduces_a_quadratic_and_estimates_a_cubic():
     assert d(0.3)[2] == pytest.approx(1.2, rel=1e-12)
     assert d.error == pytest.approx(1.2, rel=1e-9)
     assert d.error_is_large()
+
+
+def test_constant_rate_motion_reports_no_round_off_as_error():
+    # A crank at 314.16 rad/s sampled every 1 ms for 2 s (as a master sets it): the
+    # samples' differences are round-off alone, which the old estimate (polyfit minus the
+    # quadratic) reported as a large error at 219 of the 2000 steps.
+    w, h, t = 314.1592653589793, 1e-3, 0.0
+    d = SampledDriver(0.0)
+    large = 0
+    for _ in range(2000):
+        d.set(t, position=w * (t + h))
+        large += d.error_is_large()
+        t += h
+    assert large == 0
+    assert d(t)[1] == pytest.approx(w, rel=1e-9) and abs(d.error) < 1e-4
+
+
+def test_error_estimate_matches_an_independent_cubic_fit_at_uneven_samples():
+    # the closed form (Newton's third divided difference) against numpy's exact cubic
+    # through the same four samples of a quartic, at uneven times
+    times = (0.3, 0.31, 0.325, 0.33)
+    d = SampledDriver(0.0)
+    for t in times:
+        d.set(t, position=2.0 * t ** 4 - t ** 3 + 0.5 * t)
+    x = times[-1] + (times[-1] - times[-2])
+    cubic = np.polyfit(times, [2.0 * t ** 4 - t ** 3 + 0.5 * t for t in times], 3)
+    quadratic = np.polyfit(times[1:], [2.0 * t ** 4 - t ** 3 + 0.5 * t for t in times[1:]], 2)
+    expected = np.polyval(np.polyder(cubic, 2), x) - 2.0 * quadratic[0]
+    assert d.error == pytest.approx(expected, rel=1e-6)

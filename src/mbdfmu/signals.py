@@ -15,13 +15,14 @@ h in the communication step h, as with full inputs (whose acceleration is held o
 step). Extrapolating the cubic through four samples (order h^2) was dropped: a linear
 acceleration carried past a peak overshoots it, by far at coarse steps (docs/fmu.md).
 The difference between the cubic's and the quadratic's acceleration at the end of the
-next step estimates the derived acceleration's error (``SampledDriver.error``).
+next step estimates the derived acceleration's error (``SampledDriver.error``); it is
+reported only above the round-off that differencing the samples leaves in it
+(``SampledDriver.error_is_large``), which on a motion of constant rate is all there is.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numpy.polynomial import polynomial as P
 
 from .errors import InputError
 from .plain import Plain
@@ -36,6 +37,12 @@ HISTORY_LENGTH = 4
 # The derived acceleration's estimated error, as a fraction of the largest acceleration of the
 # samples so far, above which it is reported (``SampledDriver.error_is_large``).
 LARGE_ERROR = 0.1
+
+# Unit round-offs in each term of the third divided difference of the samples: the
+# position's own, the product of three time differences and the division, the sum's. An
+# estimated error below this many times EPS times the terms' size is round-off, not motion.
+ROUNDOFF_TERMS = 8.0
+EPS = float(np.finfo(float).eps)
 
 
 class Held(Plain):
@@ -140,26 +147,40 @@ class SampledDriver(Plain):
         a = 2.0 * (d1 - d0) / (t[2] - t[0])
         return p[-1], d1 + 0.5 * a * (t[2] - t[1]), a
 
+    def _cubic_term(self) -> tuple[float, float]:
+        """(error, its round-off): the cubic's acceleration through the last four samples
+        minus the quadratic's through the last three, at the end of a next step as long as
+        the last. In Newton's form the cubic is the quadratic plus f[t0..t3] (t - t1)
+        (t - t2) (t - t3), so the difference is 2 f[t0..t3] (3 x - t1 - t2 - t3) at x,
+        without the quadratic's acceleration subtracted from a nearly equal number."""
+        t, p = self.times, self.positions
+        x = t[3] + (t[3] - t[2])
+        third = size = 0.0
+        for i in range(4):
+            w = 1.0
+            for j in range(4):
+                if j != i:
+                    w *= t[i] - t[j]
+            third += p[i] / w
+            size += abs(p[i] / w)
+        k = 2.0 * (3.0 * x - t[1] - t[2] - t[3])
+        return third * k, ROUNDOFF_TERMS * EPS * size * abs(k)
+
     def _estimate(self):
-        """The cubic's acceleration minus the quadratic's, at the end of a next step as long
-        as the last: the error of the lower order, as the two orders differ."""
+        """The derived acceleration's estimated error (``_cubic_term``) and the largest
+        derived acceleration so far."""
         a = self._quadratic()[2]
         self.scale = max(self.scale, abs(a))
-        if len(self.times) < 4:
-            self.error = 0.0
-            return
-        tn = self.times[-1]
-        span = tn - self.times[0]
-        x = (np.asarray(self.times) - tn) / span  # scaled for conditioning
-        c = P.polyfit(x, self.positions, 3)
-        s = (tn - self.times[-2]) / span
-        self.error = float(P.polyval(s, P.polyder(c, 2)) / span ** 2 - a)
+        self.error = self._cubic_term()[0] if len(self.times) >= 4 else 0.0
 
     def error_is_large(self) -> bool:
         """Whether the derived acceleration's estimated error exceeds ``LARGE_ERROR`` of the
-        motion's acceleration (positions only: given derivatives are taken as exact)."""
+        motion's acceleration and the round-off left in the estimate (positions only:
+        given derivatives are taken as exact)."""
         derived = self.velocity is None and self.acceleration is None
-        return derived and abs(self.error) > LARGE_ERROR * self.scale > 0.0
+        if not derived or len(self.times) < 4 or not self.scale > 0.0:
+            return False
+        return abs(self.error) > max(LARGE_ERROR * self.scale, self._cubic_term()[1])
 
     def __call__(self, t):
         tau = t - self.times[-1]
