@@ -9,11 +9,12 @@ this shared machine does not count. ``--python`` builds the FMUs with another ch
 interpreter too (label=path), for a before/after in one run: each build's rows are
 measured alternately, ``--repeat`` rounds, and the round with the lowest mean kept.
 
-    python benchmarks/fmu_step_times.py [--set targets|events] [--method rk4p] [--t-end 10]
-        [--repeat 3] [--python base=/path/python]
+    python benchmarks/fmu_step_times.py [--set targets|events|drivers] [--method rk4p]
+        [--t-end 10] [--repeat 3] [--python base=/path/python]
 
 ``--set events`` times the shipped scenes with end stops and friction instead (and
-crane_stop with its cylinder's force set before every doStep); ``--method``
+crane_stop with its cylinder's force set before every doStep); ``--set drivers`` the
+prescribed-motion slider-crank with its crank angle set before every doStep; ``--method``
 sets every FMU's ``solver.method`` (its scene's by default). Writes ``fmu_step_times.md``
 (``fmu_step_times_events.md``; with ``--method M``, ``..._M.md``), ``.csv`` and ``.png``
 into ``-o`` (default docs/figures/performance).
@@ -80,7 +81,13 @@ EVENT_CASES = {stem: (ROOT / "scenes" / f"{stem}.toml", "", None, None)
                for stem in ("slider_stop", "crane_stop", "incline_stick", "incline_slide")}
 EVENT_CASES["crane_stop, force set"] = (ROOT / "scenes" / "crane_stop.toml", CYLINDER,
                                         "cylinder.actuator", cylinder_force)
-SETS = {"targets": (CASES, "fmu_step_times"), "events": (EVENT_CASES, "fmu_step_times_events")}
+# --set drivers: the prescribed-motion scenario's slider-crank, its crank angle set by the
+# master before every doStep (positions only), at P4's rate with a 0.1 rad, 5 Hz wobble
+DRIVER_CASES = {"prescribed slider-crank, position set": (
+    ROOT / "scenarios" / "prescribed_motion" / "slider_crank.toml", "", "motor.position",
+    lambda t: 314.1592653589793 * t + 0.1 * math.sin(2.0 * math.pi * 5.0 * t))}
+SETS = {"targets": (CASES, "fmu_step_times"), "events": (EVENT_CASES, "fmu_step_times_events"),
+        "drivers": (DRIVER_CASES, "fmu_step_times_drivers")}
 
 
 def build(python: str, scene: Path, target: Path) -> Path:
@@ -168,7 +175,8 @@ def main(argv=None) -> int:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--set", choices=SETS, default="targets",
                         help="targets: issue 13's three mechanisms; events: the scenes with "
-                             "end stops and friction (writes fmu_step_times_events.*)")
+                             "end stops and friction (writes fmu_step_times_events.*); "
+                             "drivers: a crank angle set by the master")
     parser.add_argument("--method", default=None,
                         help="every FMU's solver.method (default: its scene's)")
     parser.add_argument("--python", action="append", default=[], metavar="LABEL=PATH",

@@ -8,7 +8,8 @@ wrapper serves are Python's bit for bit (tests/test_fmu_fast.py):
 * ``dense``: a step that ends inside an adaptive method's last step reads its dense output
   (``ckernel/dense.h``; ``Simulation.dense_reads_ahead``); with dop853p, one that ends past
   it takes the next steps and their interpolant first (``ckernel/dense_run.h``,
-  ``integrators.dense_runs``). In a scene with end stops or friction these read the
+  ``integrators.dense_runs``), the drivers' motions evaluated at every time they need
+  (``ckernel/motions.h``). In a scene with end stops or friction these read the
   current contact mode's equations (``mode_published``) and the runs watch its event
   functions after each step (``ckernel/events.h``);
 * ``fixed``: rk4p's steps, the drivers' motions evaluated in C (``ckernel/fixed.h``), the
@@ -19,9 +20,14 @@ wrapper serves are Python's bit for bit (tests/test_fmu_fast.py):
 The last two take the force inputs the master sets before each step (the wrapper takes
 those fmi2SetReal calls too, then restarts as Python does; rk4p where the restart starts
 no energy audit), and with end stops or friction watch the contact mode's event
-functions after each step, from their values at the restart with the new inputs. All
-need no input changed since the step, every force input held, no driver taking its motion
-from the inputs, and under ``auto`` a watcher at rest (no switch pending, no stiff step
+functions after each step, from their values at the restart with the new inputs. They
+evaluate the drivers' motions at every stage's time (``ckernel/motions.h``), and take the
+positions (velocities, accelerations) the master sets for drivers driven by the inputs,
+each a ``SampledDriver`` (then no stops or friction): the next step applies the set as
+``Simulation.set_input``, restarts with the projection of ``_reinitialize``, and hands
+itself to Python where the driver's derived-acceleration warning would turn on or off.
+All need no input changed since the step, every force input held, and under ``auto`` a
+watcher at rest (no switch pending, no stiff step
 counted; dop853p's steps checked in C against its stiffness test, ``auto_stiff_limit``);
 ``rk4p_c.fast_run`` and ``c_steps.fast_prk_run`` say the rest. This module reads
 ``Simulation``'s input bookkeeping (its ``_inputs_changed``, ``_drivers``, ``_forces``) as
@@ -32,29 +38,80 @@ from __future__ import annotations
 
 import numpy as np
 
-from .equations.ckernel.fixed import motion_table
+from .equations.ckernel.fixed import DRIVER_STATE, DRV_SIZE, motion_table
+from .equations.projection import PROJECTION_MAX_ITER
 from .integrators.c_steps import adopt_prk_run, fast_prk_run, tableau
 from .integrators.auto_watch import STIFF_HLAMBDA
 from .integrators.dense_runs import adopt_dense_run, dense_run
 from .integrators.rk4p_c import adopt_fast_run, fast_run
 from .integrators.projected_rk import DOP853P, MAX_FACTOR, MIN_FACTOR, SAFETY
+from .integrators.tableaux import DOP853_C_EXTRA
 from .model.limits import HELD, STICK, hold_driver_name
 from .model.scene import Body, SpringDamper
 from .model.variables import GLOBAL_OUTPUTS, TABLES, outputs
-from .signals import Held
+from .signals import DRIVER_FIELDS, Held, SampledDriver
 
 
 def settable_inputs(sim, table) -> tuple[np.ndarray, np.ndarray]:
-    """(value references, places in the force inputs u.forces) of the inputs the wrapper may
-    set itself before a ``prk`` step: every force input, by its FMU variable (``table``: the
-    runtime's ``VariableTable``)."""
+    """(value references, places) of the inputs the wrapper may set itself before a step,
+    by their FMU variables (``table``: the runtime's ``VariableTable``): every force input
+    (its place in u.forces), then each field of the drivers that take their motion from the
+    inputs (places ``max(nf, 1) + 3 d + field`` past them: ``Kernel.arm_fixed_steps``,
+    ``arm_prk_steps``)."""
     value_reference = {v.name: v.value_reference for v in table.by_type["Real"].values()}
     layout, pairs = sim.equations.layout, []
     for item, where in layout.forces.items():
         for j, field in enumerate(layout.fields[item]):
             pairs.append((value_reference[f"{item}.{field}"], where.start + j))
+    first = max(layout.size, 1)
+    for d, item in enumerate(layout.drivers):
+        for j, field in enumerate(DRIVER_FIELDS):
+            if f"{item}.{field}" in value_reference:
+                pairs.append((value_reference[f"{item}.{field}"], first + 3 * d + j))
     return (np.array([p[0] for p in pairs], dtype=np.int64),
             np.array([p[1] for p in pairs], dtype=np.int64))
+
+
+def driver_state(driver: SampledDriver) -> list[float]:
+    """A ``SampledDriver`` as ckernel/sampled.h's state (``DRIVER_STATE``)."""
+    count = len(driver.times)
+    return [float(count), float(driver.fresh), *driver.times, *[0.0] * (4 - count),
+            *driver.positions, *[0.0] * (4 - count), float(driver.velocity is not None),
+            driver.velocity or 0.0, float(driver.acceleration is not None),
+            driver.acceleration or 0.0, driver.error, driver.scale, float(driver.reported)]
+
+
+def adopt_driver_state(driver: SampledDriver, state) -> None:
+    """``driver_state`` back: the samples and estimate the wrapper's sets left."""
+    fields, k = {}, 0
+    for name, size in DRIVER_STATE:
+        fields[name], k = state[k:k + size].tolist(), k + size
+    count = int(fields["count"][0])
+    driver.times, driver.positions = fields["times"][:count], fields["positions"][:count]
+    driver.fresh = bool(fields["fresh"][0])
+    driver.velocity = fields["velocity"][0] if fields["has_velocity"][0] else None
+    driver.acceleration = fields["acceleration"][0] if fields["has_acceleration"][0] else None
+    driver.error, driver.scale = fields["error"][0], fields["scale"][0]
+
+
+def sampled_drivers(sim) -> list | None:
+    """The drivers that take their motion from the inputs, in the layout's order, when
+    rk4p's steps in C can follow them: each a ``SampledDriver`` (not a table or a function
+    of time), no end stops or friction; else None. [] without such drivers."""
+    drivers = [sim._drivers[name] for name in sim.equations.layout.drivers]
+    if drivers and (sim.events is not None or
+                    any(type(d) is not SampledDriver for d in drivers)):
+        return None
+    return drivers
+
+
+def sampled_motion(driver: SampledDriver) -> tuple[float, float, float, float]:
+    """(the last sample's time, p, v, a): ``SampledDriver.__call__``'s numbers over the next
+    step, as ckernel/sampled.h's ``drv_coefficients``."""
+    p, v, a = driver._quadratic()
+    v = driver.velocity if driver.velocity is not None else v
+    a = driver.acceleration if driver.acceleration is not None else a
+    return driver.times[-1], p, v, a
 
 
 def unchanged_by_force_inputs(sim, table, published) -> np.ndarray:
@@ -100,26 +157,42 @@ def fast_steps_ahead(sim, limit, time_tol: float, inputs=None):
     from fmi2SetReal too where a restart starts no energy audit."""
     integrator, eq = sim.integrator, sim.stepped_equations
     kernel, watcher = eq.ckernel, getattr(integrator, "watcher", None)
-    if kernel is None or sim._inputs_changed or sim._drivers or \
+    drivers = sampled_drivers(sim)
+    if kernel is None or sim._inputs_changed or drivers is None or \
             any(type(f) is not Held for f in sim._forces.values()) or \
             (watcher is not None and watcher.pending is not None):
         return None
     current = getattr(integrator, "current", integrator)     # auto's integrator of the moment
     u = sim.inputs_at(sim.t)
-    table = motion_table(eq.constraint_set)
+    table = motion_table(eq.constraint_set, [sampled_motion(d) for d in drivers] or None)
     run = None if table is None else fast_run(current, limit, time_tol)
     if run is not None:
         sets = {} if inputs is None or not len(inputs[0]) or eq.nonconservative_reason() is None \
             else dict(inputs=inputs)
+        if drivers:
+            sets["drivers"] = sampled_states(sim, drivers)
         return "fixed", kernel, (run, table, eq.constraint_set.offsets, u.forces), \
             {**sets, **watched_events(sim, current)}
     stiff_limit = auto_stiff_limit(current, watcher)
-    run = None if sim.scene.drivers or sim.inputs_known_ahead() or stiff_limit is None else \
+    # with drivers the steps evaluate their motions (the table), not with stops or friction
+    driven = bool(sim.scene.drivers)
+    run = None if (driven and (table is None or sim.events is not None)) or \
+        sim.inputs_known_ahead() or stiff_limit is None else \
         fast_prk_run(current, limit, time_tol, (SAFETY, MIN_FACTOR, MAX_FACTOR), stiff_limit)
     if run is None:
         return None
     run.update(motion=np.concatenate(eq.motion_values(sim.t, u)), uf=u.forces)
-    return "prk", kernel, (run, tableau(current)[:5]), watched_events(sim, current)
+    motions = dict(motions=(table, eq.constraint_set.offsets, tableau(current)[-1],
+                            sampled_states(sim, drivers) if drivers else None)) if driven else {}
+    return "prk", kernel, (run, tableau(current)[:5]), {**watched_events(sim, current),
+                                                        **motions}
+
+
+def sampled_states(sim, drivers) -> tuple:
+    """The sampled drivers as ``Kernel.arm_fixed_steps`` and ``arm_prk_steps`` take them:
+    their states, the restart's projection tolerance and iterations."""
+    return (np.array([x for d in drivers for x in driver_state(d)]),
+            sim.reinitialize_tolerance(), PROJECTION_MAX_ITER)
 
 
 def watched_events(sim, integrator) -> dict:
@@ -137,9 +210,16 @@ def arm(sim, limit, time_tol: float, inputs, published) -> tuple | None:
     places in (outputs, q, q', q'')) of the values each step writes."""
     kernel = sim.dense_reads_ahead()
     if kernel is not None:
-        armed = kernel.arm_dense_steps(sim.t, time_tol, *mode_published(sim, published))
+        table = (motion_table(sim.equations.constraint_set), sim.equations.constraint_set.offsets) \
+            if sim.scene.drivers else None
+        armed = kernel.arm_dense_steps(sim.t, time_tol, *mode_published(sim, published),
+                                       motions=table)
         run = dense_run_ahead(sim, limit)
-        return armed if run is None else kernel.arm_dense_run(*run)
+        if run is None:
+            return armed
+        integrator = getattr(sim.integrator, "current", sim.integrator)
+        motions = None if table is None else (*table, tableau(integrator)[-1], DOP853_C_EXTRA)
+        return kernel.arm_dense_run(*run, motions=motions)
     fast = fast_steps_ahead(sim, limit, time_tol, inputs)
     if fast is None:
         return None
@@ -207,15 +287,17 @@ def catch_up(sim, inputs) -> tuple[bool, list, list]:
     (fixed, fixed_pending), (_, prk, pending) = kernel.fixed_taken(), kernel.prk_taken()
     pending = pending + fixed_pending
     if fixed is not None:
-        *taken, restarts, uf = fixed
+        *taken, restarts, uf, states = fixed
         adopt_fast_run(sim.integrator, *taken)
         sim.integrator.stats.naccel += restarts       # each restart's f, as Python's
         if restarts:
             hold_forces(sim, uf)
+        adopt_driver_states(sim, states)
     run = kernel.dense_run_taken()
     if prk is not None:
         adopt_prk_run(sim.integrator, prk)
         hold_forces(sim, prk["uf"])
+        adopt_driver_states(sim, prk["drivers"])
     elif fixed is not None:
         sim._cache = None
     elif run is not None or kernel.dense.t_now > sim.t:
@@ -226,8 +308,36 @@ def catch_up(sim, inputs) -> tuple[bool, list, list]:
         sim.advance(kernel.dense.t_now)
     else:
         return False, [], pending
-    forces = sim.inputs_at(sim.t).forces
-    return True, [(int(vr), float(forces[slot])) for vr, slot in zip(*inputs)], pending
+    return True, held_inputs(sim, inputs), pending
+
+
+def held_inputs(sim, inputs) -> list:
+    """[(value reference, value)] of the ``settable_inputs`` as ``sim`` now holds them: the
+    force inputs, and the fields of the sampled drivers the master set (the last
+    position, the velocity and acceleration it gave)."""
+    forces, layout = sim.inputs_at(sim.t).forces, sim.equations.layout
+    first, held = max(layout.size, 1), []
+    for vr, slot in zip(*inputs):
+        if slot < layout.size:
+            held.append((int(vr), float(forces[slot])))
+            continue
+        if slot < first:
+            continue
+        driver = sim._drivers[layout.drivers[(slot - first) // 3]]
+        if not isinstance(driver, SampledDriver):
+            continue
+        value = (driver.positions[-1] if driver.fresh else None, driver.velocity,
+                 driver.acceleration)[(slot - first) % 3]
+        if value is not None:
+            held.append((int(vr), float(value)))
+    return held
+
+
+def adopt_driver_states(sim, states) -> None:
+    """The sampled drivers' states (``driver_state`` each, in the layout's order) the
+    wrapper's steps left, into ``sim``'s drivers."""
+    for d, name in enumerate(sim.equations.layout.drivers if states.size else ()):
+        adopt_driver_state(sim._drivers[name], states[d * DRV_SIZE:(d + 1) * DRV_SIZE])
 
 
 def hold_forces(sim, uf) -> None:

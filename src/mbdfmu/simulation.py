@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .equations import Equations
+from .equations.ckernel.fixed import motion_table
 from .equations.projection import (ASSEMBLY_TOL, PROJECTION_MAX_ITER, assemble,
                                    assembly_changes, initial_estimates, project_positions,
                                    project_velocities)
@@ -141,7 +142,7 @@ class Simulation(SimulationInputs):
             self._inputs_changed = False
             return
         eq = self.equations if self.events is None else self.events.equations
-        tol = ASSEMBLY_TOL * eq.length_scale * REINITIALIZE_TOL_FACTOR
+        tol = self.reinitialize_tolerance()
         u, kernel = self.inputs_at(self.t), eq.ckernel
         done = None if kernel is None else kernel.project(
             self.q, self.qd, eq.motion_values(self.t, u), tol, PROJECTION_MAX_ITER)
@@ -150,6 +151,11 @@ class Simulation(SimulationInputs):
             done = q, project_velocities(eq, self.t, q, self.qd, u)
         self.integrator.reset_state(*done, self.t)
         self._inputs_changed = self._motion_changed = False
+
+    def reinitialize_tolerance(self) -> float:
+        """The position projection's tolerance (m) after a driver's motion was set."""
+        eq = self.equations if self.events is None else self.events.equations
+        return ASSEMBLY_TOL * eq.length_scale * REINITIALIZE_TOL_FACTOR
 
     # ------------------------------------------------------------------ stepping
 
@@ -200,13 +206,16 @@ class Simulation(SimulationInputs):
 
     def dense_reads_ahead(self):
         """The C kernel, holding the last step's dense output (``Kernel.load_dense``), when
-        the coming communication steps inside that step can only read it: no drivers (the
-        constraints' motion is constant), no input changed, the inputs beyond now known;
-        else None. An FMU's wrapper then takes those steps by itself."""
+        the coming communication steps inside that step can only read it: no input changed,
+        the inputs beyond now known, any drivers' motions of kinds the kernel evaluates
+        (``motion_table``; not with end stops or friction); else None. An FMU's wrapper
+        then takes those steps by itself."""
         # with events, the current mode's equations: the steps whose dense output is read
         # were watched for events (fast_steps.mode_published: its outputs)
         integrator, kernel = self.integrator, self.stepped_equations.ckernel
-        if kernel is None or self.scene.drivers or \
+        driven = bool(self.scene.drivers)
+        if kernel is None or (driven and (self.events is not None or self._drivers or
+                                          motion_table(self.equations.constraint_set) is None)) or \
                 self._inputs_changed or not integrator.interpolates_to(integrator.t, True) or \
                 not self.inputs_known_ahead() or \
                 not getattr(integrator, "load_dense_output", lambda t: False)(self.t):

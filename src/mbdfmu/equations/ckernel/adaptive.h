@@ -12,9 +12,12 @@
  * step factors. Anything else (a step near a singular configuration, where
  * singular_zone.py plans, a case the kernel hands back, too many rejections, the work
  * limit) returns non-zero with nothing changed, and Python takes the step and says why.
- * For scenes without drivers and without an energy audit (non-conservative forces); in a
- * scene with end stops or friction, in the current contact mode with its event functions
- * checked after each step (events.h), a step that changes a sign handing the doStep back.
+ * For scenes without an energy audit (non-conservative forces). With drivers (no end stops
+ * or friction then), their motions at each stage's time from the motion table (motions.h),
+ * and a driver position the master sets taken as fixed.h takes it: applied at the step,
+ * then the restart's projection. In a scene with end stops or friction, in the current
+ * contact mode with its event functions checked after each step (events.h), a step that
+ * changes a sign handing the doStep back.
  * Under auto (stiff_limit > 0, dop853p), a step that auto's stiffness rule would count
  * (auto_watch.stiffness above stiff_limit) hands the doStep back to Python as well.
  */
@@ -37,7 +40,8 @@ typedef struct {
     double indicator;              /* zone.indicator at t_now */
     I landing;                     /* zone.landing of the last step */
     I max_work;                    /* steps (accepted or not) one doStep may take */
-    const double *motion;          /* (c, c', c'') of every row: constant, no drivers */
+    double *motion;                /* (c, c', c'') of every row: constant without drivers;
+                                    * with them, at the time of a restart or the end */
     double *motions, *ufs;         /* (ns + 1) rows of each: a trial's stage inputs */
     double *uf;                    /* the force inputs as set (nf) */
     I nvr; const I *vrs, *slots;   /* value reference of each settable input, its place in uf */
@@ -53,6 +57,9 @@ typedef struct {
     double *kept;                  /* the last accepted step's end (keep_end) */
     EventWatch ev;                 /* a contact mode's event functions after each step
                                     * (events.h), or none */
+    MotionTable mt;                /* the drivers' motions (nmotion 0: none, `motion` holds) */
+    const double *fractions;       /* the stages' times in a step, then 1 (c_steps.tableau) */
+    SampledSet sd;                 /* drivers whose position the master sets (motions.h) */
 } PrkRun;
 
 /* auto_watch.stiffness, Hairer's h |lambda| of a step of the pair (ns stages, A (ns, ns),
@@ -128,8 +135,18 @@ static int prk_try(const Model *M, PrkRun *r, Scratch *s, const double *y, const
     return 1;
 }
 
-/* The wrapper's doStep from t over hc (see the header); values filled, state moved. */
-int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *values) {
+/* c_steps.stage_inputs of a trial of hh from tt where drivers move: their motions at each
+ * stage's time t + h C_s and at the end, as the rows of r->motions. */
+static void stage_motions(const Model *M, PrkRun *r, double tt, double hh) {
+    if (!r->mt.nmotion) return;
+    for (I s = 0; s <= r->ns; s++)
+        motion_at(M, &r->mt, tt + hh * r->fractions[s], r->motions + s * 3 * M->m);
+}
+
+/* The wrapper's doStep from t over hc (see the header), `moved`: drivers_apply applied a
+ * driver's set; values filled, state moved. */
+static int prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *values,
+                         int moved) {
     I n = M->n, n2 = 2 * n, m = M->m, nf = M->nf;
     if (!(fabs(t - r->t_now) <= r->time_tol * fmax(fabs(t), fabs(r->t_now)))) return ST_ERROR_NORM;
     double end = t + hc, tt = r->t_now, h_ctl = r->h, c0 = r->indicator, err_old = r->err_old;
@@ -143,6 +160,8 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
         if (nf) memcpy(r->ufs + row * nf, r->uf, (size_t)nf * sizeof(double));
     if (r->changed) {      /* reset_state's restart (h kept): no projection for a force
                             * input (Simulation._reinitialize), the state ended projected */
+        if (r->mt.nmotion) motion_at(M, &r->mt, tt, r->motion);    /* a set may move it */
+        if (moved && drivers_project(M, &s, &r->sd, y, r->motion) != ST_OK) return ST_SINGULAR;
         memcpy(f, y + n, (size_t)n * sizeof(double));
         /* Psi_q, gamma and S's factor as the last step's end left them (the projected
          * state: a force does not move it), else a whole evaluation */
@@ -164,6 +183,7 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
         I lands;
         double hh = landing_step(proposal, end - tt, &lands);
         if (!(c0 >= NEAR_ZONE)) return ST_SINGULAR;        /* singular_zone.plan's case */
+        stage_motions(M, r, tt, hh);
         int ok = prk_try(M, r, &s, y, f, hh, err_old, &h_next, &c1, &err, &naccel, &nproj);
         if (ok < 0) return ST_SINGULAR;
         if (ok && r->stiff_limit > 0.0 &&
@@ -192,6 +212,7 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
             if (h_next < h_min || rejections > MAX_REJECTIONS_IN_A_ROW) return ST_ERROR_NORM;
         }
     }
+    if (r->mt.nmotion) motion_at(M, &r->mt, end, r->motion);
     if (publish_step_end(M, &s, y, r->motion, r->uf, r->nout, r->npub, r->pub_src, r->pub_dst,
                          r->V, values) != ST_OK)
         return ST_SINGULAR;
@@ -211,6 +232,15 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
     r->naccel += naccel;
     r->nprojections += nproj;
     return ST_OK;
+}
+
+int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *values) {
+    int moved = r->changed ? drivers_apply(&r->sd, &r->mt, r->nvr, r->set, r->slots, r->uf,
+                                           r->t_now) : 0;
+    if (moved < 0) return ST_ERROR_NORM;
+    int st = prk_fast_step(M, r, t, hc, values, moved);
+    if (st != ST_OK && moved > 0) drivers_undo(&r->sd, &r->mt);
+    return st;
 }
 
 /* ---- runs of steps for Python's _advance_adaptive (c_steps.prk_run) ------------------------
@@ -388,6 +418,7 @@ int mbd_prk_run(const Model *M, PrkPy *p) {
         double planned = zone_plan(M, p, y, hh, proposal, &crossing), c0 = r->indicator;
         lands = lands && planned == hh;
         hh = planned;
+        stage_motions(M, r, p->t, hh);
         int ok = near_try(M, r, &s, y, f, hh, &h_next, &c1, &err, &naccel, &nproj);
         if (ok < 0) return RUN_PYTHON;
         if (ok > 0) {

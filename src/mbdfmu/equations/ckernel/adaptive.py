@@ -15,6 +15,7 @@ import ctypes
 
 import numpy as np
 
+from .fixed import DRV_SIZE, sampled_arrays, table_arrays
 from .model import watch_events
 
 _P, _I, _D = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
@@ -34,7 +35,10 @@ class PrkRun(ctypes.Structure):
                 ("nsteps", _I), ("nrejected", _I), ("naccel", _I), ("nprojections", _I),
                 ("nout", _I), ("npub", _I), ("pub_dst", _P), ("pub_src", _P), ("V", _P),
                 ("stiff_limit", _D), ("kept", _P), ("nevent", _I), ("ev_int", _P),
-                ("ev_real", _P), ("ev_g", _P)]
+                ("ev_real", _P), ("ev_g", _P), ("nmotion", _I), ("mrow", _P), ("mkind", _P),
+                ("mcoef", _P), ("offsets", _P), ("fractions", _P), ("ndrv", _I),
+                ("dslot", _I), ("dmot", _P), ("drv", _P), ("reinit_tol", _D),
+                ("reinit_iter", _I)]
 
 
 # How ``mbd_prk_run`` stopped (adaptive.h RUN_*).
@@ -49,7 +53,7 @@ class PrkSteps:
     prk: PrkRun | None = None
 
     def arm_prk_steps(self, run: dict, tableau, inputs, pub_dst, pub_src,
-                      events=None) -> tuple:
+                      events=None, motions=None) -> tuple:
         """Let an FMU's wrapper take an embedded pair's communication steps
         (``mbd_prk_fast_step``) from the state in ``run`` (PrkRun's scalar fields, and y, f,
         motion: (c, c', c'') and uf: the held force inputs), with ``tableau`` (ns and the
@@ -57,16 +61,26 @@ class PrkSteps:
         places in uf of the inputs fmi2SetReal may set here), publishing as
         ``DenseReads.arm_dense_steps`` does; in a scene with end stops or friction,
         ``events`` are the contact mode's event functions the steps watch
-        (``ContactModes.c_events``). Returns (the addresses of ``mbd_prk_fast_step``, of
-        the model, of the PrkRun, of ``mbd_prk_set``)."""
+        (``ContactModes.c_events``). ``motions``: in a scene with drivers, (their motion
+        table: ``fixed.motion_table``; the constraints' offsets; the stages' time fractions
+        with 1 appended; the sampled drivers as ``arm_fixed_steps`` takes them, or None),
+        and ``inputs`` may then name the sampled drivers' fields as there. Returns (the
+        addresses of ``mbd_prk_fast_step``, of the model, of the PrkRun, of
+        ``mbd_prk_set``)."""
         r = self.prk = PrkRun()
         n2, ns, nf = 2 * self.n, tableau[0], max(self.nf, 1)
         states = np.zeros(4 * n2)                        # y, f, y1, f1
         states[:n2], states[n2:2 * n2] = run.pop("y"), run.pop("f")
-        motion = np.ascontiguousarray(run.pop("motion"), dtype=float)
-        uf = np.zeros(2 * nf)                            # uf, uf_step
-        uf[:self.nf] = uf[nf:nf + self.nf] = run.pop("uf")
+        motion = np.array(run.pop("motion"), dtype=float)
+        table, offsets, fractions, drivers = motions if motions is not None else \
+            ((0, *np.zeros((3, 1))), np.zeros(1), np.ones(1), None)
+        ndrv, sampled = sampled_arrays(r, drivers, table[0])
+        step_at = nf + 3 * ndrv                          # uf, the drivers' fields, uf_step
+        uf = np.zeros(step_at + nf)
+        uf[:self.nf] = uf[step_at:step_at + self.nf] = run.pop("uf")
         vrs, slots = (np.ascontiguousarray(a, dtype=np.int64) for a in inputs)
+        known = slots < step_at                          # no room for a driver not armed
+        vrs, slots = vrs[known], slots[known]
         dst, src = (np.ascontiguousarray(a, dtype=np.int64) for a in (pub_dst, pub_src))
         size = self.library.mbd_fixed_kept_size
         size.restype, size.argtypes = _I, [_P]
@@ -74,16 +88,19 @@ class PrkSteps:
                       uf=uf, vrs=vrs, slots=slots, set=np.zeros(max(vrs.size, 1), dtype=np.int64),
                       states=states, K=np.zeros((ns + 1) * n2), y_new=np.zeros(n2),
                       f_new=np.zeros(n2), pub_dst=dst, pub_src=src,
-                      kept=np.zeros(size(self.address)))           # nothing kept yet
+                      kept=np.zeros(size(self.address)),           # nothing kept yet
+                      table=table_arrays(r, table, offsets),
+                      fractions=np.ascontiguousarray(fractions, dtype=float), sampled=sampled)
         arrays["events"] = watch_events(r, events)
         self._prk_arrays = arrays                       # what r points at
         for name, value in run.items():
             setattr(r, name, value)
         r.ns, r.A, r.B, r.E, r.E3 = tableau[0], *(x or 0 for x in tableau[1:5])
         for name in ("motion", "motions", "ufs", "uf", "vrs", "slots", "set", "K", "y_new",
-                     "f_new", "pub_dst", "pub_src", "kept"):
+                     "f_new", "pub_dst", "pub_src", "kept", "fractions"):
             setattr(r, name, arrays[name].ctypes.data)
-        r.uf_step = uf.ctypes.data + 8 * nf
+        r.dslot = nf
+        r.uf_step = uf.ctypes.data + 8 * step_at
         base = states.ctypes.data
         r.y, r.f, r.y1, r.f1 = base, base + 8 * n2, base + 16 * n2, base + 24 * n2
         r.nvr, r.npub, r.nout = vrs.size, dst.size, self.nout
@@ -113,7 +130,7 @@ class PrkSteps:
         r = self.prk
         if r is None:
             return 0, None, []
-        a, n2, nf = self._prk_arrays, 2 * self.n, max(self.nf, 1)
+        a, n2, step_at = self._prk_arrays, 2 * self.n, max(self.nf, 1) + 3 * r.ndrv
         pending = [(int(vr), float(a["uf"][slot])) for vr, slot, flag in
                    zip(a["vrs"], a["slots"], a["set"]) if flag]
         a["set"][:] = 0
@@ -122,8 +139,10 @@ class PrkSteps:
         state = dict(t=float(r.t_now), h=float(r.h), err_old=float(r.err_old),
                      indicator=float(r.indicator),
                      landing=bool(r.landing), y=a["states"][:n2].copy(),
-                     f=a["states"][n2:2 * n2].copy(), uf=a["uf"][nf:nf + self.nf].copy(),
-                     counters={k: int(getattr(r, k)) for k in COUNTERS})
+                     f=a["states"][n2:2 * n2].copy(),
+                     uf=a["uf"][step_at:step_at + self.nf].copy(),
+                     counters={k: int(getattr(r, k)) for k in COUNTERS},
+                     drivers=a["sampled"][1][:r.ndrv * DRV_SIZE].copy())
         steps = int(r.steps)
         r.steps = r.nsteps = r.nrejected = r.naccel = r.nprojections = 0
         return steps, state, pending

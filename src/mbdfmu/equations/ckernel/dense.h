@@ -3,7 +3,8 @@
  * method's last step, from its dense output (integrators/dense_output.py's interpolants,
  * projected as ProjectedRK._output_at projects them), and the FMU's communication step that
  * does nothing else (fmu_build/runtime: a doStep that ends inside the last step of a scene
- * without drivers whose inputs are held, served by the wrapper without entering Python).
+ * whose inputs are held, served by the wrapper without entering Python; the drivers'
+ * motions at the point it reads, motions.h).
  *
  * Python's path (ProjectedRK._output_at, Simulation.output_vector) calls the same two
  * functions, so a value the wrapper serves is the value Python would have computed, bit
@@ -28,6 +29,8 @@ typedef struct {
     I npub;                 /* values[pub_dst[k]] = V[pub_src[k]] after a step ... */
     const I *pub_dst, *pub_src;
     double *V;              /* ... V = (outputs, q, q', q''): nout + 3n; then lam (m) */
+    MotionTable mt;         /* the wrapper's steps: the drivers' motions (none: `motion`) */
+    double *mbuf;           /* ... evaluated at the point read (3m) */
 } DenseRead;
 
 /* y (2n) = the interpolant at t. */
@@ -71,9 +74,14 @@ int mbd_dense_step(const Model *M, DenseRead *d, double t, double h, double *val
     double end = t + h;
     if (!(end > d->t_now && end < d->t_old + d->h && end >= d->t_old)) return ST_ERROR_NORM;
     double *out = d->V, *q = out + d->nout, *qd = q + n, *qdd = qd + n, *lam = qdd + n;
-    int st = mbd_dense_state(M, d, end, q);
+    DenseRead at = *d;      /* with drivers, their motion at the point (Python loads it so) */
+    if (d->mt.nmotion) {
+        motion_at(M, &d->mt, end, d->mbuf);
+        at.motion = d->mbuf;
+    }
+    int st = mbd_dense_state(M, &at, end, q);
     if (st != ST_OK) return st;
-    st = mbd_state_outputs(M, q, qd, d->motion, d->uf, qdd, lam, out);
+    st = mbd_state_outputs(M, q, qd, at.motion, d->uf, qdd, lam, out);
     if (st != ST_OK) return st;
     for (I k = 0; k < d->npub; k++) values[d->pub_dst[k]] = d->V[d->pub_src[k]];
     d->t_now = end;

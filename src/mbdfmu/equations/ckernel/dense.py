@@ -13,6 +13,8 @@ import ctypes
 
 import numpy as np
 
+from .fixed import table_arrays
+
 _P, _I = ctypes.c_void_p, ctypes.c_int64
 ST_OK = 0           # kernel.c's ST_OK (ckernel.OK)
 
@@ -25,7 +27,8 @@ class DenseRead(ctypes.Structure):
                 ("t_now", "t_old", "h", "time_tol", "tol")] + \
         [("max_iter", _I), ("kind", _I), ("rows", _I), ("coef", _P), ("y_old", _P),
          ("motion", _P), ("uf", _P), ("nout", _I), ("npub", _I), ("pub_dst", _P),
-         ("pub_src", _P), ("V", _P)]
+         ("pub_src", _P), ("V", _P), ("nmotion", _I), ("mrow", _P), ("mkind", _P),
+         ("mcoef", _P), ("offsets", _P), ("mbuf", _P)]
 
 
 # dense.h's interpolants (DENSE_*): dense_output.py's rk45 and dop853.
@@ -58,13 +61,22 @@ class DenseReads:
             return None
         return b.y[:n].copy(), b.y[n:].copy()
 
-    def arm_dense_steps(self, t_now: float, time_tol: float, pub_dst, pub_src) -> tuple:
+    def arm_dense_steps(self, t_now: float, time_tol: float, pub_dst, pub_src,
+                        motions=None) -> tuple:
         """Let an FMU's wrapper take communication steps from t_now inside the step
         ``load_dense`` put there (``mbd_dense_step``), writing value ``pub_src[k]`` of
         (outputs, q, q', q'') into ``values[pub_dst[k]]``: (the address of
         ``mbd_dense_step``, of the kernel's model, of its DenseRead), as the wrapper's
-        FastSteps block takes them. ``dense.t_now`` is then the time the steps reached."""
+        FastSteps block takes them. ``dense.t_now`` is then the time the steps reached.
+        ``motions``: in a scene with drivers, (their motion table, ``fixed.motion_table``;
+        the constraints' offsets), evaluated at each point read."""
         d = self.dense
+        if motions is None:
+            d.nmotion = 0
+        else:
+            buffer = np.zeros(3 * max(self.m, 1))
+            self._dense_motions = (table_arrays(d, *motions), buffer)    # what d points at
+            d.mbuf = buffer.ctypes.data
         if self._publish is None or self._publish[0] is not pub_dst:
             dst, src = (np.ascontiguousarray(a, dtype=np.int64) for a in (pub_dst, pub_src))
             self._publish = (pub_dst, dst, src)

@@ -5,7 +5,8 @@
  * communication point, as AdaptiveStepping._advance_adaptive's do with dense output), the
  * last one's interpolant (DOP853's, dop853_dense below, or Dormand-Prince 5(4)'s,
  * mbd_rk45_dense), then the read at the point. For a
- * scene without drivers whose inputs are held; under auto (stiff_limit) a step auto's
+ * scene whose inputs are held (the drivers' motions at every stage's time, at DOP853's
+ * extra nodes and at the point, motions.h); under auto (stiff_limit) a step auto's
  * stiffness rule would count goes to Python. Anything mbd_prk_run hands back, a failed
  * evaluation or read, and a point that is the last step's end leave everything as it was
  * (the state is kept before the run and put back) and the wrapper calls Python, which
@@ -88,6 +89,7 @@ typedef struct {
     double *saved;               /* the state before a run (save_run) */
     I taken;                     /* steps were taken since armed: Python adopts them */
     double horizon;              /* no step past it (events.py's EventRunner.advance), or NAN */
+    const double *c_extra;       /* DOP853's extra nodes in a step (with drivers) */
 } DenseRun;
 
 /* doubles of saved: y, f, y_old, y_end (2n each), K_old (13 x 2n), the audit (13), the
@@ -163,6 +165,9 @@ int mbd_dense_run_step(const Model *M, DenseRun *R, double t, double h, double *
         mbd_rk45_dense(2 * M->n, p->r.ns + 1, RK45_ROWS, p->K_old, R->D, R->coef[w]);
     } else if (st == ST_OK) {
         Scratch s = scratch(M, M->work);
+        for (I e = 0; e < 3 && p->r.mt.nmotion; e++)      /* DOP853P._interpolant's times */
+            motion_at(M, &p->r.mt, p->t_old + R->c_extra[e] * p->h_old,
+                      R->motions + e * 3 * M->m);
         st = dop853_dense(M, &s, p->K_old, p->y_old, p->y_end, p->h_old, R->a_extra, R->D,
                           R->motions, R->ufs, R->coef[w], R->Kx, R->ys);
     }

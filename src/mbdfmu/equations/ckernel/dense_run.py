@@ -16,7 +16,7 @@ import numpy as np
 
 from .adaptive import PrkPy, PrkRunBuffers, point_run
 from .dense import DENSE_KINDS, DenseRead
-from .fixed import AUDIT_SIZE
+from .fixed import AUDIT_SIZE, table_arrays
 from .model import watch_events
 
 _P, _I = ctypes.c_void_p, ctypes.c_int64
@@ -31,7 +31,8 @@ class DenseRun(ctypes.Structure):
 
     _fields_ = [("d", DenseRead), ("p", PrkPy), ("a_extra", _P), ("D", _P), ("motions", _P),
                 ("ufs", _P), ("coef", _P * 2), ("which", _I), ("Kx", _P),
-                ("ys", _P), ("saved", _P), ("taken", _I), ("horizon", ctypes.c_double)]
+                ("ys", _P), ("saved", _P), ("taken", _I), ("horizon", ctypes.c_double),
+                ("c_extra", _P)]
 
 
 class RunBuffers(PrkRunBuffers):
@@ -84,7 +85,8 @@ class DenseRuns:
         return Q
 
     def arm_dense_run(self, settings: dict, tableau, gaps, y, f, motion, uf, audit,
-                      a_extra, D, events=None, horizon: float | None = None) -> tuple:
+                      a_extra, D, events=None, horizon: float | None = None,
+                      motions=None) -> tuple:
         """Let an FMU's wrapper also take the communication steps past the step
         ``load_dense`` put in ``dense`` (armed by ``arm_dense_steps`` first): the pair
         ``tableau`` (``Kernel.tableau``) from (y, f) with ``settings`` (PrkPy's scalar
@@ -94,7 +96,10 @@ class DenseRuns:
         interpolant ``load_dense`` named, D is its P and a_extra is unused); in a scene
         with end stops or friction, the contact mode's event functions (``events``:
         events.h's ints and reals and their values now, ``ContactModes.c_events``) and the
-        event runner's horizon (s, or None). Returns (the addresses of
+        event runner's horizon (s, or None). ``motions``: in a scene with drivers, (their
+        motion table, ``fixed.motion_table``; the constraints' offsets; the stages' time
+        fractions with 1 appended; DOP853's extra nodes), evaluated at every stage's time
+        (``arm_dense_steps`` took them for the reads). Returns (the addresses of
         ``mbd_dense_run_step``, of the model, of the DenseRun)."""
         run, ns = self.run, tableau[0]
         b = self.run_buffers
@@ -120,6 +125,13 @@ class DenseRuns:
             p.audit = b.audit.ctypes.data
         self._watch_events(run, b, events)
         run.horizon = np.nan if horizon is None else horizon
+        if motions is None:
+            p.r.nmotion = 0
+        else:
+            table, offsets, fractions, c_extra = motions
+            b.driven = (table_arrays(p.r, table, offsets),
+                        *(np.ascontiguousarray(a, dtype=float) for a in (fractions, c_extra)))
+            p.r.fractions, run.c_extra = b.driven[1].ctypes.data, b.driven[2].ctypes.data
         function = ctypes.cast(self.library.mbd_dense_run_step, ctypes.c_void_p).value
         return function, self.address, ctypes.addressof(run)
 

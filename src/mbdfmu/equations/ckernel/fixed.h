@@ -18,16 +18,12 @@
  * (mbd_fixed_advance), so neither leaves C for them.
  */
 
-enum { MOTION_CONSTANT = 0, MOTION_LINEAR = 1, MOTION_HARMONIC = 2 };
-
 typedef struct {
     double t_now, time_tol;  /* the FMU's time (the integrator's: rk4p has no dense output) */
     double h_max, slack;     /* Integrator.fixed_grid: the method's step, STEP_COUNT_SLACK */
     I max_steps;             /* the work limit's steps per doStep (or a huge number) */
     double tol; I max_iter;  /* the position projection */
-    I nmotion;               /* driver rows: row, kind (MOTION_*), four coefficients each */
-    const I *mrow, *mkind; const double *mcoef;
-    const double *offsets;   /* c of every row (m), the drivers' rows overwritten */
+    MotionTable mt;          /* the drivers' motions (motions.h) */
     double *ufs;             /* the held force inputs, three times (3 nf) */
     double *y, *f, *save;    /* the state (2n each) and f = y'; a copy to roll back */
     double *motions;         /* (3, 3m): one step's stage inputs; then (3m) at t + h */
@@ -49,6 +45,7 @@ typedef struct {
     double *kept;            /* the last step's end for the restart (keep_step_end) */
     EventWatch ev;           /* a contact mode's event functions (events.h), or none: set
                               * anew at each arm, as a doStep handed back is followed by one */
+    SampledSet sd;           /* drivers whose position the master sets (motions.h) */
 } FixedRun;
 
 /* stated_accuracy.ErrorEstimate: its fields, the run's step count (Counters.nsteps) and
@@ -135,28 +132,6 @@ int mbd_fixed_set(FixedRun *r, const unsigned int *vr, size_t nvr, const double 
                             value, values);
 }
 
-/* (c, c', c'') of every row at t into out (3m), as ConstraintSet.motion_values. */
-static void motion_at(const Model *M, const FixedRun *r, double t, double *out) {
-    I m = M->m;
-    memcpy(out, r->offsets, (size_t)m * sizeof(double));
-    memset(out + m, 0, (size_t)(2 * m) * sizeof(double));
-    for (I k = 0; k < r->nmotion; k++) {
-        const double *c = r->mcoef + 4 * k;
-        I row = r->mrow[k];
-        if (r->mkind[k] == MOTION_CONSTANT) {
-            out[row] = c[0];
-        } else if (r->mkind[k] == MOTION_LINEAR) {            /* start, rate */
-            out[row] = c[0] + c[1] * t;
-            out[m + row] = c[1];
-        } else {                          /* offset, amplitude, w = 2 pi frequency, phase */
-            double w = c[2], a = c[1], s = sin(w * t + c[3]), co = cos(w * t + c[3]);
-            out[row] = c[0] + a * s;
-            out[m + row] = a * w * co;
-            out[2 * m + row] = -a * w * w * s;
-        }
-    }
-}
-
 /* Doubles of FixedRun.kept (and PrkRun.kept): a flag, y (2n) and the motion (3m) at the
  * last step's end, Psi_q's values (nkeep) and gamma (m) there, the band factor of S
  * (2 (kd + 1) m). */
@@ -223,7 +198,7 @@ static int restart_kept(const Model *M, FixedRun *r, Scratch *s) {
  * state as it is, Simulation._reinitialize); the inputs then held over the step's stages. */
 static int fixed_restart(const Model *M, FixedRun *r, Scratch *s, double t0) {
     I n = M->n, m = M->m, nf = M->nf;
-    motion_at(M, r, t0, r->motions);
+    motion_at(M, &r->mt, t0, r->motions);
     memcpy(r->f, r->y + n, (size_t)n * sizeof(double));
     int st = restart_kept(M, r, s) ? ST_OK :
         mbd_accelerations(M, r->y, r->y + n, r->motions, r->motions + 2 * m, r->uf, r->f + n,
@@ -234,13 +209,21 @@ static int fixed_restart(const Model *M, FixedRun *r, Scratch *s, double t0) {
     return ST_OK;
 }
 
+/* After a driver's set: Simulation._reinitialize's restart, (q, q') projected onto the
+ * constraints at t0 with the new motion (drivers_project), then f there (reset_state). */
+static int drivers_restart(const Model *M, FixedRun *r, Scratch *s, double t0) {
+    motion_at(M, &r->mt, t0, r->motions);
+    int st = drivers_project(M, s, &r->sd, r->y, r->motions);
+    return st == ST_OK ? fixed_restart(M, r, s, t0) : st;
+}
+
 /* One rk4p step of h from start on the run's state (motions evaluated here). */
 static int fixed_one(const Model *M, FixedRun *r, Scratch *s, double start, double h,
                      double *K, double *ys) {
     I m = M->m;
-    motion_at(M, r, start, r->motions);
-    motion_at(M, r, start + 0.5 * h, r->motions + 3 * m);
-    motion_at(M, r, start + h, r->motions + 6 * m);
+    motion_at(M, &r->mt, start, r->motions);
+    motion_at(M, &r->mt, start + 0.5 * h, r->motions + 3 * m);
+    motion_at(M, &r->mt, start + h, r->motions + 6 * m);
     return rk4p_step(M, s, r->y, r->f, h, r->motions, r->ufs, r->tol, r->max_iter, K, ys);
 }
 
@@ -344,7 +327,10 @@ int mbd_fixed_step(const Model *M, FixedRun *r, double t, double h, double *valu
     Estimate E = *r->est;     /* kept only when the whole step is */
     if (r->audit)             /* the energy check's state too: the slave takes it back */
         memcpy(r->audit + A_FIELDS, r->audit, A_FIELDS * sizeof(double));
-    int st = r->changed ? fixed_restart(M, r, &s, t0) : ST_OK;
+    int moved = r->changed ? drivers_apply(&r->sd, &r->mt, r->nvr, r->set, r->slots, r->uf, t0)
+                           : 0;
+    int st = moved < 0 ? ST_ERROR_NORM : moved ? drivers_restart(M, r, &s, t0) :
+             r->changed ? fixed_restart(M, r, &s, t0) : ST_OK;
     if (st == ST_OK && r->changed && r->ev.nevent) {   /* events from the restart */
         int released = events_restart(M, &r->ev, r->motions, r->uf, &s, r->y);
         if (released) st = released > 0 ? ST_EVENT : ST_ERROR_NORM;
@@ -353,7 +339,7 @@ int mbd_fixed_step(const Model *M, FixedRun *r, double t, double h, double *valu
     if (st == ST_OK) st = fixed_loop(M, r, &s, &E, t0, step, steps, end, steps, &k, &stop);
     if (st == ST_OK) keep_step_end(M, r, &s);
     if (st == ST_OK) {
-        motion_at(M, r, end, r->motions);
+        motion_at(M, &r->mt, end, r->motions);
         st = publish_step_end(M, &s, r->y, r->motions, r->ufs, r->nout, r->npub, r->pub_src,
                               r->pub_dst, r->V, values);
     }
@@ -361,6 +347,7 @@ int mbd_fixed_step(const Model *M, FixedRun *r, double t, double h, double *valu
         memcpy(r->y, r->save, (size_t)n2 * sizeof(double));
         memcpy(r->f, r->save + n2, (size_t)n2 * sizeof(double));
         if (r->audit) memcpy(r->audit, r->audit + A_FIELDS, A_FIELDS * sizeof(double));
+        if (moved > 0) drivers_undo(&r->sd, &r->mt);
         return st;
     }
     r->t_now = end;

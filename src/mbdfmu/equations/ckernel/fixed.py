@@ -25,6 +25,12 @@ _P, _I, _D = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
 CHECK, ESTIMATE, EVENT = 16, 17, 18
 AUDIT_SIZE = 13                 # kernel.c's A_FIELDS: the energy check's state
 MOTION_CODES = {ConstantMotion: 0, LinearMotion: 1, HarmonicMotion: 2}
+MOTION_SAMPLED = 3              # a driver position the master sets (sampled.h)
+# sampled.h's state of such a driver, DRV_SIZE doubles: (name, count) in its order
+DRIVER_STATE = (("count", 1), ("fresh", 1), ("times", 4), ("positions", 4), ("has_velocity", 1),
+                ("velocity", 1), ("has_acceleration", 1), ("acceleration", 1), ("error", 1),
+                ("scale", 1), ("reported", 1))
+DRV_SIZE = sum(k for _, k in DRIVER_STATE)
 
 
 class FixedRun(ctypes.Structure):
@@ -38,7 +44,9 @@ class FixedRun(ctypes.Structure):
                 ("pub_src", _P), ("V", _P), ("uf", _P), ("nvr", _I),
                 ("vrs", _P), ("slots", _P), ("set", _P), ("changed", _I), ("restarts", _I),
                 ("est", _P), ("check", _P), ("audit", _P), ("divergence", _D), ("roundoff", _D),
-                ("kept", _P), ("nevent", _I), ("ev_int", _P), ("ev_real", _P), ("ev_g", _P)]
+                ("kept", _P), ("nevent", _I), ("ev_int", _P), ("ev_real", _P), ("ev_g", _P),
+                ("ndrv", _I), ("dslot", _I), ("dmot", _P), ("drv", _P), ("reinit_tol", _D),
+                ("reinit_iter", _I)]
 
 
 class Estimate(ctypes.Structure):
@@ -72,10 +80,13 @@ def motion_coefficients(motion) -> list[float] | None:
     return None
 
 
-def motion_table(constraint_set):
+def motion_table(constraint_set, sampled=None):
     """(count, rows, codes, coefficients) of the drivers' motions, or None when one is of
-    a kind fixed.h does not evaluate (or a driver takes its motion from the inputs)."""
-    if constraint_set.input_rows.size:
+    a kind fixed.h does not evaluate. Drivers that take their motion from the inputs need
+    ``sampled``: for each (in ``input_rows``' order) the four numbers of its motion over the
+    next step (the last sample's time, p, v, a; sampled.h ``drv_coefficients``), entered
+    after the scene's motions; without it, None."""
+    if constraint_set.input_rows.size and sampled is None:
         return None
     rows, codes, coefficients = [], [], []
     for row, motion in constraint_set.motion_rows:
@@ -83,8 +94,37 @@ def motion_table(constraint_set):
         if c is None:
             return None
         rows.append(int(row)), codes.append(MOTION_CODES[type(motion)]), coefficients.append(c)
+    for row, c in zip(constraint_set.input_rows.tolist() if sampled else [], sampled or []):
+        rows.append(int(row)), codes.append(MOTION_SAMPLED), coefficients.append(list(c))
     return (len(rows), np.array(rows or [0], dtype=np.int64), np.array(codes or [0], dtype=np.int64),
             np.array(coefficients or [[0.0] * 4], dtype=float).ravel())
+
+
+def table_arrays(r, table, offsets) -> tuple:
+    """The drivers' motion ``table`` (``motion_table``) and the constraints' ``offsets``
+    into the ``MotionTable`` fields of ``r`` (a ``DenseRead``, ``PrkRun``); the arrays it
+    points at."""
+    arrays = (np.ascontiguousarray(table[1], dtype=np.int64),
+              np.ascontiguousarray(table[2], dtype=np.int64), np.array(table[3], dtype=float),
+              np.ascontiguousarray(offsets, dtype=float))
+    r.nmotion = table[0]
+    r.mrow, r.mkind, r.mcoef, r.offsets = (a.ctypes.data for a in arrays)
+    return arrays
+
+
+def sampled_arrays(r, drivers, nmotion: int) -> tuple:
+    """The sampled drivers (``drivers``: their states, ``DRV_SIZE`` each; the restart's
+    projection tolerance and iterations; or None) into the run ``r``'s ``SampledSet``
+    fields (a ``FixedRun`` or ``PrkRun``), their entries the last of a motion table of
+    ``nmotion``. Returns (their count, the arrays ``r`` points at)."""
+    states, reinit_tol, reinit_iter = drivers if drivers is not None else ([], 0.0, 0)
+    ndrv = len(states) // DRV_SIZE
+    drv = np.zeros(max(2 * len(states) + 4 * ndrv, 1))     # the states, a copy, the table's
+    drv[:len(states)] = states
+    dmot = np.arange(nmotion - ndrv, nmotion + (not ndrv), dtype=np.int64)
+    r.ndrv, r.dmot, r.drv = ndrv, dmot.ctypes.data, drv.ctypes.data
+    r.reinit_tol, r.reinit_iter = reinit_tol, reinit_iter
+    return ndrv, (dmot, drv)
 
 
 class FixedSteps:
@@ -92,17 +132,20 @@ class FixedSteps:
 
     fixed: FixedRun | None = None
 
-    def _fixed_struct(self, run: dict, table, offsets, uf, extra=()) -> tuple:
+    def _fixed_struct(self, run: dict, table, offsets, uf, extra=(), ndrv: int = 0,
+                      r: FixedRun | None = None) -> tuple:
         """A ``FixedRun`` from ``run`` (its fields by name, with y, f and ``estimate``, a
         dict of ``Estimate``'s fields), the drivers' motion ``table`` (``motion_table``),
-        the constraints' ``offsets`` and the held force inputs ``uf``; and the arrays it
-        points at (``extra`` appended)."""
-        r, estimate = FixedRun(), Estimate(**run.pop("estimate"))    # {}: zeros
+        the constraints' ``offsets`` and the held force inputs ``uf`` (followed by room for
+        the three fields of ``ndrv`` sampled drivers as set); and the arrays it points at
+        (``extra`` appended); into ``r`` if given."""
+        r, estimate = r or FixedRun(), Estimate(**run.pop("estimate"))    # {}: zeros
         n2, m, nf = 2 * self.n, self.m, max(self.nf, 1)
         y = np.zeros(7 * n2)                    # y, f, their saved copy, a check's room
         y[:n2], y[n2:2 * n2] = run.pop("y"), run.pop("f")
         held = np.asarray(uf if self.nf else [0.0], dtype=float)
-        forces = np.concatenate((np.tile(held, 3), held))   # three stages' copies, then uf
+        # three stages' copies, then uf and the drivers' fields
+        forces = np.concatenate((np.tile(held, 3), held, np.zeros(3 * ndrv)))
         arrays = (*table[1:], np.ascontiguousarray(offsets, dtype=float), forces, y,
                   np.zeros(9 * max(m, 1)), *extra)
         for name, value in run.items():
@@ -116,7 +159,7 @@ class FixedSteps:
         return r, estimate, arrays
 
     def arm_fixed_steps(self, run: dict, table, offsets, uf, pub_dst, pub_src,
-                        inputs=None, events=None) -> tuple:
+                        inputs=None, events=None, drivers=None) -> tuple:
         """Let an FMU's wrapper take rk4p's communication steps (``mbd_fixed_step``) from
         the state in ``run`` (t_now, time_tol, h_max, slack, max_steps, tol, max_iter, y,
         f and ``estimate``: ``Estimate``'s fields), the drivers' motion ``table``
@@ -127,6 +170,11 @@ class FixedSteps:
         projection, as ``Simulation._reinitialize``). In a scene with end stops or
         friction, ``events`` are the contact mode's event functions the steps watch
         (``ContactModes.c_events``): a step that changes a sign hands the doStep to Python.
+        ``drivers``: (the sampled drivers' states, ``DRV_SIZE`` each; the restart's
+        projection tolerance and iterations) when drivers take their motion from the inputs
+        (``table`` then ends with their entries, and ``inputs`` may name their fields with
+        places ``max(nf, 1) + 3 d + field`` past uf's: the step after such a set applies it
+        and projects, as ``Simulation._reinitialize``).
         Returns (the address of ``mbd_fixed_step``, of the model, of the FixedRun), then
         that of ``mbd_fixed_set`` with ``inputs``."""
         vrs, slots = (np.ascontiguousarray(a, dtype=np.int64) for a in
@@ -138,10 +186,17 @@ class FixedSteps:
         audit = run.pop("audit", None)        # the energy check's state, then its copy
         checks = np.zeros(2 * AUDIT_SIZE)
         checks[:AUDIT_SIZE] = audit if audit is not None else 0.0
+        r = FixedRun()
+        ndrv, sampled = sampled_arrays(r, drivers, table[0])
+        known = slots < max(self.nf, 1) + 3 * ndrv       # no room for a driver not armed
+        vrs, slots = vrs[known], slots[known]
         r, estimate, arrays = self._fixed_struct(run, table, offsets, uf, (
-            dst, src, vrs, slots, np.zeros(max(vrs.size, 1), dtype=np.int64), kept, checks))
+            dst, src, vrs, slots, np.zeros(max(vrs.size, 1), dtype=np.int64), kept, checks),
+            ndrv, r)
         r.audit = None if audit is None else checks.ctypes.data
-        self.fixed, self._fixed_arrays = r, (*arrays, watch_events(r, events), estimate)
+        r.dslot = max(self.nf, 1)
+        self.fixed, self._fixed_arrays = r, (*arrays, watch_events(r, events), *sampled,
+                                             estimate)
         r.kept = kept.ctypes.data
         r.pub_dst, r.pub_src, r.vrs, r.slots, r.set = (a.ctypes.data for a in arrays[7:12])
         r.npub, r.nout, r.V = dst.size, self.nout, self._dense_scratch.ctypes.data
@@ -203,9 +258,10 @@ class FixedSteps:
     def fixed_taken(self):
         """What the wrapper did since arming or the last call: ((steps taken, t reached, y,
         f, ``Estimate``'s fields, the energy check's state, restarts after a set, the force
-        inputs the last step held) or None without steps, and [(value reference, value)]
-        of the inputs set since its last step). The run stays where the wrapper points
-        until armed anew; the estimate's count of checks starts again."""
+        inputs the last step held, the sampled drivers' states) or None without steps, and
+        [(value reference, value)] of the inputs set since its last step). The run stays
+        where the wrapper points until armed anew; the estimate's count of checks starts
+        again."""
         r = self.fixed
         if r is None:
             return None, []
@@ -221,4 +277,5 @@ class FixedSteps:
         values = estimate_values(estimate)
         estimate.checks = 0
         return (steps, float(r.t_now), y[:n2].copy(), y[n2:2 * n2].copy(), values,
-                audit[:AUDIT_SIZE].copy(), restarts, forces[:self.nf].copy()), pending
+                audit[:AUDIT_SIZE].copy(), restarts, forces[:self.nf].copy(),
+                a[-2][:r.ndrv * DRV_SIZE].copy()), pending

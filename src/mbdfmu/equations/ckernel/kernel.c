@@ -39,6 +39,7 @@
  * Nothing allocates: scratch space is the caller's `work` (mbd_work_size doubles).
  */
 #define _GNU_SOURCE      /* sincos */
+#include <float.h>
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
@@ -569,6 +570,7 @@ int mbd_singularity_indicator(const Model *M, const double *q, const double *cva
 
 #include "stepping.h"
 #include "outputs.h"
+#include "motions.h"
 #include "dense.h"
 #include "events.h"
 #include "fixed.h"
