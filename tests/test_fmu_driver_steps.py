@@ -1,6 +1,6 @@
 """The FMU's C wrapper with a driver position the master sets before every step
 (fmi2SetReal of motor.position, and of its velocity and acceleration where given): rk4p's
-steps in C (ckernel/fixed.h) follow the driver's sampled motion (ckernel/sampled.h, the
+steps in C (ckernel/fixed.h) follow the driver's sampled motion (ckernel/motions.h, the
 twin of signals.SampledDriver) and restart with a projection after each set, as
 Simulation._reinitialize. References: the same FMU sent through Python at every doStep
 (fmi2SetDebugLogging after each), and P4's driving torque from the power balance

@@ -73,7 +73,7 @@ def settable_inputs(sim, table) -> tuple[np.ndarray, np.ndarray]:
 
 
 def driver_state(driver: SampledDriver) -> list[float]:
-    """A ``SampledDriver`` as ckernel/sampled.h's state (``DRIVER_STATE``)."""
+    """A ``SampledDriver`` as ckernel/motions.h's state (``DRIVER_STATE``)."""
     count = len(driver.times)
     return [float(count), float(driver.fresh), *driver.times, *[0.0] * (4 - count),
             *driver.positions, *[0.0] * (4 - count), float(driver.velocity is not None),
@@ -96,22 +96,13 @@ def adopt_driver_state(driver: SampledDriver, state) -> None:
 
 def sampled_drivers(sim) -> list | None:
     """The drivers that take their motion from the inputs, in the layout's order, when
-    rk4p's steps in C can follow them: each a ``SampledDriver`` (not a table or a function
-    of time), no end stops or friction; else None. [] without such drivers."""
+    the wrapper's steps can follow them: each a ``SampledDriver`` (not a table or a
+    function of time), no end stops or friction; else None. [] without such drivers."""
     drivers = [sim._drivers[name] for name in sim.equations.layout.drivers]
     if drivers and (sim.events is not None or
                     any(type(d) is not SampledDriver for d in drivers)):
         return None
     return drivers
-
-
-def sampled_motion(driver: SampledDriver) -> tuple[float, float, float, float]:
-    """(the last sample's time, p, v, a): ``SampledDriver.__call__``'s numbers over the next
-    step, as ckernel/sampled.h's ``drv_coefficients``."""
-    p, v, a = driver._quadratic()
-    v = driver.velocity if driver.velocity is not None else v
-    a = driver.acceleration if driver.acceleration is not None else a
-    return driver.times[-1], p, v, a
 
 
 def unchanged_by_force_inputs(sim, table, published) -> np.ndarray:
@@ -164,7 +155,7 @@ def fast_steps_ahead(sim, limit, time_tol: float, inputs=None):
         return None
     current = getattr(integrator, "current", integrator)     # auto's integrator of the moment
     u = sim.inputs_at(sim.t)
-    table = motion_table(eq.constraint_set, [sampled_motion(d) for d in drivers] or None)
+    table = motion_table(eq.constraint_set, [d.step_motion() for d in drivers] or None)
     run = None if table is None else fast_run(current, limit, time_tol)
     if run is not None:
         sets = {} if inputs is None or not len(inputs[0]) or eq.nonconservative_reason() is None \

@@ -182,11 +182,18 @@ class SampledDriver(Plain):
             return False
         return abs(self.error) > max(LARGE_ERROR * self.scale, self._cubic_term()[1])
 
-    def __call__(self, t):
-        tau = t - self.times[-1]
+    def step_motion(self) -> tuple[float, float, float, float]:
+        """(t_n, p, v, a): over the next step the motion is ``p + v tau + a tau^2 / 2``
+        with tau = t - t_n, the last sample's time (v and a the master's where given, else
+        the quadratic's). An FMU's wrapper evaluates the same numbers (ckernel/motions.h)."""
         p, v0, a0 = self._quadratic()
         v = self.velocity if self.velocity is not None else v0
         a = self.acceleration if self.acceleration is not None else a0
+        return self.times[-1], p, v, a
+
+    def __call__(self, t):
+        tn, p, v, a = self.step_motion()
+        tau = t - tn
         return p + v * tau + 0.5 * a * tau * tau, v + a * tau, a
 
 

@@ -25,8 +25,8 @@ _P, _I, _D = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
 CHECK, ESTIMATE, EVENT = 16, 17, 18
 AUDIT_SIZE = 13                 # kernel.c's A_FIELDS: the energy check's state
 MOTION_CODES = {ConstantMotion: 0, LinearMotion: 1, HarmonicMotion: 2}
-MOTION_SAMPLED = 3              # a driver position the master sets (sampled.h)
-# sampled.h's state of such a driver, DRV_SIZE doubles: (name, count) in its order
+MOTION_SAMPLED = 3              # a driver position the master sets (motions.h)
+# motions.h's state of such a driver, DRV_SIZE doubles: (name, count) in its order
 DRIVER_STATE = (("count", 1), ("fresh", 1), ("times", 4), ("positions", 4), ("has_velocity", 1),
                 ("velocity", 1), ("has_acceleration", 1), ("acceleration", 1), ("error", 1),
                 ("scale", 1), ("reported", 1))
@@ -84,7 +84,7 @@ def motion_table(constraint_set, sampled=None):
     """(count, rows, codes, coefficients) of the drivers' motions, or None when one is of
     a kind fixed.h does not evaluate. Drivers that take their motion from the inputs need
     ``sampled``: for each (in ``input_rows``' order) the four numbers of its motion over the
-    next step (the last sample's time, p, v, a; sampled.h ``drv_coefficients``), entered
+    next step (the last sample's time, p, v, a; motions.h ``drv_coefficients``), entered
     after the scene's motions; without it, None."""
     if constraint_set.input_rows.size and sampled is None:
         return None

@@ -112,8 +112,9 @@ static int drv_large(const double *d) {
     return fabs(d[D_ERROR]) > fmax(LARGE_ERROR * d[D_SCALE], noise);
 }
 
-/* The motion over the next step, as fixed.h's MOTION_SAMPLED reads it: (time of the last
- * sample, p, v, a) with the master's velocity and acceleration where it gave them. */
+/* SampledDriver.step_motion: the motion over the next step as motion_at's MOTION_SAMPLED
+ * reads it, (time of the last sample, p, v, a) with the master's velocity and
+ * acceleration where it gave them. */
 static void drv_coefficients(const double *d, double *c) {
     double p, v, a;
     drv_quadratic(d, &p, &v, &a);
