@@ -105,6 +105,23 @@ def test_runs_in_c_with_a_damped_spring(monkeypatch):
     assert abs(ran.outputs()["crank.omega"]) < abs(undamped.outputs()["crank.omega"])
 
 
+@pytest.mark.parametrize("method", ["dop853p", "rk45p"])
+def test_runs_in_c_follow_a_drivers_motion(method, monkeypatch):
+    # P4's slider-crank with its motor on a harmonic motion (0.3 rad at 40 Hz): the run
+    # evaluates the motion at every stage's time in C (ckernel/motions.h) and takes the
+    # Python loop's steps; the crank's angle is the motion's
+    data = tomllib.loads(resolve_scene_path("slider_crank").read_text())
+    data["driver"][0]["motion"] = dict(type="harmonic", offset=0.0, amplitude=0.3,
+                                       frequency=40.0)
+    scene = scene_from_dict(data)
+    looped, none, in_python = _run(scene, method, 0.05, monkeypatch, runs=False)
+    ran, calls, left = _run(scene, method, 0.05, monkeypatch)
+    assert none == 0 and in_python > 20 and calls >= 1 and left == 0
+    _same_run(looped, ran, 1e-12)
+    angle = ran.outputs()["crank.phi"]
+    assert angle == pytest.approx(0.3 * math.sin(2 * math.pi * 40.0 * 0.05), abs=1e-9)
+
+
 def test_dense_outputs_inside_a_run_of_steps(monkeypatch):
     # outputs every 10 ms, inside steps the run took (dense output of its last step)
     scene = mbdfmu.load_scene("n_four_bar_2")

@@ -4,8 +4,9 @@ The arithmetic of a step (stages, error norm, projections, the next q'') runs in
 call (``equations.ckernel``); what a step decides stays here, line for line as in
 ``RK4P._advance_fixed`` / ``ProjectedRK._step_impl`` (acceptance, step factors, the energy
 audit, counters), except in runs of an embedded pair's steps (``prk_run``), which take
-them in C the same way. Input signals are evaluated in Python at every time a step needs them
-(once per run when they cannot change: no drivers, no force inputs). Whatever the kernel
+them in C the same way. Input signals are evaluated in Python at every time a step needs them;
+a run takes none (no force inputs, no driver driven by them) and evaluates the scene's
+drivers' motions itself (``ckernel/motions.h``). Whatever the kernel
 hands back (a singular Schur complement, a failed projection, a non-finite state, a
 spring of zero length) is redone by the Python step, which then does and says what it
 always does.
@@ -308,11 +309,12 @@ PRK_RUNS = True
 
 def prk_runs(rk) -> bool:
     """Whether ``prk_run`` can take rk's coming steps (the caller checks that rk steps as
-    ``ProjectedRK`` does): an embedded pair on a scene without drivers and force inputs, no
-    watch after each step (events, auto's)."""
+    ``ProjectedRK`` does): an embedded pair on a scene without inputs whose drivers' motions
+    the kernel evaluates (``motion_table``), no watch after each step (events, auto's)."""
     eq = rk.equations
     return (PRK_RUNS and rk.name in ("rk45p", "dop853p") and eq.ckernel is not None and
-            eq.m > 0 and rk.watch is None and not eq.scene.drivers and eq.ckernel.nf == 0)
+            eq.m > 0 and rk.watch is None and eq.ckernel.nf == 0 and not eq.layout.drivers
+            and (not eq.scene.drivers or eq.ckernel.motion_table(eq.constraint_set) is not None))
 
 
 def pair_settings(rk, factors: tuple, max_work: int) -> dict:
@@ -354,8 +356,10 @@ def prk_run(rk, t_target: float, dense: bool, rejections: int, factors: tuple,
     audit = audit_state(rk.audit) if rk.audit is not None else None
     motion = np.concatenate(eq.motion_values(rk.t))
     gaps = singular_zone.gaps(rk.C[:rk.n_stages])
+    motions = (eq.ckernel.motion_table(eq.constraint_set), eq.constraint_set.offsets,
+               table[-1]) if eq.scene.drivers else None
     status, p, b = ckernel_prk_run(eq.ckernel, table[:-1], gaps, settings, np.concatenate(
-        (rk.q, rk.qd)), rk.f, motion, audit)
+        (rk.q, rk.qd)), rk.f, motion, audit, motions)
     r = p.r
     for name in ("nsteps", "nrejected", "naccel", "nprojections"):
         setattr(rk.stats, name, getattr(rk.stats, name) + int(getattr(r, name)))

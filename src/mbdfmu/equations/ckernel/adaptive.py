@@ -186,13 +186,15 @@ def point_run(p: PrkPy, b: PrkRunBuffers, tableau, gaps) -> None:
     p.ngaps, p.gap_mid, p.gap_width = b.gaps[0].size, *(a.ctypes.data for a in b.gaps)
 
 
-def prk_run(kernel, tableau, gaps, settings: dict, y, f, motion, audit):
+def prk_run(kernel, tableau, gaps, settings: dict, y, f, motion, audit, motions=None):
     """Steps of an embedded pair in one call of ``mbd_prk_run`` (adaptive.h) from (y, f) at
     ``settings["t"]``: PrkPy's scalar fields (and PrkRun's, ``settings["run"]``), the
     middles and widths of the gaps between the tableau's nodes (``singular_zone.gaps``), the
-    constant stage inputs ``motion`` ((c, c', c'')), the energy audit's state (13 values,
-    updated in place) or None. Returns (status, the PrkPy, its buffers): the state in
-    buffers.y / .f, the last accepted step in .y_old, .y_end, .K_old."""
+    stage inputs ``motion`` ((c, c', c'')), constant unless ``motions`` (the drivers'
+    motion table, ``fixed.motion_table``; the constraints' offsets; the stages' time
+    fractions with 1 appended) evaluates them at every stage's time, the energy audit's
+    state (13 values, updated in place) or None. Returns (status, the PrkPy, its buffers):
+    the state in buffers.y / .f, the last accepted step in .y_old, .y_end, .K_old."""
     key = tableau[0]
     cache = kernel.__dict__.setdefault("_prk_run", {})
     if key not in cache:
@@ -210,6 +212,12 @@ def prk_run(kernel, tableau, gaps, settings: dict, y, f, motion, audit):
         setattr(p, name, value)
     p.r.nsteps = p.r.nrejected = p.r.naccel = p.r.nprojections = 0
     p.stepped = 0
+    if motions is None:
+        p.r.nmotion = 0
+    else:
+        b.driven = (table_arrays(p.r, *motions[:2]),
+                    np.ascontiguousarray(motions[2], dtype=float))
+        p.r.fractions = b.driven[1].ctypes.data
     if audit is None:
         p.audit = None
     else:
