@@ -247,8 +247,9 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
  *
  * AdaptiveStepping._advance_adaptive's loop, ProjectedRK._step_impl and _energy_rejects and
  * Integrator._after_step's energy check, in the same order and arithmetic, for steps that
- * need nothing else: a scene without drivers and force inputs (the stage inputs are the same
- * at every time), no watch (auto's stiffness limit aside: a step it counts is RUN_PYTHON),
+ * need nothing else: a scene without force inputs (the drivers' motions evaluated at each
+ * stage's time, stage_motions; the singularity indicator of zone_plan does not depend on
+ * them), no watch (auto's stiffness limit aside: a step it counts is RUN_PYTHON),
  * its energy audited (total_energy, as energy_check) or not. The step decisions and
  * prk_try are those of the wrapper's landing steps above; with `dense` the steps go past
  * the target (the last accepted step is kept for the dense output). It stops with the

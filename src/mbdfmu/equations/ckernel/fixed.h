@@ -1,10 +1,12 @@
 /*
  * fixed.h (part of kernel.c): an FMU's communication step of rk4p taken by its wrapper
  * without Python (fmu_build/runtime real_cache.py FastSteps), for scenes whose drivers
- * follow motions the kernel evaluates (constant, linear, harmonic) and whose force inputs
- * are held or set by the master before a step (mbd_fixed_set: fmi2SetReal of a force input
- * taken by the wrapper, then the restart as Simulation._reinitialize does it: no projection,
- * the constraints do not depend on forces and the last step ended projected).
+ * follow motions the kernel evaluates (constant, linear, harmonic, or positions the master
+ * sets: motions.h) and whose force inputs are held or set by the master before a step
+ * (mbd_fixed_set: fmi2SetReal of an input taken by the wrapper, then the restart as
+ * Simulation._reinitialize does it: after a force, no projection, the constraints do not
+ * depend on forces and the last step ended projected; after a driver's position, the
+ * projection onto its new motion, drivers_restart).
  *
  * The arithmetic is Python's, in the same order: the grid of Integrator.fixed_grid (equal
  * steps no longer than h_max up to t + h, times t0 + j step), motion.py's evaluate() at
