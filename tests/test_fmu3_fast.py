@@ -26,6 +26,7 @@ from mbdfmu.fmu_build.scene_fmu import build_fmu  # noqa: E402
 pytestmark = pytest.mark.skipif(not ckernel.available(), reason="no C compiler for the kernel")
 H = 1e-3
 CRANE = ROOT / "scenarios" / "hydraulic_crane" / "crane.toml"
+DRIVEN = ROOT / "scenarios" / "prescribed_motion" / "slider_crank.toml"
 
 
 @pytest.fixture(scope="module")
@@ -35,7 +36,7 @@ def fmu3(tmp_path_factory):
 
     def get(stem: str) -> Path:
         if stem not in built:
-            scene = CRANE if stem == "crane" else ROOT / "scenes" / f"{stem}.toml"
+            scene = {"crane": CRANE, "driven": DRIVEN}.get(stem, ROOT / "scenes" / f"{stem}.toml")
             built[stem] = build_fmu(scene, root / f"{stem}.fmu", fmi_version=3)
         return built[stem]
     return get
@@ -70,9 +71,11 @@ def names_of(h: Host3) -> list[str]:
         [n for n in h.vr if n.endswith((".alpha", ".ax", ".phi"))]
 
 
-def replays(fast: Host3, path: Path, steps: int, names, force=None) -> None:
+def replays(fast: Host3, path: Path, steps: int, names, force=None, value_at=None) -> None:
     """A state taken (and serialized) after the wrapper's steps restores, in the same and
-    in a fresh instance, to values that go on bit for bit as before."""
+    in a fresh instance, to values that go on bit for bit as before (the input ``force``
+    set to ``value_at(t)``, default ``force_at``, before each step)."""
+    value_at = value_at or force_at
     state, t = fast.fmu.getFMUState(), fast.t
     blob = fast.fmu.serializeFMUState(state)
     now = fast.get(*names)
@@ -81,7 +84,7 @@ def replays(fast: Host3, path: Path, steps: int, names, force=None) -> None:
         out = []
         for _ in range(steps):
             if force is not None:
-                h.set(**{force: force_at(h.t)})
+                h.set(**{force: value_at(h.t)})
             assert h.step(H)[0] == OK
             out.append(h.get(*names))
         return np.array(out)
@@ -149,6 +152,31 @@ def test_fmi3_set_float64_of_a_force_and_the_landing_step_are_the_wrappers(fmu3)
     through_python(fast)
     assert taken_by_wrapper(fast) > before
     replays(fast, fmu3("crane"), 5, names, "cylinder.actuator")
+
+
+def test_fmi3_set_float64_of_a_driver_position_and_its_steps_are_the_wrappers(fmu3):
+    """The prescribed-motion slider-crank (dop853p) with its crank angle set before every
+    step, some steps 3 ms: the wrapper takes fmi3SetFloat64 of the position and the step
+    (ckernel/motions.h), with Python's values bit for bit and the same warnings; a state
+    taken after its steps holds the driver's samples and goes on as before, in the same
+    and a fresh instance."""
+    def angle(t):
+        return 314.1592653589793 * t + 0.1 * np.sin(2.0 * np.pi * 5.0 * t)
+    fast, slow = Host3(fmu3("driven"), "fast").init(), Host3(fmu3("driven"), "slow").init()
+    names = names_of(fast)
+    for k in range(200):
+        for h in (fast, slow):
+            h.set(**{"motor.position": angle(fast.t)})
+        step_both(fast, slow, 3 * H if k % 10 == 9 else H, names)
+    through_python(fast)
+    assert taken_by_wrapper(slow) == 0
+    # the doSteps where the derived acceleration's warning turns on or off are Python's
+    # (the 3 ms steps among 1 ms ones make it turn)
+    warned = [[m for _, _, m in h.messages if "derived from motor.position" in m]
+              for h in (fast, slow)]
+    assert warned[0] == warned[1] and warned[0]
+    assert 199 - 2 * len(warned[0]) <= taken_by_wrapper(fast) < 199
+    replays(fast, fmu3("driven"), 5, names, "motor.position", angle)
 
 
 def test_fmi3_steps_beyond_the_work_limit_are_discarded_by_python(fmu3):
