@@ -348,3 +348,23 @@ def test_an_input_that_breaks_static_friction_slips_the_block_at_that_instant(me
     sticking = range(200, slip)
     np.testing.assert_allclose([friction[k] for k in sticking],
                                [-(weight + pull(k)) for k in sticking], rtol=1e-9)
+
+
+def test_events_that_do_not_let_the_time_advance_stop_the_run_with_a_reason(monkeypatch):
+    # modes that chatter at one instant (each event's transition leaving the next one due
+    # at the same time: here every impact of slider_stop handled without moving the state
+    # on) used to loop for ever inside one advance: an FMU hung its host. The runner stops
+    # after MAX_EVENTS_AT_ONCE events at one time, with a SolverError naming them.
+    from mbdfmu.integrators import events
+    monkeypatch.setattr(events, "MAX_EVENTS_AT_ONCE", 50)
+
+    def handle_in_place(self, integrator, crossed, g1):
+        self.log.append((float(integrator.t), "guide", "hits its lower stop (in place)"))
+        if len(self.log) > 10_000:                      # without the guard: fail, not hang
+            raise RuntimeError("the event loop did not stop")
+        integrator.set_state(self.watching[0])          # the time does not advance
+    monkeypatch.setattr(events.EventRunner, "_handle", handle_in_place)
+    sim = mbdfmu.Simulation(ref.SCENES / "slider_stop.toml", method="rk4p", kernel="numpy")
+    with pytest.raises(mbdfmu.SolverError, match=r"51 events at t = .* without the time "
+                                                 r"advancing .*joint guide"):
+        sim.advance(2.0)

@@ -23,7 +23,7 @@ no energy audit), and with end stops or friction watch the contact mode's event
 functions after each step, from their values at the restart with the new inputs. They
 evaluate the drivers' motions at every stage's time (``ckernel/motions.h``), and take the
 positions (velocities, accelerations) the master sets for drivers driven by the inputs,
-each a ``SampledDriver`` (then no stops or friction): the next step applies the set as
+each a ``SampledDriver``: the next step applies the set as
 ``Simulation.set_input``, restarts with the projection of ``_reinitialize``, and hands
 itself to Python where the driver's derived-acceleration warning would turn on or off.
 All need no input changed since the step, every force input held, and under ``auto`` a
@@ -97,10 +97,9 @@ def adopt_driver_state(driver: SampledDriver, state) -> None:
 def sampled_drivers(sim) -> list | None:
     """The drivers that take their motion from the inputs, in the layout's order, when
     the wrapper's steps can follow them: each a ``SampledDriver`` (not a table or a
-    function of time), no end stops or friction; else None. [] without such drivers."""
+    function of time); else None. [] without such drivers."""
     drivers = [sim._drivers[name] for name in sim.equations.layout.drivers]
-    if drivers and (sim.events is not None or
-                    any(type(d) is not SampledDriver for d in drivers)):
+    if any(type(d) is not SampledDriver for d in drivers):
         return None
     return drivers
 
@@ -167,7 +166,7 @@ def fast_steps_ahead(sim, limit, time_tol: float, inputs=None):
     stiff_limit = auto_stiff_limit(current, watcher)
     # with drivers the steps evaluate their motions (the table), not with stops or friction
     driven = bool(sim.scene.drivers)
-    run = None if (driven and (table is None or sim.events is not None)) or \
+    run = None if (driven and table is None) or \
         sim.inputs_known_ahead() or stiff_limit is None else \
         fast_prk_run(current, limit, time_tol, (SAFETY, MIN_FACTOR, MAX_FACTOR), stiff_limit)
     if run is None:
@@ -201,8 +200,8 @@ def arm(sim, limit, time_tol: float, inputs, published) -> tuple | None:
     places in (outputs, q, q', q'')) of the values each step writes."""
     kernel = sim.dense_reads_ahead()
     if kernel is not None:
-        table = (motion_table(sim.equations.constraint_set), sim.equations.constraint_set.offsets) \
-            if sim.scene.drivers else None
+        stepped = sim.stepped_equations.constraint_set     # a contact mode's, with stops
+        table = (motion_table(stepped), stepped.offsets) if sim.scene.drivers else None
         armed = kernel.arm_dense_steps(sim.t, time_tol, *mode_published(sim, published),
                                        motions=table)
         run = dense_run_ahead(sim, limit)

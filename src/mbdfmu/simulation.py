@@ -214,8 +214,8 @@ class Simulation(SimulationInputs):
         # were watched for events (fast_steps.mode_published: its outputs)
         integrator, kernel = self.integrator, self.stepped_equations.ckernel
         driven = bool(self.scene.drivers)
-        if kernel is None or (driven and (self.events is not None or self._drivers or
-                                          motion_table(self.equations.constraint_set) is None)) or \
+        if kernel is None or (driven and (self._drivers or motion_table(
+                self.stepped_equations.constraint_set) is None)) or \
                 self._inputs_changed or not integrator.interpolates_to(integrator.t, True) or \
                 not self.inputs_known_ahead() or \
                 not getattr(integrator, "load_dense_output", lambda t: False)(self.t):

@@ -43,6 +43,9 @@ HORIZON_FRACTION = 0.9
 HORIZON_REACHED = 1e-12
 # An impact whose remaining bounces would all end within this time (s) rests at once.
 SETTLE_TIME = 1e-10
+# Events handled at one time, the time not advancing, before the run stops with an error
+# (a mode that chatters between states at one instant would otherwise never end).
+MAX_EVENTS_AT_ONCE = 1000
 
 
 class EventFound(Exception):
@@ -82,6 +85,7 @@ class EventRunner(ContactModes):
         integrator.equations = self.equations
         if restarted:
             self._released(integrator)
+        at, count = integrator.t, 0
         while integrator.t < t_target:
             self.watching = (integrator.rollback_point(),
                              self.values(integrator.t, integrator.q, integrator.qd), integrator.t)
@@ -109,6 +113,12 @@ class EventRunner(ContactModes):
                         dense = False
                     continue
                 self._handle(integrator, crossed, g1)
+                at, count = integrator.t, (count + 1 if integrator.t == at else 1)
+                if count > MAX_EVENTS_AT_ONCE:
+                    raise SolverError(
+                        f"{count} events at t = {at!r} s without the time advancing (the last: "
+                        f"joint {self.log[-1][1]} {self.log[-1][2]}): the contact modes "
+                        "chatter; change the inputs or the scene's stops", at) from None
             finally:
                 integrator.watch, integrator.watch_each_step = None, False
                 if max_step is not None:

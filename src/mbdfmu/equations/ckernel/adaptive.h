@@ -12,12 +12,12 @@
  * step factors. Anything else (a step near a singular configuration, where
  * singular_zone.py plans, a case the kernel hands back, too many rejections, the work
  * limit) returns non-zero with nothing changed, and Python takes the step and says why.
- * For scenes without an energy audit (non-conservative forces). With drivers (no end stops
- * or friction then), their motions at each stage's time from the motion table (motions.h),
- * and a driver position the master sets taken as fixed.h takes it: applied at the step,
- * then the restart's projection. In a scene with end stops or friction, in the current
- * contact mode with its event functions checked after each step (events.h), a step that
- * changes a sign handing the doStep back.
+ * For scenes without an energy audit (non-conservative forces). With drivers, their
+ * motions at each stage's time from the motion table (motions.h), and a driver position
+ * the master sets taken as fixed.h takes it: applied at the step, then the restart's
+ * projection. In a scene with end stops or friction, in the current contact mode with its
+ * event functions checked after each step (events.h, at the step's end motion), a step
+ * that changes a sign handing the doStep back.
  * Under auto (stiff_limit > 0, dop853p), a step that auto's stiffness rule would count
  * (auto_watch.stiffness above stiff_limit) hands the doStep back to Python as well.
  */
@@ -135,6 +135,11 @@ static int prk_try(const Model *M, PrkRun *r, Scratch *s, const double *y, const
     return 1;
 }
 
+/* The motion at the end of the last trial: its last stage row where drivers move. */
+static const double *end_motion(const Model *M, const PrkRun *r) {
+    return r->mt.nmotion ? r->motions + r->ns * 3 * M->m : r->motion;
+}
+
 /* c_steps.stage_inputs of a trial of hh from tt where drivers move: their motions at each
  * stage's time t + h C_s and at the end, as the rows of r->motions. */
 static void stage_motions(const Model *M, PrkRun *r, double tt, double hh) {
@@ -201,7 +206,7 @@ static int prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double 
             h_ctl = cut ? proposal : h_next;
             if (!cut) err_old = fmax(err, ERR_OLD_MIN);
             if (r->ev.nevent) {          /* the event runner's watch: Python locates it */
-                int crossed = events_crossed(M, &r->ev, r->motion, r->uf, &s, y);
+                int crossed = events_crossed(M, &r->ev, end_motion(M, r), r->uf, &s, y);
                 if (crossed) return crossed > 0 ? ST_EVENT : ST_ERROR_NORM;
             }
         } else {
@@ -461,7 +466,7 @@ int mbd_prk_run(const Model *M, PrkPy *p) {
         r->h = cut ? proposal : h_next;
         if (!cut) r->err_old = fmax(err, ERR_OLD_MIN);
         if (r->ev.nevent) {              /* the event runner's watch, before the audit */
-            int crossed = events_crossed(M, &r->ev, r->motion, r->ufs, &s, y);
+            int crossed = events_crossed(M, &r->ev, end_motion(M, r), r->ufs, &s, y);
             if (crossed) return crossed > 0 ? RUN_EVENT : RUN_PYTHON;
         }
         if (p->audit && p->audit[A_ACTIVE] != 0.0 &&
