@@ -201,7 +201,7 @@ def arm(sim, limit, time_tol: float, inputs, published) -> tuple | None:
     kernel = sim.dense_reads_ahead()
     if kernel is not None:
         stepped = sim.stepped_equations.constraint_set     # a contact mode's, with stops
-        table = (motion_table(stepped), stepped.offsets) if sim.scene.drivers else None
+        table = (kernel.motion_table(stepped), stepped.offsets) if sim.scene.drivers else None
         armed = kernel.arm_dense_steps(sim.t, time_tol, *mode_published(sim, published),
                                        motions=table)
         run = dense_run_ahead(sim, limit)

@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 
 from .equations import Equations
-from .equations.ckernel.fixed import motion_table
 from .equations.projection import (ASSEMBLY_TOL, PROJECTION_MAX_ITER, assemble,
                                    assembly_changes, initial_estimates, project_positions,
                                    project_velocities)
@@ -208,13 +207,13 @@ class Simulation(SimulationInputs):
         """The C kernel, holding the last step's dense output (``Kernel.load_dense``), when
         the coming communication steps inside that step can only read it: no input changed,
         the inputs beyond now known, any drivers' motions of kinds the kernel evaluates
-        (``motion_table``; not with end stops or friction); else None. An FMU's wrapper
+        (``Kernel.motion_table`` of the stepped equations); else None. An FMU's wrapper
         then takes those steps by itself."""
         # with events, the current mode's equations: the steps whose dense output is read
         # were watched for events (fast_steps.mode_published: its outputs)
         integrator, kernel = self.integrator, self.stepped_equations.ckernel
         driven = bool(self.scene.drivers)
-        if kernel is None or (driven and (self._drivers or motion_table(
+        if kernel is None or (driven and (self._drivers or kernel.motion_table(
                 self.stepped_equations.constraint_set) is None)) or \
                 self._inputs_changed or not integrator.interpolates_to(integrator.t, True) or \
                 not self.inputs_known_ahead() or \

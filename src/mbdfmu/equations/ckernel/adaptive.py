@@ -15,7 +15,7 @@ import ctypes
 
 import numpy as np
 
-from .fixed import DRV_SIZE, sampled_arrays, table_arrays
+from .fixed import AUDIT_SIZE, DRV_SIZE, sampled_arrays, table_arrays
 from .model import watch_events
 
 _P, _I, _D = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
@@ -161,7 +161,8 @@ class PrkPy(ctypes.Structure):
 
 class PrkRunBuffers:
     """The arrays a ``PrkPy`` points at, for one tableau: y, f (the state, in place), the
-    stage inputs, the trial's stages and results, the last accepted step and the audit."""
+    stage inputs, the trial's stages and results, the last accepted step and the audit;
+    ``driven``: with drivers, the motion table's arrays and the stages' time fractions."""
 
     def __init__(self, n: int, m: int, nf: int, ns: int):
         n2 = 2 * n
@@ -169,7 +170,8 @@ class PrkRunBuffers:
         self.y_old, self.y_end = np.zeros(n2), np.zeros(n2)
         self.K, self.K_old = np.zeros((ns + 1, n2)), np.zeros((ns + 1, n2))
         self.motions, self.ufs = np.zeros((ns + 1, 3 * m)), np.zeros((ns + 1, max(nf, 1)))
-        self.audit = np.zeros(13)
+        self.audit = np.zeros(AUDIT_SIZE)
+        self.driven: tuple | None = None
 
 
 def point_run(p: PrkPy, b: PrkRunBuffers, tableau, gaps) -> None:

@@ -146,12 +146,10 @@ class FixedSteps:
         held = np.asarray(uf if self.nf else [0.0], dtype=float)
         # three stages' copies, then uf and the drivers' fields
         forces = np.concatenate((np.tile(held, 3), held, np.zeros(3 * ndrv)))
-        arrays = (*table[1:], np.ascontiguousarray(offsets, dtype=float), forces, y,
-                  np.zeros(9 * max(m, 1)), *extra)
+        arrays = (*table_arrays(r, table, offsets), forces, y, np.zeros(9 * max(m, 1)), *extra)
         for name, value in run.items():
             setattr(r, name, value)
-        r.nmotion = table[0]
-        r.mrow, r.mkind, r.mcoef, r.offsets, r.ufs = (a.ctypes.data for a in arrays[:5])
+        r.ufs = forces.ctypes.data
         r.uf = forces.ctypes.data + 8 * 3 * nf
         r.y, r.f, r.save = y.ctypes.data, y.ctypes.data + 8 * n2, y.ctypes.data + 16 * n2
         r.check, r.motions = y.ctypes.data + 32 * n2, arrays[6].ctypes.data
@@ -228,7 +226,7 @@ class FixedSteps:
         step, q, q', f, ``Estimate``'s fields, the audit's values)."""
         kept = getattr(self, "_advance", None)
         if kept is None or kept[0] is not table:
-            state = np.zeros(13)
+            state = np.zeros(AUDIT_SIZE)
             r, _, arrays = self._fixed_struct(dict(y=np.zeros(2 * self.n),
                                                    f=np.zeros(2 * self.n),
                                                    estimate={}), table, offsets, uf,

@@ -151,6 +151,14 @@ static void motion_at(const Model *M, const MotionTable *r, double t, double *ou
     }
 }
 
+/* The drivers' states and table entries as before drivers_apply. */
+static void drivers_undo(SampledSet *sd, MotionTable *mt) {
+    I size = sd->ndrv * DRV_SIZE;
+    const double *saved = sd->drv + size, *coef = saved + size;
+    memcpy(sd->drv, saved, (size_t)size * sizeof(double));
+    for (I d = 0; d < sd->ndrv; d++)
+        memcpy(mt->mcoef + 4 * sd->dmot[d], coef + 4 * d, 4 * sizeof(double));
+}
 
 /* The driver sets taken since the last step (set flags and places of the nvr settable
  * inputs, values in uf), applied as Simulation.set_input applies them at the step's time
@@ -175,21 +183,12 @@ static int drivers_apply(SampledSet *sd, MotionTable *mt, I nvr, const I *set, c
     for (I d = 0; d < sd->ndrv; d++) {
         const double *state = sd->drv + DRV_SIZE * d;
         if (drv_large(state) != (state[D_REPORTED] != 0.0)) {
-            memcpy(sd->drv, saved, (size_t)size * sizeof(double));
+            drivers_undo(sd, mt);        /* the drivers before it had their entries set */
             return -1;
         }
         drv_coefficients(state, mt->mcoef + 4 * sd->dmot[d]);
     }
     return 1;
-}
-
-/* The drivers' states and table entries as before drivers_apply. */
-static void drivers_undo(SampledSet *sd, MotionTable *mt) {
-    I size = sd->ndrv * DRV_SIZE;
-    const double *saved = sd->drv + size, *coef = saved + size;
-    memcpy(sd->drv, saved, (size_t)size * sizeof(double));
-    for (I d = 0; d < sd->ndrv; d++)
-        memcpy(mt->mcoef + 4 * sd->dmot[d], coef + 4 * d, 4 * sizeof(double));
 }
 
 /* Simulation._reinitialize after a driver's set: (q, q') = y projected onto the
