@@ -116,6 +116,14 @@ class AutoWatch(Plain):
         if target is not None and integrator.t <= target:
             raise _Switch
 
+    def idle(self, integrator) -> bool:
+        """Whether ``after_step`` decides and changes nothing after integrator's coming
+        steps, so that a run of them may leave it out (``implicit_c.implicit_run``):
+        genalpha's steps feed no rule (its stiffness is 0) once no switch is pending and
+        no stiff steps are counted."""
+        return integrator.name == GeneralizedAlpha.name and self.pending is None and \
+            self.stiff == 0
+
     def _decide(self, integrator):
         if integrator.name == ALI3P.name:
             c = singular_zone.indicator(integrator, integrator.t, integrator.q)

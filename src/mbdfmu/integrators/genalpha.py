@@ -163,7 +163,10 @@ class GeneralizedAlpha(CompiledNewton, StepControl, ImplicitMethod):
         eq, t1 = self.equations, x["t1"]
         q = self.qw + x["dq"]
         self.a, self.qdd, self.lam = x["a"], x["qdd"], x["lam"]
-        self.qd = project_velocities(eq, t1, q, x["qd"], self.inputs(t1))
+        u, qd = self.inputs(t1), None
+        if self.c_newton is not None:     # the kernel's, as its runs of steps commit
+            qd = self.c_newton.kernel.project_velocities(q, x["qd"], eq.motion_values(t1, u))
+        self.qd = qd if qd is not None else project_velocities(eq, t1, q, x["qd"], u)
         self._set_positions(q)
         self.stats.nprojections += 1
         self.check_finite(t1, self.q, self.qd)

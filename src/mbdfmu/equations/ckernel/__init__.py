@@ -207,6 +207,16 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
             return None
         return b.q.copy(), b.qd.copy()
 
+    def project_velocities(self, q, qd, motion):
+        """q' projected onto Psi_q q' = nu at q (``projection.project_velocities``), or None
+        when the numpy path must do it (a singular Schur complement)."""
+        b, m = self.buf, self.m
+        self._load(q, qd, motion, None)
+        if self._project_velocities(self.address, b.p_q, b.p_qd, b.p_motion,
+                                    b.p_motion + 8 * m) != OK:
+            return None
+        return b.qd.copy()
+
     def singularity_indicator(self, q, motion) -> float:
         """``singular.singularity_indicator`` of Psi_q at q (motion: (c, c', c''))."""
         b = self.buf

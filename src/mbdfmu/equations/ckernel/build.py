@@ -19,7 +19,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 SOURCES = ("kernel.c", "solve.h", "nullspace.h", "friction.h", "events.h", "stepping.h",
            "outputs.h", "dense.h", "motions.h", "fixed.h", "adaptive.h", "dense_run.h",
-           "implicit.h", "implicit_dense.h")
+           "implicit.h", "implicit_dense.h", "implicit_run.h")
 # -O2 without -ffast-math: the kernel must round like the numpy code it translates.
 CFLAGS = ("-O2", "-shared", "-fPIC", "-std=gnu11", "-fno-fast-math", "-Wall")
 

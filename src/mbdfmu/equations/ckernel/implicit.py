@@ -1,6 +1,7 @@
 """Steps of the implicit index-3 methods in the C kernel (implicit.h): genalpha's and
 ali3p's attempts with newton.py's iteration on the banded Schur complement, whole runs of
-their fixed steps, and the kept iteration matrix's solve.
+their fixed steps and of their controlled steps (implicit_run.h), and the kept iteration
+matrix's solve.
 
 ``ImplicitCalls`` is a mixin of ``Kernel``: it uses the kernel's ``n``, ``m``, ``nf``,
 ``buf``, ``address``, ``library`` and ``_arrays``.
@@ -12,6 +13,8 @@ import ctypes
 import itertools
 
 import numpy as np
+
+from .fixed import table_arrays
 
 _P, _I, _D = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
 METHODS = {"genalpha": 0, "ali3p": 1}
@@ -36,6 +39,17 @@ class Implicit(ctypes.Structure):
         [("dense", _I), ("fd", _I)]
 
 
+class ImpRun(ctypes.Structure):
+    """implicit_run.h's ``ImpRun``: a run of controlled steps, its counters, its buffers."""
+
+    _fields_ = [(name, _D) for name in ("t", "t_target", "h", "max_step", "share_tol",
+                                        "safety", "max_growth", "max_cut", "keep_growth")] + \
+        [(name, _I) for name in ("max_work", "rejections", "nsteps", "nrejected", "stepped")] + \
+        [("divergence", _D), ("roundoff", _D)] + \
+        [(name, _P) for name in ("y", "x", "motion", "audit", "work")] + \
+        [("nmotion", _I), ("mrow", _P), ("mkind", _P), ("mcoef", _P), ("offsets", _P)]
+
+
 def declare_implicit(lib) -> None:
     """The argument and return types of implicit.h's entry points (once per library)."""
     signatures = {"mbd_implicit_kept_size": ([_P], _I),
@@ -43,7 +57,8 @@ def declare_implicit(lib) -> None:
                   "mbd_implicit_solve": ([_P] * 5, ctypes.c_int),
                   "mbd_implicit_attempt": ([_P, _P, _P, _P, _D, _P, _P, _P], ctypes.c_int),
                   "mbd_implicit_steps": ([_P, _P, _P, _P, _D, _I, _P, _P, _I, _P, _D, _D,
-                                          _P, _P], ctypes.c_int)}
+                                          _P, _P], ctypes.c_int),
+                  "mbd_implicit_run": ([_P] * 4, ctypes.c_int)}
     for name, (argtypes, restype) in signatures.items():
         function = getattr(lib, name)
         function.argtypes, function.restype = argtypes, restype
@@ -122,6 +137,40 @@ class ImplicitCalls:
         state = (y[:n], y[n:2 * n], y[2 * n:3 * n], y[3 * n:4 * n], y[4 * n:5 * n],
                  y[5 * n:5 * n + self.m])
         return status, int(b.done[0]), state
+
+    def implicit_run(self, p: Implicit, kept, state, settings: dict, motion, audit=None,
+                     table=None) -> tuple:
+        """Controlled steps from ``state`` (as ``implicit_attempt``) in one call of
+        ``mbd_implicit_run``: ``settings`` are ImpRun's scalar fields by name, ``motion``
+        the constraints' (c, c', c'') at every step's end, or, with ``table`` (the drivers'
+        ``motion_table`` and the constraints' offsets), evaluated there; ``audit`` the energy
+        audit's state or None. Returns (status, the ImpRun with its counters, the new state,
+        the audit's state after it)."""
+        n, m = self.n, self.m
+        if "_imp_run" not in self.__dict__:
+            buffers = np.zeros(3 * m + 16 + 3 * (n + m) + 1)
+            r = ImpRun()
+            r.y, r.x = self.imp_y.ctypes.data, self.imp_x.ctypes.data
+            r.motion, r.work = buffers.ctypes.data, buffers.ctypes.data + 8 * (3 * m + 16)
+            self._imp_run = (r, buffers)
+        r, buffers = self._imp_run
+        self._load_state(*state)
+        for name, value in settings.items():
+            setattr(r, name, value)
+        buffers[:3 * m] = np.concatenate(motion)
+        r.nmotion = 0
+        if table is not None:      # the arrays the run points at, kept with it
+            self._imp_table = table_arrays(r, *table)
+        audit_now = buffers[3 * m:3 * m + 16]
+        r.audit = None if audit is None else audit_now.ctypes.data
+        if audit is not None:
+            audit_now[:len(audit)] = audit
+        status = self._imp.mbd_implicit_run(self.address, ctypes.byref(p), kept.ctypes.data,
+                                            ctypes.byref(r))
+        y = self.imp_y.copy()
+        state = (y[:n], y[n:2 * n], y[2 * n:3 * n], y[3 * n:4 * n], y[4 * n:5 * n],
+                 y[5 * n:5 * n + m])
+        return status, r, state, audit_now[:len(audit) if audit is not None else 0].copy()
 
     def implicit_solve(self, p: Implicit, kept, rhs) -> np.ndarray | None:
         """S^-1 rhs (n + m) with the kept iteration matrix; None when it is not valid."""

@@ -28,7 +28,9 @@
  *                    next steps and their interpolant (dense_run.h)
  *   mbd_implicit_*   genalpha.py / ali3p.py steps with newton.py's iteration on the
  *                    banded Schur complement (implicit.h), or a dense LU where K couples
- *                    bodies (implicit_dense.h)
+ *                    bodies (implicit_dense.h); mbd_implicit_run: their controlled
+ *                    steps up to an output time, the step control's decisions
+ *                    included (implicit_run.h)
  *
  * Eq. (14) with an ill-conditioned Schur complement (next to a singular configuration,
  * redundant rows) is solved here in singular.py's null-space form (nullspace.h) for the
@@ -577,3 +579,4 @@ int mbd_singularity_indicator(const Model *M, const double *q, const double *cva
 #include "adaptive.h"
 #include "dense_run.h"
 #include "implicit.h"
+#include "implicit_run.h"
