@@ -9,12 +9,14 @@ this shared machine does not count. ``--python`` builds the FMUs with another ch
 interpreter too (label=path), for a before/after in one run: each build's rows are
 measured alternately, ``--repeat`` rounds, and the round with the lowest mean kept.
 
-    python benchmarks/fmu_step_times.py [--set targets|events|drivers] [--method rk4p]
+    python benchmarks/fmu_step_times.py [--set targets|events|drivers|stiff] [--method rk4p]
         [--t-end 10] [--repeat 3] [--python base=/path/python]
 
 ``--set events`` times the shipped scenes with end stops and friction instead (and
 crane_stop with its cylinder's force set before every doStep); ``--set drivers`` the
-prescribed-motion slider-crank with its crank angle set before every doStep; ``--method``
+prescribed-motion slider-crank with its crank angle set before every doStep; ``--set
+stiff`` a 1e10 N/m spring under auto (genalpha's controlled steps), alone, with a push set
+before every doStep, and hung from a pinned body; ``--method``
 sets every FMU's ``solver.method`` (its scene's by default). Writes ``fmu_step_times.md``
 (``fmu_step_times_events.md``; with ``--method M``, ``..._M.md``), ``.csv`` and ``.png``
 into ``-o`` (default docs/figures/performance).
@@ -86,8 +88,60 @@ EVENT_CASES["crane_stop, force set"] = (ROOT / "scenes" / "crane_stop.toml", CYL
 DRIVER_CASES = {"prescribed slider-crank, position set": (
     ROOT / "scenarios" / "prescribed_motion" / "slider_crank.toml", "", "motor.position",
     lambda t: 314.1592653589793 * t + 0.1 * math.sin(2.0 * math.pi * 5.0 * t))}
+# --set stiff: P1 with its rod a 1e10 N/m spring (benchmarks/stiff.py's), auto's stiff
+# case (genalpha under step control), alone and with a push across it set before every
+# doStep, and hung from a second body pinned off its centre (constraints, a force Jacobian
+# coupling two bodies)
+STIFF_SPRING = """name = "StiffSpring"
+gravity = [0.0, -9.81]
+[[body]]
+name = "bob"
+mass = 1.0
+inertia = 1e-6
+position = [1.0, 0.0]
+[[force]]
+name = "rod"
+type = "spring_damper"
+body_j = "bob"
+point_j = [0.0, 0.0]
+stiffness = 1e10
+damping = 0.0
+rest_length = 1.0
+"""
+STIFF_PUSH = """
+[[force]]
+name = "push"
+type = "force"
+body = "bob"
+point = [0.0, 0.0]
+input = true
+"""
+STIFF_HOOK = """
+[[body]]
+name = "hook"
+mass = 1.0
+inertia = 1.0
+position = [-0.1, 0.0]
+[[joint]]
+name = "pin"
+type = "revolute"
+body_i = "ground"
+point_i = [0.0, 0.0]
+body_j = "hook"
+point_j = [0.1, 0.0]
+"""
+STIFF_CASES = {
+    "stiff spring, auto": (None, STIFF_SPRING.replace(
+        'body_j = "bob"', 'body_i = "ground"\npoint_i = [0.0, 0.0]\nbody_j = "bob"'), None, None),
+    "stiff spring, push set": (None, STIFF_SPRING.replace(
+        'body_j = "bob"', 'body_i = "ground"\npoint_i = [0.0, 0.0]\nbody_j = "bob"')
+        + STIFF_PUSH, "push.fy", lambda t: -2.0 + math.sin(2.0 * math.pi * t)),
+    "stiff spring on a pinned hook, push set": (None, STIFF_SPRING.replace(
+        'body_j = "bob"', 'body_i = "hook"\npoint_i = [0.1, 0.0]\nbody_j = "bob"')
+        + STIFF_HOOK + STIFF_PUSH, "push.fy", lambda t: -2.0 + math.sin(2.0 * math.pi * t))}
 SETS = {"targets": (CASES, "fmu_step_times"), "events": (EVENT_CASES, "fmu_step_times_events"),
-        "drivers": (DRIVER_CASES, "fmu_step_times_drivers")}
+        "drivers": (DRIVER_CASES, "fmu_step_times_drivers"),
+        "stiff": (STIFF_CASES, "fmu_step_times_stiff")}
 
 
 def build(python: str, scene: Path, target: Path) -> Path:
@@ -176,7 +230,8 @@ def main(argv=None) -> int:
     parser.add_argument("--set", choices=SETS, default="targets",
                         help="targets: issue 13's three mechanisms; events: the scenes with "
                              "end stops and friction (writes fmu_step_times_events.*); "
-                             "drivers: a crank angle set by the master")
+                             "drivers: a crank angle set by the master; stiff: a 1e10 N/m "
+                             "spring under auto")
     parser.add_argument("--method", default=None,
                         help="every FMU's solver.method (default: its scene's)")
     parser.add_argument("--python", action="append", default=[], metavar="LABEL=PATH",
@@ -195,8 +250,9 @@ def main(argv=None) -> int:
         fmus = {}
         for i, (case, (scene, added, _, _)) in enumerate(cases.items()):
             if added:
+                base = "" if scene is None else scene.read_text()
                 scene = Path(tmp) / f"c{i}.toml"
-                scene.write_text(cases[case][0].read_text() + added)
+                scene.write_text(base + added)
             for j, (label, python) in enumerate(builds):
                 fmus[case, label] = build(python, scene, Path(tmp) / f"c{i}b{j}.fmu")
         for case, (_, _, input_name, value) in cases.items():

@@ -191,7 +191,7 @@ def test_the_dense_matrix_is_the_python_steps(method):
     p = newton.prepare(it)
     p.max_iter = 1
     u = it.inputs(it.t + h)
-    newton.kernel.implicit_attempt(p, it.matrix.kept, implicit_c._state(it), h,
+    newton.kernel.implicit_attempt(p, it.matrix.kept, implicit_c.step_state(it), h,
                                    it.equations.motion_values(it.t + h, u), u.forces)
     S = python_matrix(it, h)
     b = np.random.default_rng(1).standard_normal(S.shape[0])

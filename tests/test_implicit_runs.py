@@ -1,4 +1,4 @@
-"""Runs of genalpha's and ali3p's controlled steps in C (integrators/implicit_c.py
+"""Runs of genalpha's and ali3p's controlled steps in C (integrators/implicit_runs.py
 ``implicit_run``, ckernel/implicit_run.h) against Python's step loop taking the same C
 attempts one at a time (``IMPLICIT_RUNS`` off): the step control's decisions, the commits,
 the energy audit and the work limit are written twice, so the two must give the same
@@ -12,7 +12,7 @@ import pytest
 import mbdfmu
 from mbdfmu.equations import ckernel
 from mbdfmu.errors import SolverError, WorkLimitError
-from mbdfmu.integrators import implicit_c
+from mbdfmu.integrators import implicit_runs
 from mbdfmu.integrators.work import WorkLimit
 from mbdfmu.model.reader import scene_from_dict
 
@@ -45,15 +45,15 @@ CASES = {
 
 def spy_runs(monkeypatch, runs: bool) -> list:
     """IMPLICIT_RUNS set to ``runs``; the steps each C run took, collected."""
-    monkeypatch.setattr(implicit_c, "IMPLICIT_RUNS", runs)
-    taken, real = [], implicit_c.implicit_run
+    monkeypatch.setattr(implicit_runs, "IMPLICIT_RUNS", runs)
+    taken, real = [], implicit_runs.implicit_run
 
     def counted(method, t_target, rejections):
         before = method.stats.nsteps
         out = real(method, t_target, rejections)
         taken.append(method.stats.nsteps - before)
         return out
-    monkeypatch.setattr(implicit_c, "implicit_run", counted)
+    monkeypatch.setattr(implicit_runs, "implicit_run", counted)
     return taken
 
 

@@ -15,7 +15,10 @@ wrapper serves are Python's bit for bit (tests/test_fmu_fast.py):
 * ``fixed``: rk4p's steps, the drivers' motions evaluated in C (``ckernel/fixed.h``), the
   energy audit's check after each in C too; in a scene with end stops or friction the
   current contact mode's equations, its event functions watched after each step;
-* ``prk``: an embedded pair's steps landing on the communication point (``ckernel/adaptive.h``).
+* ``prk``: an embedded pair's steps landing on the communication point (``ckernel/adaptive.h``);
+* ``implicit``: genalpha's and ali3p's controlled steps (auto's stiff scenes) landing on it
+  (``ckernel/implicit_run.h``, ``integrators.implicit_runs``), the energy audit's check
+  after each, with the force inputs held and no sampled drivers, end stops or friction.
 
 The last two take the force inputs the master sets before each step (the wrapper takes
 those fmi2SetReal calls too, then restarts as Python does; rk4p where the restart starts
@@ -43,6 +46,7 @@ from .equations.projection import PROJECTION_MAX_ITER
 from .integrators.c_steps import adopt_prk_run, fast_prk_run, tableau
 from .integrators.auto_watch import STIFF_HLAMBDA
 from .integrators.dense_runs import adopt_dense_run, dense_run
+from .integrators.implicit_runs import adopt_fast_implicit, arm_fast_implicit
 from .integrators.rk4p_c import adopt_fast_run, fast_run
 from .integrators.projected_rk import DOP853P, MAX_FACTOR, MIN_FACTOR, SAFETY
 from .integrators.tableaux import DOP853_C_EXTRA
@@ -212,11 +216,31 @@ def arm(sim, limit, time_tol: float, inputs, published) -> tuple | None:
         return kernel.arm_dense_run(*run, motions=motions)
     fast = fast_steps_ahead(sim, limit, time_tol, inputs)
     if fast is None:
-        return None
+        return implicit_ahead(sim, limit, time_tol, inputs, published)
     kind, kernel, arguments, keywords = fast
     if kind == "fixed":
         return kernel.arm_fixed_steps(*arguments, *mode_published(sim, published), **keywords)
     return kernel.arm_prk_steps(*arguments, inputs, *mode_published(sim, published), **keywords)
+
+
+def implicit_ahead(sim, limit, time_tol: float, inputs, published) -> tuple | None:
+    """The arguments of ``arm_fast_steps`` for the coming steps as runs of genalpha's or
+    ali3p's controlled steps (``implicit_runs.arm_fast_implicit``), the force inputs among
+    ``inputs`` (``settable_inputs``) taken from fmi2SetReal too, or None: they need every
+    force input held and none set since the step, no driver driven by the inputs, no end
+    stops or friction, and under auto a watcher at rest."""
+    eq, watcher = sim.stepped_equations, getattr(sim.integrator, "watcher", None)
+    if eq.ckernel is None or sim.events is not None or sim._inputs_changed or \
+            sim.equations.layout.drivers or \
+            any(type(f) is not Held for f in sim._forces.values()) or \
+            (watcher is not None and watcher.pending is not None):
+        return None
+    current = getattr(sim.integrator, "current", sim.integrator)
+    if getattr(current, "c_newton", None) is None:
+        return None
+    forces = inputs if inputs is not None else ((), ())
+    return arm_fast_implicit(current, eq.ckernel, limit, time_tol, sim.inputs_at(sim.t),
+                             forces, published, sim.reinitialize_tolerance())
 
 
 def mode_published(sim, published) -> tuple:
@@ -283,6 +307,12 @@ def catch_up(sim, inputs) -> tuple[bool, list, list]:
         if restarts:
             hold_forces(sim, uf)
         adopt_driver_states(sim, states)
+    implicit, implicit_pending = kernel.implicit_taken()
+    pending = pending + implicit_pending
+    if implicit is not None:
+        adopt_fast_implicit(getattr(sim.integrator, "current", sim.integrator), implicit)
+        hold_forces(sim, implicit["uf"])
+        return True, held_inputs(sim, inputs), pending
     run = kernel.dense_run_taken()
     if prk is not None:
         adopt_prk_run(sim.integrator, prk)

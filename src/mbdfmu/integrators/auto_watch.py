@@ -118,7 +118,7 @@ class AutoWatch(Plain):
 
     def idle(self, integrator) -> bool:
         """Whether ``after_step`` decides and changes nothing after integrator's coming
-        steps, so that a run of them may leave it out (``implicit_c.implicit_run``):
+        steps, so that a run of them may leave it out (``implicit_runs.implicit_run``):
         genalpha's steps feed no rule (its stiffness is 0) once no switch is pending and
         no stiff steps are counted."""
         return integrator.name == GeneralizedAlpha.name and self.pending is None and \

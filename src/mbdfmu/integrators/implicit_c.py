@@ -24,9 +24,8 @@ this method under the numba kernel when it can be compiled.
 A fixed-step run takes RUN_LENGTH steps per C call with the energy check inside; a step
 whose Newton iteration fails there is halved by ``newton.advance_with_halving`` as always.
 A run of controlled steps (``step_control = "adaptive"``, auto's stiff scenes) takes its
-steps up to the output time in one C call (``implicit_run``: implicit_run.h), the step
-control's acceptance and factors included, on scenes without force inputs whose drivers'
-motions the kernel evaluates. What stays in Python: halving a failed fixed step, the
+steps up to the output time in one C call (``implicit_runs``), the step control's
+acceptance and factors included. What stays in Python: halving a failed fixed step, the
 energy audit's verdict, work limits between calls, and any attempt the kernel hands back.
 """
 
@@ -41,10 +40,11 @@ from ..equations import ckernel
 from ..equations.forces import FD_STEP
 from ..model.scene import RotationalSpringDamper, SpringDamper
 from . import newton
-from .c_steps import (NO_AUDIT, PRK_RUN_LENGTH, PRK_RUN_LENGTH_FREE, RUN_ENERGY, RUN_FAILED,
-                      RUN_PYTHON, audit_back, audit_state, stage_inputs)
+from .c_steps import (NO_AUDIT, RUN_ENERGY, RUN_FAILED, RUN_PYTHON, audit_back, audit_state,
+                      stage_inputs)
+from . import implicit_runs
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
-from .implicit_control import ERROR_SHARE, KEEP_GROWTH, MAX_CUT, MAX_GROWTH, SAFETY
+from .implicit_runs import step_state
 from .crossing_step import CrossingWatch, fixed_run_across
 from .newton import IterationMatrix, NewtonFailure
 
@@ -58,8 +58,6 @@ DENSE_BELOW = 1e-3
 # Fixed steps per C call: the work limits are checked between calls (ckernel.MAX_ROWS
 # rows of inputs).
 RUN_LENGTH = 64
-# Runs of controlled steps in C (``implicit_run``); False: one C attempt per Python step.
-IMPLICIT_RUNS = True
 # Largest n + m solved by the kernel's dense LU (implicit_dense.h) where the banded Schur
 # complement does not apply: its cost grows as (n + m)^3, and beyond a few hundred unknowns
 # the Python step's blocked LAPACK LU catches up (benchmarks/implicit_speed.py).
@@ -181,11 +179,6 @@ def _on_one_body(eq, force) -> bool:
     return sum(index.get(name, eq.nb) < eq.nb for name in ends) <= 1
 
 
-def _state(method) -> tuple:
-    a = method.a if method.name == "genalpha" else method.qdd
-    return method.qw, method.turns, method.qd, method.qdd, a, method.lam
-
-
 def attempt(method, t: float, h: float) -> dict | None:
     """``_attempt(t, h)`` of genalpha or ali3p in C: the step not yet taken (their ``x``),
     NewtonFailure, or None: the Python path does this attempt."""
@@ -197,7 +190,7 @@ def attempt(method, t: float, h: float) -> dict | None:
     p = kn.prepare(method)
     method.matrix._lu = None        # a Python path's factors: the kernel keeps its own
     status, (dq, qd, qdd, a, lam) = kn.kernel.implicit_attempt(
-        p, method.matrix.kept, _state(method), h, method.equations.motion_values(t1, u),
+        p, method.matrix.kept, step_state(method), h, method.equations.motion_values(t1, u),
         u.forces)
     kn.count(method.stats)
     if status == ckernel.OK:
@@ -285,10 +278,10 @@ class CompiledNewton:
         return stop
 
     def _steps_in_c(self, t_target, dense, rejections):
-        """Controlled steps of ``_advance_adaptive`` in C (``implicit_run``)."""
-        if dense or not implicit_runs(self):
+        """Controlled steps of ``_advance_adaptive`` in C (``implicit_runs``)."""
+        if dense or not implicit_runs.can_run(self):
             return None
-        status, rejections = implicit_run(self, t_target, rejections)
+        status, rejections = implicit_runs.implicit_run(self, t_target, rejections)
         if status == RUN_FAILED:
             self._step_size_failed()
         if status == RUN_ENERGY:
@@ -301,7 +294,7 @@ class CompiledNewton:
         kn = self.c_newton
         stage_inputs(self, ends, kn.kernel)
         status, done, state = kn.kernel.implicit_steps(
-            kn.prepare(self), self.matrix.kept, _state(self), h, len(ends),
+            kn.prepare(self), self.matrix.kept, step_state(self), h, len(ends),
             audit_state(self.audit) if audited else NO_AUDIT,
             ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF)
         kn.count(self.stats)
@@ -315,59 +308,3 @@ class CompiledNewton:
                 self.a = a
             self.q = self.qw + 2.0 * math.pi * self.turns
         return status, done
-
-
-def implicit_runs(method) -> bool:
-    """Whether ``implicit_run`` can take method's coming controlled steps: the kernel's
-    attempts, a scene without force inputs whose drivers' motions the kernel evaluates
-    (``motion_table``), and no watch after each step that would see them (events; auto's,
-    unless idle for this method: ``AutoWatch.idle``)."""
-    kn, eq = method.c_newton, method.equations
-    if not (IMPLICIT_RUNS and kn is not None and method.adaptive and kn.kernel.nf == 0
-            and not eq.layout.drivers):
-        return False
-    watch = method.watch
-    if watch is not None and not getattr(getattr(watch, "__self__", None), "idle",
-                                         lambda _: False)(method):
-        return False
-    return not eq.scene.drivers or kn.kernel.motion_table(eq.constraint_set) is not None
-
-
-def implicit_run(method, t_target: float, rejections: int) -> tuple[int, int]:
-    """Controlled steps of ``_advance_adaptive`` (``StepControl._step_impl``, the energy
-    check after each) in one C call until t_target, an attempt Python must take, or
-    PRK_RUN_LENGTH attempts when a work limit is set (PRK_RUN_LENGTH_FREE without): the
-    same decisions and counters as the Python loop. Returns (the kernel's RUN_* status,
-    steps rejected in a row)."""
-    kn, eq, stats = method.c_newton, method.equations, method.stats
-    attempts = PRK_RUN_LENGTH if method.limit is not None else PRK_RUN_LENGTH_FREE
-    if method.limit is not None and method.limit.max_steps is not None:
-        used = stats.nsteps + stats.nrejected - method.limit.first
-        attempts = max(1, min(attempts, method.limit.max_steps - used))
-    method.matrix._lu = None        # a Python path's factors: the kernel keeps its own
-    settings = dict(t=method.t, t_target=t_target, h=method.h, max_step=method.max_step,
-                    share_tol=ERROR_SHARE * method._tolerance(), safety=SAFETY,
-                    max_growth=MAX_GROWTH, max_cut=MAX_CUT, keep_growth=KEEP_GROWTH,
-                    max_work=attempts, rejections=rejections,
-                    divergence=ENERGY_DIVERGENCE_FRACTION, roundoff=ENERGY_ROUNDOFF)
-    table = ((kn.kernel.motion_table(eq.constraint_set), eq.constraint_set.offsets)
-             if eq.scene.drivers else None)
-    audit = audit_state(method.audit) if method.audit is not None else None
-    status, r, state, audit_after = kn.kernel.implicit_run(
-        kn.prepare(method), method.matrix.kept, _state(method), settings,
-        eq.motion_values(method.t), audit, table)
-    kn.count(stats)
-    stats.nsteps += int(r.nsteps)
-    stats.nrejected += int(r.nrejected)
-    if audit is not None:
-        audit_back(method.audit, audit_after)
-        if status == RUN_ENERGY:    # _after_step checks this state again
-            method.audit.checks -= 1
-    method.h = float(r.h)
-    if r.stepped:
-        method.t = float(r.t)
-        method.qw, method.turns, method.qd, method.qdd, a, method.lam = state
-        if method.name == "genalpha":
-            method.a = a
-        method.q = method.qw + 2.0 * math.pi * method.turns
-    return status, int(r.rejections)

@@ -46,8 +46,19 @@ class ImpRun(ctypes.Structure):
                                         "safety", "max_growth", "max_cut", "keep_growth")] + \
         [(name, _I) for name in ("max_work", "rejections", "nsteps", "nrejected", "stepped")] + \
         [("divergence", _D), ("roundoff", _D)] + \
-        [(name, _P) for name in ("y", "x", "motion", "audit", "work")] + \
+        [(name, _P) for name in ("y", "x", "motion", "uf", "audit", "work")] + \
         [("nmotion", _I), ("mrow", _P), ("mkind", _P), ("mcoef", _P), ("offsets", _P)]
+
+
+class ImpFast(ctypes.Structure):
+    """implicit_run.h's ``ImpFast``: an FMU's communication steps of a run of controlled steps."""
+
+    _fields_ = [("run", ImpRun), ("p", _P), ("kept", _P), ("nkept", _I), ("naudit", _I),
+                ("t_now", _D), ("time_tol", _D), ("max_work", _I), ("save", _P), ("y2", _P),
+                ("steps", _I), ("nsteps", _I), ("nrejected", _I), ("restarts", _I),
+                ("nout", _I), ("npub", _I), ("pub_dst", _P), ("pub_src", _P), ("V", _P),
+                ("nvr", _I), ("vrs", _P), ("slots", _P), ("set", _P), ("changed", _I),
+                ("uf_step", _P), ("periodic", _P), ("tol", _D), ("max_iter", _I)]
 
 
 def declare_implicit(lib) -> None:
@@ -58,7 +69,9 @@ def declare_implicit(lib) -> None:
                   "mbd_implicit_attempt": ([_P, _P, _P, _P, _D, _P, _P, _P], ctypes.c_int),
                   "mbd_implicit_steps": ([_P, _P, _P, _P, _D, _I, _P, _P, _I, _P, _D, _D,
                                           _P, _P], ctypes.c_int),
-                  "mbd_implicit_run": ([_P] * 4, ctypes.c_int)}
+                  "mbd_implicit_run": ([_P] * 4, ctypes.c_int),
+                  "mbd_implicit_fast_step": ([_P, _P, _D, _D, _P], ctypes.c_int),
+                  "mbd_implicit_set": ([_P, _P, ctypes.c_size_t, _P, _P], ctypes.c_int)}
     for name, (argtypes, restype) in signatures.items():
         function = getattr(lib, name)
         function.argtypes, function.restype = argtypes, restype
@@ -148,10 +161,11 @@ class ImplicitCalls:
         the audit's state after it)."""
         n, m = self.n, self.m
         if "_imp_run" not in self.__dict__:
-            buffers = np.zeros(3 * m + 16 + 3 * (n + m) + 1)
+            buffers = np.zeros(3 * m + 16 + 3 * (n + m) + max(self.nf, 1))
             r = ImpRun()
             r.y, r.x = self.imp_y.ctypes.data, self.imp_x.ctypes.data
             r.motion, r.work = buffers.ctypes.data, buffers.ctypes.data + 8 * (3 * m + 16)
+            r.uf = r.work + 8 * 3 * (n + m)         # no force inputs in Python's runs
             self._imp_run = (r, buffers)
         r, buffers = self._imp_run
         self._load_state(*state)
@@ -171,6 +185,90 @@ class ImplicitCalls:
         state = (y[:n], y[n:2 * n], y[2 * n:3 * n], y[3 * n:4 * n], y[4 * n:5 * n],
                  y[5 * n:5 * n + m])
         return status, r, state, audit_now[:len(audit) if audit is not None else 0].copy()
+
+    imp_fast: ImpFast | None = None
+
+    def arm_implicit_steps(self, p: Implicit, kept, state, settings: dict, motion, uf,
+                           audit, table, inputs, pub_dst, pub_src) -> tuple:
+        """Let an FMU's wrapper take the coming communication steps as runs of controlled
+        steps (``mbd_implicit_fast_step``) from ``state`` (as ``implicit_attempt``) at
+        ``settings["t_now"]``, with the method's settings ``p`` (its counters add up until
+        ``implicit_taken``) and its kept matrix ``kept`` (shared: the steps update it),
+        ImpRun's scalar ``settings`` and ImpFast's (t_now, time_tol, max_work; periodic, tol,
+        max_iter: the restart's wrapped angles and projection), the motion and ``table`` as
+        ``implicit_run``, the held force inputs ``uf``, the energy audit's state or None,
+        ``inputs`` (value references and places in uf of the force inputs fmi2SetReal may
+        set here: ``mbd_implicit_set``; none with an audit), publishing as
+        ``DenseReads.arm_dense_steps`` does. Returns (the addresses of
+        ``mbd_implicit_fast_step``, of the model, of the ImpFast, of ``mbd_implicit_set``
+        or 0)."""
+        n, m, nf = self.n, self.m, max(self.nf, 1)
+        f = self.imp_fast = ImpFast()
+        r = f.run
+        ny, naudit = 5 * n + max(m, 1), 0 if audit is None else len(audit)
+        y = np.zeros(2 * ny + 4 * n + max(m, 1))       # y, x (its first 4n + m), y2
+        y[:ny] = np.concatenate((*state[:5], state[5], np.zeros(ny - 5 * n - m)))
+        buffers = np.zeros(3 * m + 16 + 3 * (n + m) + 2 * nf)
+        buffers[:3 * m] = np.concatenate(motion)
+        audit_at = 3 * m
+        if audit is not None:
+            buffers[audit_at:audit_at + naudit] = audit
+        uf_at = 3 * m + 16 + 3 * (n + m)
+        buffers[uf_at:uf_at + self.nf] = buffers[uf_at + nf:uf_at + nf + self.nf] = uf
+        vrs, slots = (np.ascontiguousarray(a, dtype=np.int64) for a in inputs)
+        flags = np.zeros(max(vrs.size, 1), dtype=np.int64)
+        periodic = np.ascontiguousarray(settings.pop("periodic"), dtype=float)
+        dst, src = (np.ascontiguousarray(a, dtype=np.int64) for a in (pub_dst, pub_src))
+        save = np.zeros(ny + kept.size + 16)
+        self._imp_fast_arrays = dict(y=y, buffers=buffers, dst=dst, src=src, save=save,
+                                     kept=kept, p=p, vrs=vrs, slots=slots, set=flags,
+                                     periodic=periodic, table=table_arrays(r, *table)
+                                     if table is not None else None)
+        if table is None:
+            r.nmotion = 0
+        for name in ("t_now", "time_tol", "max_work", "tol", "max_iter"):
+            setattr(f, name, settings.pop(name))
+        for name, value in settings.items():
+            setattr(r, name, value)
+        base = buffers.ctypes.data
+        r.y, r.x, f.y2 = y.ctypes.data, y.ctypes.data + 8 * ny, y.ctypes.data + 16 * ny
+        r.motion, r.work, r.uf = base, base + 8 * (3 * m + 16), base + 8 * uf_at
+        r.audit = None if audit is None else base + 8 * audit_at
+        f.p, f.kept, f.nkept, f.naudit = ctypes.addressof(p), kept.ctypes.data, kept.size, naudit
+        f.save, f.pub_dst, f.pub_src = save.ctypes.data, dst.ctypes.data, src.ctypes.data
+        f.nout, f.npub, f.V = self.nout, dst.size, self._dense_scratch.ctypes.data
+        f.nvr, f.vrs, f.slots, f.set = vrs.size, vrs.ctypes.data, slots.ctypes.data, \
+            flags.ctypes.data
+        f.uf_step, f.periodic = base + 8 * (uf_at + nf), periodic.ctypes.data
+        step = ctypes.cast(self._imp.mbd_implicit_fast_step, ctypes.c_void_p).value
+        setter = ctypes.cast(self._imp.mbd_implicit_set, ctypes.c_void_p).value
+        return step, self.address, ctypes.addressof(f), setter if vrs.size else 0
+
+    def implicit_taken(self) -> tuple[dict | None, list]:
+        """What the wrapper's runs did since arming or the last call: (None without steps,
+        else the state: t, the state as ``implicit_attempt`` takes it, h, the audit's
+        state, the counters of accepted and rejected steps and of restarts, the force
+        inputs the last step held; and [(value reference, value)] of the inputs set since
+        its last step). The counts start again."""
+        f = self.imp_fast
+        if f is None:
+            return None, []
+        a, n, m, nf = self._imp_fast_arrays, self.n, self.m, max(self.nf, 1)
+        uf_at = 3 * m + 16 + 3 * (n + m)
+        pending = [(int(vr), float(a["buffers"][uf_at + slot])) for vr, slot, flag in
+                   zip(a["vrs"], a["slots"], a["set"]) if flag]
+        a["set"][:] = 0
+        if f.steps == 0:
+            return None, pending
+        y = a["y"][:5 * n + m].copy()
+        audit = a["buffers"][3 * m:3 * m + f.naudit].copy()
+        taken = dict(t=float(f.t_now), h=float(f.run.h), audit=audit, nsteps=int(f.nsteps),
+                     nrejected=int(f.nrejected), restarts=int(f.restarts),
+                     uf=a["buffers"][uf_at + nf:uf_at + nf + self.nf].copy(),
+                     state=(y[:n], y[n:2 * n], y[2 * n:3 * n], y[3 * n:4 * n], y[4 * n:5 * n],
+                            y[5 * n:5 * n + m]))
+        f.steps = f.nsteps = f.nrejected = f.restarts = 0
+        return taken, pending
 
     def implicit_solve(self, p: Implicit, kept, rhs) -> np.ndarray | None:
         """S^-1 rhs (n + m) with the kept iteration matrix; None when it is not valid."""

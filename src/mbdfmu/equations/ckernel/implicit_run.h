@@ -8,8 +8,19 @@
  * fails (its error is raised there), the energy check's verdict, the step size failure.
  *
  * The drivers' motions come from the motion table (motions.h) at each step's end, or are
- * the constant `motion` of a scene without drivers; the scene has no force inputs (the
- * caller checks: integrators/implicit_c.py implicit_runs).
+ * the constant `motion` of a scene without drivers; the force inputs `uf` are held over the
+ * run (Python's runs: a scene without force inputs, integrators/implicit_c.py
+ * implicit_runs; an FMU's wrapper: the held inputs).
+ *
+ * mbd_implicit_fast_step is such a run as an FMU's communication step taken by its wrapper
+ * without Python (fmu_build/runtime real_cache.py FastSteps), landing on the communication
+ * point and publishing the values there as the other fast steps do (outputs.h); any run
+ * that does not reach it puts everything back and hands the doStep to Python. Force
+ * inputs the master sets before a step (mbd_implicit_set, as adaptive.h's mbd_prk_set)
+ * restart the method first as Python does (Simulation._reinitialize's projection,
+ * Integrator.reset_state, ImplicitMethod.restart: q'' and lam of eq. (14), the angles
+ * wrapped anew, a fresh iteration matrix, genalpha's a = q''; the step kept); only in
+ * scenes without an energy audit, which such a restart would start.
  */
 
 typedef struct {
@@ -22,6 +33,7 @@ typedef struct {
     double divergence, roundoff;    /* the energy check's ENERGY_DIVERGENCE_FRACTION, ROUNDOFF */
     double *y, *x;           /* the state (5n + m: implicit.h's Y_*) and an attempt's x */
     double *motion;          /* (3m) the motion at the step's end */
+    double *uf;              /* the force inputs, held (nf) */
     double *audit;           /* the energy audit's state, or NULL */
     double *work;            /* 3 (n + m): the error filter's right-hand side and solution */
     MotionTable mt;          /* nmotion 0: `motion` is constant */
@@ -75,7 +87,7 @@ int mbd_implicit_run(const Model *M, Implicit *p, double *kept, ImpRun *r) {
         I lands = 0;
         double hh = landing_step(proposal, r->t_target - r->t, &lands);
         if (r->mt.nmotion) motion_at(M, &r->mt, r->t + hh, r->motion);
-        int st = attempt(M, p, &s, kept, r->y, hh, r->motion, NULL, r->x, w);
+        int st = attempt(M, p, &s, kept, r->y, hh, r->motion, r->uf, r->x, w);
         attempts++;
         int accepted = 0;
         if (st == ST_NEWTON) {
@@ -112,4 +124,117 @@ int mbd_implicit_run(const Model *M, Implicit *p, double *kept, ImpRun *r) {
             return RUN_ENERGY;
     }
     return RUN_DONE;
+}
+
+/* ---- an FMU's communication step (the wrapper's, see the header) --------------------------- */
+
+typedef struct {
+    ImpRun run;              /* the run: its state run.y, its buffers and settings */
+    Implicit *p;             /* the method's settings (their counters add up since armed) */
+    double *kept;            /* the method's kept iteration matrix (nkept), shared */
+    I nkept, naudit;         /* its size; the audit's (0: none) */
+    double t_now, time_tol;  /* the FMU's time */
+    I max_work;              /* attempts one doStep may take */
+    double *save;            /* y, kept, audit and h at the doStep's start, put back if the
+                              * run hands it to Python */
+    double *y2;              /* (q, q') at the step's end (2n) for the outputs */
+    I steps, nsteps, nrejected, restarts;   /* since armed */
+    I nout, npub; const I *pub_dst, *pub_src;
+    double *V;               /* (outputs, q, q', q''), then lam */
+    /* force inputs set by fmi2SetReal (mbd_implicit_set; nvr = 0: none may be set here) */
+    I nvr; const I *vrs, *slots;   /* value reference of each settable input, its place in uf */
+    I *set;                  /* nvr: 1 where set since the last step */
+    I changed;               /* an input was set since the last step */
+    double *uf_step;         /* the inputs the last step held (nf) */
+    const double *periodic;  /* 1.0 on the wrapped angles (n) */
+    double tol; I max_iter;  /* the restart's position projection */
+} ImpFast;
+
+int mbd_implicit_set(ImpFast *f, const unsigned int *vr, size_t nvr, const double *value,
+                     double *values) {
+    return set_force_inputs(f->nvr, f->vrs, f->slots, f->run.uf, f->set, &f->changed, vr, nvr,
+                            value, values);
+}
+
+/* The restart after a force input was set (see the header), from the state in r->y at
+ * f->t_now: ST_OK, or the status of the projection or eq. (14) that failed. */
+static int imp_restart(const Model *M, ImpFast *f) {
+    ImpRun *r = &f->run;
+    I n = M->n, m = M->m;
+    double *y = r->y, *q = f->y2, *qd = f->y2 + n;
+    if (r->mt.nmotion) motion_at(M, &r->mt, f->t_now, r->motion);
+    for (I k = 0; k < n; k++) q[k] = y[k] + 2.0 * M_PI * y[Y_TURNS * n + k];
+    memcpy(qd, y + Y_QD * n, (size_t)n * sizeof(double));
+    if (m) {
+        int st = mbd_project_positions(M, q, r->motion, f->tol, f->max_iter);
+        if (st == ST_OK) st = mbd_project_velocities(M, q, qd, r->motion, r->motion + m);
+        if (st != ST_OK) return st;
+    }
+    int st = mbd_accelerations(M, q, qd, r->motion, r->motion + 2 * m, r->uf, y + Y_QDD * n,
+                               y + Y_A * n + n);
+    if (st != ST_OK) return st;
+    for (I k = 0; k < n; k++) {
+        double turn = f->periodic[k] != 0.0 ? floor((q[k] + M_PI) / (2.0 * M_PI)) : 0.0;
+        y[k] = q[k] - 2.0 * M_PI * turn;
+        y[Y_TURNS * n + k] = turn;
+    }
+    memcpy(y + Y_QD * n, qd, (size_t)n * sizeof(double));
+    memcpy(y + Y_A * n, y + Y_QDD * n, (size_t)n * sizeof(double));
+    memset(f->kept, 0, (size_t)f->nkept * sizeof(double));
+    return ST_OK;
+}
+
+static void imp_save(const Model *M, ImpFast *f, int back) {
+    I ny = 5 * M->n + M->m;
+    double *to[3] = {f->save, f->save + ny, f->save + ny + f->nkept};
+    double *from[3] = {f->run.y, f->kept, f->run.audit};
+    I size[3] = {ny, f->nkept, f->naudit};
+    for (int k = 0; k < 3; k++)
+        if (size[k]) {
+            if (back) memcpy(from[k], to[k], (size_t)size[k] * sizeof(double));
+            else memcpy(to[k], from[k], (size_t)size[k] * sizeof(double));
+        }
+}
+
+int mbd_implicit_fast_step(const Model *M, ImpFast *f, double t, double hc, double *values) {
+    if (!(fabs(t - f->t_now) <= f->time_tol * fmax(fabs(t), fabs(f->t_now)))) return ST_ERROR_NORM;
+    ImpRun *r = &f->run;
+    Implicit *p = f->p;
+    I n = M->n, counts[4] = {p->nnewton, p->njev, p->nlu, p->nprojections};
+    double h = r->h;
+    imp_save(M, f, 0);
+    int st = f->changed ? imp_restart(M, f) : ST_OK;
+    if (st != ST_OK) {
+        imp_save(M, f, 1);
+        return ST_ERROR_NORM;
+    }
+    r->t = f->t_now;
+    r->t_target = t + hc;
+    r->rejections = 0;
+    r->max_work = f->max_work;
+    st = mbd_implicit_run(M, p, f->kept, r);
+    if (st == RUN_DONE) {
+        Scratch s = scratch(M, M->work);
+        const double *qw = r->y, *turns = r->y + Y_TURNS * n;
+        for (I k = 0; k < n; k++) f->y2[k] = qw[k] + 2.0 * M_PI * turns[k];
+        memcpy(f->y2 + n, r->y + Y_QD * n, (size_t)n * sizeof(double));
+        if (r->mt.nmotion) motion_at(M, &r->mt, r->t, r->motion);
+        st = publish_step_end(M, &s, f->y2, r->motion, r->uf, f->nout, f->npub, f->pub_src,
+                              f->pub_dst, f->V, values) == ST_OK ? RUN_DONE : RUN_PYTHON;
+    }
+    if (st != RUN_DONE) {       /* Python takes this doStep from where it began */
+        imp_save(M, f, 1);
+        r->h = h;
+        p->nnewton = counts[0]; p->njev = counts[1]; p->nlu = counts[2]; p->nprojections = counts[3];
+        return ST_ERROR_NORM;
+    }
+    f->restarts += f->changed;
+    f->changed = 0;
+    for (I k = 0; k < f->nvr; k++) f->set[k] = 0;
+    if (M->nf) memcpy(f->uf_step, r->uf, (size_t)M->nf * sizeof(double));
+    f->t_now = r->t;
+    f->steps += 1;
+    f->nsteps += r->nsteps;
+    f->nrejected += r->nrejected;
+    return ST_OK;
 }
