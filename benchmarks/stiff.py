@@ -17,8 +17,9 @@ in alternating order; error: the largest distance of the bob from the closed for
 the run's outputs, against the tolerance rtol x 1 m + atol of the default settings.
 Target: k = 1e10 under auto in under 0.2 s of CPU time with the error within tolerance.
 A method named with the suffix ``-python`` (``auto-python``) runs with genalpha's and
-ali3p's steps in Python instead of the C kernel (``integrators/implicit_c.py``), for a
-before/after in one run.
+ali3p's steps in Python instead of the C kernel (``integrators/implicit_c.py``), and with
+``-loop`` (``auto-loop``) with their attempts in C but the step loop in Python, one C call
+an attempt (``integrators/implicit_runs.py`` off), for a before/after in one run.
 
     python benchmarks/stiff.py [--t-end 0.02] [--interval 0.001] [--repeat 5]
                                [--methods auto,dop853p] [--springs ground,two-bodies]
@@ -46,7 +47,7 @@ import numpy as np  # noqa: E402
 
 import mbdfmu  # noqa: E402
 from mbdfmu.bench.closed_forms import pendulum  # noqa: E402
-from mbdfmu.integrators import implicit_c  # noqa: E402
+from mbdfmu.integrators import implicit_c, implicit_runs  # noqa: E402
 from mbdfmu.integrators.settings import DEFAULT_ATOL, DEFAULT_RTOL  # noqa: E402
 from mbdfmu.model.reader import scene_from_dict  # noqa: E402
 
@@ -54,7 +55,7 @@ ROOT = Path(__file__).resolve().parents[1]
 STIFFNESSES = (1e8, 1e9, 1e10, 1e11, 1e12)
 METHODS = ("auto", "dop853p")
 TARGET_K, TARGET_CPU = 1e10, 0.2
-PYTHON_SUFFIX = "-python"
+PYTHON_SUFFIX, LOOP_SUFFIX = "-python", "-loop"
 SPRINGS = ("ground", "two-bodies")
 
 
@@ -74,18 +75,18 @@ def spring_pendulum(k: float, spring: str = "ground"):
 
 def run(k: float, method: str, t_end: float, interval: float, spring: str = "ground"):
     scene = spring_pendulum(k, spring)
-    python = method.endswith(PYTHON_SUFFIX)
-    implicit_c.ENABLED = not python
+    python, loop = method.endswith(PYTHON_SUFFIX), method.endswith(LOOP_SUFFIX)
+    implicit_c.ENABLED, implicit_runs.IMPLICIT_RUNS = not python, not loop
     try:
         start = time.process_time()
-        res = mbdfmu.simulate(scene, t_end=t_end, method=method.removesuffix(PYTHON_SUFFIX),
-                              output_interval=interval)
+        res = mbdfmu.simulate(scene, t_end=t_end, output_interval=interval,
+                              method=method.removesuffix(PYTHON_SUFFIX).removesuffix(LOOP_SUFFIX))
         cpu = time.process_time() - start
     finally:
-        implicit_c.ENABLED = True
+        implicit_c.ENABLED = implicit_runs.IMPLICIT_RUNS = True
     ex = pendulum(res.time, L=1.0, m=1.0, J=1e-6)
     err = float(np.max(np.hypot(res["bob.x"] - ex["x"], res["bob.y"] - ex["y"])))
-    name = res.method + (" (Python steps)" if python else "")
+    name = res.method + (" (Python steps)" if python else " (Python loop)" if loop else "")
     return cpu, err, name, res.stats.get("nsteps", 0)
 
 
