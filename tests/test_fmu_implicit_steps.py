@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mbdfmu.bench import closed_forms  # noqa: E402
 from mbdfmu.equations import ckernel  # noqa: E402
 from mbdfmu.fmu_build.scene_fmu import build_fmu  # noqa: E402
-from fmu_models.harness import OK, get_state  # noqa: E402
+from fmu_models.harness import OK, get_state, serialize  # noqa: E402
 from fmu_models.scenes import scene_host  # noqa: E402,F401
 from test_fmu_dense_run import lockstep, taken_by_wrapper  # noqa: E402
 
@@ -83,6 +83,13 @@ def adaptive(stem: str, method: str) -> str:
                   'step_control = "adaptive"\n'
 
 
+def fixed(stem: str, method: str, step: float) -> str:
+    """A shipped scene with ``method`` at a fixed ``step``."""
+    text = (SCENES / f"{stem}.toml").read_text()
+    assert "[simulation]" not in text
+    return text + f'\n[simulation]\nmethod = "{method}"\nstep = {step!r}\n'
+
+
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory):
     folder = tmp_path_factory.mktemp("implicit_fmus")
@@ -91,7 +98,11 @@ def fmus(tmp_path_factory):
     assert 'body_i = "hook"' in hooked
     sources = {"spring": SPRING, "pushed": SPRING + PUSH, "hooked": hooked,
                "crank_genalpha": adaptive("slider_crank", "genalpha"),
-               "crank_ali3p": adaptive("slider_crank", "ali3p")}
+               "crank_ali3p": adaptive("slider_crank", "ali3p"),
+               "p2_genalpha": fixed("n_four_bar_2", "genalpha", 1e-3),
+               "p2_ali3p": fixed("n_four_bar_2", "ali3p", 5e-4),
+               "crank_fixed": fixed("slider_crank", "genalpha", 2.5e-4),
+               "torque_fixed": fixed("pendulum_torque", "ali3p", 1e-3)}
     built = {}
     for name, text in sources.items():
         (folder / f"{name}.toml").write_text(text)
@@ -106,6 +117,13 @@ def hosts(scene_host, path, max_steps: int | None = None):
             assert host.set_int("solver.max_steps_per_communication_step", max_steps) == OK
         host.init()
     return made
+
+
+def same_state(fast, slow) -> bool:
+    """The whole state of the two instances, serialized, is the same to the byte: the
+    integrator's (its kept matrix, the controller's step, the energy audit, the stated
+    accuracy's estimate) and every counter of the run."""
+    return serialize(fast, get_state(fast)) == serialize(slow, get_state(slow))
 
 
 def wrapper_steps(host) -> int:
@@ -124,6 +142,7 @@ def test_a_stiff_spring_under_auto_steps_in_the_wrapper_as_in_python(fmus, scene
         xs.append(x)
         ys.append(y)
     assert wrapper_steps(fast) >= 290 and wrapper_steps(slow) == 0
+    assert same_state(fast, slow)
     exact = closed_forms.pendulum(np.array(times), J=1e-6)
     error = float(np.max(np.hypot(np.array(xs) - exact["x"], np.array(ys) - exact["y"])))
     assert error < 1e-6, error          # the default tolerance: 1e-6 m (measured 4e-7)
@@ -137,6 +156,7 @@ def test_the_driven_slider_crank_under_step_control(which, fmus, scene_host):
     fast, slow = hosts(scene_host, fmus[which])
     lockstep(fast, slow, 200)
     assert wrapper_steps(fast) >= 190
+    assert same_state(fast, slow)
 
 
 @pytest.mark.parametrize("which, every", [("pushed", 1), ("pushed", 7), ("hooked", 1)])
@@ -156,6 +176,31 @@ def test_force_inputs_set_before_steps_are_taken_by_the_wrapper(which, every, fm
                 assert host.status("fmi2SetReal", vrs, 2, values) == OK
         lockstep(fast, slow, 1)
     assert wrapper_steps(fast) >= 135
+    assert same_state(fast, slow)
+
+
+@pytest.mark.parametrize("which", ["p2_genalpha", "p2_ali3p", "crank_fixed"])
+def test_fixed_steps_are_taken_by_the_wrapper_as_in_python(which, fmus, scene_host):
+    """genalpha and ali3p at the scene's fixed step: the grid of steps, the energy check
+    and the stated accuracy's estimate charged in C; a doStep at which a step-doubling check
+    falls due is Python's (one, two and four steps a doStep: the slider-crank's checks fall
+    inside doSteps)."""
+    fast, slow = hosts(scene_host, fmus[which])
+    lockstep(fast, slow, 400)
+    assert wrapper_steps(fast) >= 360
+    assert same_state(fast, slow)
+
+
+def test_a_torque_set_before_every_fixed_step(fmus, scene_host):
+    fast, slow = hosts(scene_host, fmus["torque_fixed"])
+    vr = (ctypes.c_uint * 1)(fast.vr["drive.torque"])
+    for k in range(300):
+        value = (ctypes.c_double * 1)(2.0 * np.sin(0.05 * k))
+        for host in (fast, slow):
+            assert host.status("fmi2SetReal", vr, 1, value) == OK
+        lockstep(fast, slow, 1)
+    assert wrapper_steps(fast) >= 270
+    assert same_state(fast, slow)
 
 
 def test_a_work_limit_hands_the_step_to_python_which_says_why(fmus, scene_host):

@@ -22,7 +22,10 @@ from .c_steps import (PRK_RUN_LENGTH, PRK_RUN_LENGTH_FREE, RUN_ENERGY, audit_bac
                       wrapper_attempts)
 from ..equations.projection import PROJECTION_MAX_ITER
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
+from .base import STEP_COUNT_SLACK
 from .implicit_control import ERROR_SHARE, KEEP_GROWTH, MAX_CUT, MAX_GROWTH, SAFETY
+from .newton import H_FINE, SAME_STEP
+from .stated_accuracy import adopt_c_estimate, c_estimate
 
 # Off: one C attempt per Python step (the tests compare the two).
 IMPLICIT_RUNS = True
@@ -52,14 +55,28 @@ def can_run(method, held: bool = False) -> bool:
     return not eq.scene.drivers or kn.kernel.motion_table(eq.constraint_set) is not None
 
 
-def run_settings(method) -> dict:
-    """ImpRun's settings for method's coming steps: its step, the step control's
-    constants, the energy check's; and the drivers' motion table or None."""
+def can_run_fixed(method) -> bool:
+    """Whether an FMU's wrapper can take method's fixed steps (``_advance_fixed``): the
+    kernel's attempts, no Newton failure pending, steps coarser than those whose ends
+    ``crossing_step.py`` watches next to a singular configuration (or no constraints), the
+    stated accuracy's estimate, and the scene's inputs as ``can_run`` asks."""
+    kn, eq = method.c_newton, method.equations
+    return (IMPLICIT_RUNS and kn is not None and not method.adaptive and method.watch is None
+            and method._failed is None and method.accuracy is not None
+            and (method.h > H_FINE or eq.m == 0) and not eq.layout.drivers
+            and (not eq.scene.drivers or kn.kernel.motion_table(eq.constraint_set) is not None))
+
+
+def run_settings(method) -> tuple[dict, tuple | None]:
+    """ImpRun's settings for method's coming steps: the energy check's and, under step
+    control, its step and the controller's constants; and the drivers' motion table or
+    None."""
     eq = method.equations
-    settings = dict(h=method.h, max_step=method.max_step,
-                    share_tol=ERROR_SHARE * method._tolerance(), safety=SAFETY,
-                    max_growth=MAX_GROWTH, max_cut=MAX_CUT, keep_growth=KEEP_GROWTH,
-                    divergence=ENERGY_DIVERGENCE_FRACTION, roundoff=ENERGY_ROUNDOFF)
+    settings = dict(divergence=ENERGY_DIVERGENCE_FRACTION, roundoff=ENERGY_ROUNDOFF)
+    if method.adaptive:
+        settings.update(h=method.h, max_step=method.max_step,
+                        share_tol=ERROR_SHARE * method._tolerance(), safety=SAFETY,
+                        max_growth=MAX_GROWTH, max_cut=MAX_CUT, keep_growth=KEEP_GROWTH)
     table = ((method.c_newton.kernel.motion_table(eq.constraint_set), eq.constraint_set.offsets)
              if eq.scene.drivers else None)
     return settings, table
@@ -111,7 +128,7 @@ def arm_fast_implicit(method, kernel, limit, time_tol: float, u, inputs, publish
     energy audit, which the restart would start). None when the steps must go through
     Python (``can_run``, another kernel, a short CPU limit)."""
     kn = method.c_newton
-    if not can_run(method, held=True) or kn.kernel is not kernel:
+    if not (can_run(method, held=True) or can_run_fixed(method)) or kn.kernel is not kernel:
         return None
     max_work = wrapper_attempts(limit)
     if max_work is None:
@@ -120,6 +137,9 @@ def arm_fast_implicit(method, kernel, limit, time_tol: float, u, inputs, publish
     settings, table = run_settings(method)
     settings.update(t_now=method.t, time_tol=time_tol, max_work=max_work,
                     periodic=method.periodic, tol=reinitialize_tol, max_iter=PROJECTION_MAX_ITER)
+    if not method.adaptive:
+        settings.update(fixed=1, h_max=method.h, slack=STEP_COUNT_SLACK, same_step=SAME_STEP,
+                        estimate=c_estimate(method))
     audit = audit_state(method.audit) if method.audit is not None else None
     if method.equations.nonconservative_reason() is None:
         inputs = ((), ())
@@ -137,12 +157,16 @@ def adopt_fast_implicit(method, taken: dict) -> None:
     stats.nsteps += taken["nsteps"]
     stats.nrejected += taken["nrejected"]
     stats.naccel += taken["restarts"]        # each restart's q'', as Python's
-    method.t, method.h, method.out = taken["t"], taken["h"], None
+    method.t, method.out = taken["t"], None
+    if method.adaptive:
+        method.h = taken["h"]
     method.qw, method.turns, method.qd, method.qdd, a, method.lam = taken["state"]
     if method.name == "genalpha":
         method.a = a
     method.q = method.qw + 2.0 * math.pi * method.turns
     if method.audit is not None:
         audit_back(method.audit, taken["audit"])
+    if taken["estimate"] is not None:
+        adopt_c_estimate(method, taken["estimate"])
     if taken["restarts"]:     # a restart made a fresh iteration matrix (KernelMatrix's)
         method.matrix._lu = None

@@ -14,7 +14,7 @@ import itertools
 
 import numpy as np
 
-from .fixed import table_arrays
+from .fixed import Estimate, estimate_values, table_arrays
 
 _P, _I, _D = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
 METHODS = {"genalpha": 0, "ali3p": 1}
@@ -58,7 +58,23 @@ class ImpFast(ctypes.Structure):
                 ("steps", _I), ("nsteps", _I), ("nrejected", _I), ("restarts", _I),
                 ("nout", _I), ("npub", _I), ("pub_dst", _P), ("pub_src", _P), ("V", _P),
                 ("nvr", _I), ("vrs", _P), ("slots", _P), ("set", _P), ("changed", _I),
-                ("uf_step", _P), ("periodic", _P), ("tol", _D), ("max_iter", _I)]
+                ("uf_step", _P), ("periodic", _P), ("tol", _D), ("max_iter", _I),
+                ("fixed", _I), ("h_max", _D), ("slack", _D), ("same_step", _D), ("est", _P)]
+
+
+def fill_fast(f: ImpFast, settings: dict) -> Estimate:
+    """ImpFast's scalar ``settings`` into f, the rest into its ImpRun; the stated accuracy's
+    ``estimate`` (a fixed step's) into a new ``Estimate`` that f points at, returned."""
+    for name in ("t_now", "time_tol", "max_work", "tol", "max_iter", "fixed", "h_max",
+                 "slack", "same_step"):
+        setattr(f, name, settings.pop(name, 0))
+    estimate = Estimate()
+    for name, value in settings.pop("estimate", {}).items():
+        setattr(estimate, name, value)
+    f.est = ctypes.addressof(estimate)
+    for name, value in settings.items():
+        setattr(f.run, name, value)
+    return estimate
 
 
 def declare_implicit(lib) -> None:
@@ -199,7 +215,9 @@ class ImplicitCalls:
         ``implicit_run``, the held force inputs ``uf``, the energy audit's state or None,
         ``inputs`` (value references and places in uf of the force inputs fmi2SetReal may
         set here: ``mbd_implicit_set``; none with an audit), publishing as
-        ``DenseReads.arm_dense_steps`` does. Returns (the addresses of
+        ``DenseReads.arm_dense_steps`` does. A method at a fixed step gives its grid
+        (``settings``' fixed, h_max, slack, same_step) and its stated accuracy's
+        ``estimate`` (``Estimate``'s fields). Returns (the addresses of
         ``mbd_implicit_fast_step``, of the model, of the ImpFast, of ``mbd_implicit_set``
         or 0)."""
         n, m, nf = self.n, self.m, max(self.nf, 1)
@@ -226,10 +244,7 @@ class ImplicitCalls:
                                      if table is not None else None)
         if table is None:
             r.nmotion = 0
-        for name in ("t_now", "time_tol", "max_work", "tol", "max_iter"):
-            setattr(f, name, settings.pop(name))
-        for name, value in settings.items():
-            setattr(r, name, value)
+        self._imp_fast_arrays["estimate"] = fill_fast(f, settings)
         base = buffers.ctypes.data
         r.y, r.x, f.y2 = y.ctypes.data, y.ctypes.data + 8 * ny, y.ctypes.data + 16 * ny
         r.motion, r.work, r.uf = base, base + 8 * (3 * m + 16), base + 8 * uf_at
@@ -262,7 +277,9 @@ class ImplicitCalls:
             return None, pending
         y = a["y"][:5 * n + m].copy()
         audit = a["buffers"][3 * m:3 * m + f.naudit].copy()
+        estimate = a["estimate"]
         taken = dict(t=float(f.t_now), h=float(f.run.h), audit=audit, nsteps=int(f.nsteps),
+                     estimate=estimate_values(estimate) if f.fixed else None,
                      nrejected=int(f.nrejected), restarts=int(f.restarts),
                      uf=a["buffers"][uf_at + nf:uf_at + nf + self.nf].copy(),
                      state=(y[:n], y[n:2 * n], y[2 * n:3 * n], y[3 * n:4 * n], y[4 * n:5 * n],

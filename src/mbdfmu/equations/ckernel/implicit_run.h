@@ -148,6 +148,13 @@ typedef struct {
     double *uf_step;         /* the inputs the last step held (nf) */
     const double *periodic;  /* 1.0 on the wrapped angles (n) */
     double tol; I max_iter;  /* the restart's position projection */
+    /* a method named with its step (fixed: 1): Integrator._advance_fixed's grid of steps
+     * of at most h_max (STEP_COUNT_SLACK, newton.SAME_STEP) and the stated accuracy's
+     * estimate charged after each run of steps (fixed.h's est_charge); a doStep at which a
+     * step-doubling check falls due is Python's */
+    I fixed;
+    double h_max, slack, same_step;
+    Estimate *est;
 } ImpFast;
 
 int mbd_implicit_set(ImpFast *f, const unsigned int *vr, size_t nvr, const double *value,
@@ -184,6 +191,47 @@ static int imp_restart(const Model *M, ImpFast *f) {
     return ST_OK;
 }
 
+/* Integrator._advance_fixed from f->t_now to end with CompiledNewton's runs of steps
+(implicit_c.py _run_steps: each step's inputs at (t0 + h (j - 1)) + h, as stage_inputs
+ gets them), the energy check after each step, the estimate charged after each run:
+ RUN_DONE, or RUN_PYTHON for anything Python must do (a check due, a step the kernel hands
+ back or whose Newton iteration fails, more steps than the work limit allows, the energy
+ check or the estimate stopping the run). */
+static int imp_fixed(const Model *M, ImpFast *f, double end) {
+    ImpRun *r = &f->run;
+    Estimate *E = f->est;
+    Scratch s = scratch(M, M->work);
+    I n_coord = M->n, m = M->m;
+    double *w = attempt_work(M, &s), *q = w + 14 * n_coord + 3 * m;
+    double t0 = f->t_now, span = end - t0;
+    double steps = ceil(span / f->h_max - f->slack);
+    I n = steps < 1.0 ? 1 : (I)steps;
+    double hh = span / (double)n;
+    if (fabs((double)n * f->h_max - span) <= f->same_step * span) hh = f->h_max;
+    if (n > f->max_work) return RUN_PYTHON;
+    for (I k = 0; k < n;) {
+        if (E->unchecked >= E->every) return RUN_PYTHON;
+        I run = n - k, room = E->every - E->unchecked;
+        if (room < 1) room = 1;
+        if (run > room) run = room;
+        for (I j = k + 1; j <= k + run; j++) {
+            if (r->mt.nmotion) motion_at(M, &r->mt, (t0 + hh * (double)(j - 1)) + hh, r->motion);
+            int st = attempt(M, f->p, &s, f->kept, r->y, hh, r->motion, r->uf, r->x, w);
+            if (st == ST_OK) st = commit(M, f->p, &s, r->y, r->x, r->motion, q);
+            if (st != ST_OK) return RUN_PYTHON;
+            E->nsteps++;
+            r->nsteps++;
+            if (r->audit && r->audit[A_ACTIVE] != 0.0 &&
+                    !energy_check(M, q, r->y + Y_QD * n_coord, r->audit, r->divergence, r->roundoff))
+                return RUN_PYTHON;
+        }
+        k += run;
+        if (!est_charge(E, k < n ? t0 + (double)k * hh : end, hh)) return RUN_PYTHON;
+    }
+    r->t = end;
+    return RUN_DONE;
+}
+
 static void imp_save(const Model *M, ImpFast *f, int back) {
     I ny = 5 * M->n + M->m;
     double *to[3] = {f->save, f->save + ny, f->save + ny + f->nkept};
@@ -208,11 +256,14 @@ int mbd_implicit_fast_step(const Model *M, ImpFast *f, double t, double hc, doub
         imp_save(M, f, 1);
         return ST_ERROR_NORM;
     }
+    Estimate est_before;
+    if (f->fixed) est_before = *f->est;
     r->t = f->t_now;
     r->t_target = t + hc;
     r->rejections = 0;
     r->max_work = f->max_work;
-    st = mbd_implicit_run(M, p, f->kept, r);
+    r->nsteps = r->nrejected = 0;
+    st = f->fixed ? imp_fixed(M, f, t + hc) : mbd_implicit_run(M, p, f->kept, r);
     if (st == RUN_DONE) {
         Scratch s = scratch(M, M->work);
         const double *qw = r->y, *turns = r->y + Y_TURNS * n;
@@ -224,6 +275,7 @@ int mbd_implicit_fast_step(const Model *M, ImpFast *f, double t, double hc, doub
     }
     if (st != RUN_DONE) {       /* Python takes this doStep from where it began */
         imp_save(M, f, 1);
+        if (f->fixed) *f->est = est_before;
         r->h = h;
         p->nnewton = counts[0]; p->njev = counts[1]; p->nlu = counts[2]; p->nprojections = counts[3];
         return ST_ERROR_NORM;
