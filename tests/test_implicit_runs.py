@@ -107,16 +107,3 @@ def test_a_broken_energy_balance_stops_both_with_the_same_reason(monkeypatch):
             sim.advance(0.3)
         outcome[runs] = (str(info.value), sim.integrator.stats.nsteps)
     assert outcome[True] == outcome[False]
-
-
-def test_a_saved_state_goes_on_bit_for_bit():
-    """The kept matrix and the controller's step are the run's state (an FMU's saved state)."""
-    sim = mbdfmu.Simulation("slider_crank", method="genalpha", kernel="c",
-                            method_options=ADAPTIVE)
-    sim.advance(0.1)
-    saved = sim.integrator.get_state()
-    sim.advance(0.2)
-    first = sim.integrator.q.copy()
-    sim.integrator.set_state(saved)
-    sim.advance(0.2)
-    assert np.array_equal(sim.integrator.q, first)

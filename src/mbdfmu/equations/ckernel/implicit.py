@@ -59,7 +59,8 @@ class ImpFast(ctypes.Structure):
                 ("nout", _I), ("npub", _I), ("pub_dst", _P), ("pub_src", _P), ("V", _P),
                 ("nvr", _I), ("vrs", _P), ("slots", _P), ("set", _P), ("changed", _I),
                 ("uf_step", _P), ("periodic", _P), ("tol", _D), ("max_iter", _I),
-                ("fixed", _I), ("h_max", _D), ("slack", _D), ("same_step", _D), ("est", _P)]
+                ("fixed", _I), ("h_max", _D), ("slack", _D), ("same_step", _D), ("est", _P),
+                ("check", _P)]
 
 
 def fill_fast(f: ImpFast, settings: dict) -> Estimate:
@@ -237,9 +238,10 @@ class ImplicitCalls:
         flags = np.zeros(max(vrs.size, 1), dtype=np.int64)
         periodic = np.ascontiguousarray(settings.pop("periodic"), dtype=float)
         dst, src = (np.ascontiguousarray(a, dtype=np.int64) for a in (pub_dst, pub_src))
-        save = np.zeros(ny + kept.size + 16)
+        save, check = np.zeros(ny + kept.size + 16), np.zeros(ny + kept.size + 2 * n)
+        f.check = check.ctypes.data
         self._imp_fast_arrays = dict(y=y, buffers=buffers, dst=dst, src=src, save=save,
-                                     kept=kept, p=p, vrs=vrs, slots=slots, set=flags,
+                                     check=check, kept=kept, p=p, vrs=vrs, slots=slots, set=flags,
                                      periodic=periodic, table=table_arrays(r, *table)
                                      if table is not None else None)
         if table is None:

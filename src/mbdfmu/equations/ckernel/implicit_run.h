@@ -150,11 +150,12 @@ typedef struct {
     double tol; I max_iter;  /* the restart's position projection */
     /* a method named with its step (fixed: 1): Integrator._advance_fixed's grid of steps
      * of at most h_max (STEP_COUNT_SLACK, newton.SAME_STEP) and the stated accuracy's
-     * estimate charged after each run of steps (fixed.h's est_charge); a doStep at which a
-     * step-doubling check falls due is Python's */
+     * estimate charged after each run of steps and its step-doubling checks (fixed.h's
+     * est_charge and est_resample) */
     I fixed;
     double h_max, slack, same_step;
     Estimate *est;
+    double *check;           /* a step-doubling check's room: y, kept, then q and q' (2n) */
 } ImpFast;
 
 int mbd_implicit_set(ImpFast *f, const unsigned int *vr, size_t nvr, const double *value,
@@ -191,12 +192,58 @@ static int imp_restart(const Model *M, ImpFast *f) {
     return ST_OK;
 }
 
+/* One step of hh ending at t_end, its input there, without the energy check (a check's
+ * steps: CompiledNewton._step_impl's _c_run). */
+static int imp_one(const Model *M, ImpFast *f, Scratch *s, double *w, double *q, double t_end,
+                   double hh) {
+    ImpRun *r = &f->run;
+    if (r->mt.nmotion) motion_at(M, &r->mt, t_end, r->motion);
+    int st = attempt(M, f->p, s, f->kept, r->y, hh, r->motion, r->uf, r->x, w);
+    return st == ST_OK ? commit(M, f->p, s, r->y, r->x, r->motion, q) : st;
+}
+
+/* ErrorEstimate.spot_check at t: a step of hh and two of hh / 2 from the state, the
+ * difference of their positions (q, unwrapped) and velocities times Richardson's factors
+ * resampled, the state and the kept matrix put back as Python's rollback does (the work
+ * stays counted). Not ST_OK: a step failed (Python's check then takes it on its path). */
+static int imp_check(const Model *M, ImpFast *f, Scratch *s, double *w, double *q, double t,
+                     double hh) {
+    ImpRun *r = &f->run;
+    Estimate *E = f->est;
+    I n = M->n, ny = 5 * n + M->m;
+    double *saved = f->check, *one = saved + ny + f->nkept, *y = r->y;
+    memcpy(saved, y, (size_t)ny * sizeof(double));
+    memcpy(saved + ny, f->kept, (size_t)f->nkept * sizeof(double));
+    int st = imp_one(M, f, s, w, q, t + hh, hh);
+    if (st == ST_OK) {
+        memcpy(one, q, (size_t)n * sizeof(double));
+        memcpy(one + n, y + Y_QD * n, (size_t)n * sizeof(double));
+        memcpy(y, saved, (size_t)ny * sizeof(double));
+        memcpy(f->kept, saved + ny, (size_t)f->nkept * sizeof(double));
+        st = imp_one(M, f, s, w, q, t + 0.5 * hh, 0.5 * hh);
+        if (st == ST_OK) st = imp_one(M, f, s, w, q, (t + 0.5 * hh) + 0.5 * hh, 0.5 * hh);
+    }
+    if (st == ST_OK) {
+        double dq = 0.0, dv = 0.0;
+        for (I i = 0; i < n; i++) {
+            dq = fmax(dq, fabs(one[i] - q[i]));
+            dv = fmax(dv, fabs(one[n + i] - y[Y_QD * n + i]));
+        }
+        est_resample(E, t, hh, E->factor_q * dq, E->carry ? E->factor_v * dv : 0.0);
+        E->unchecked = E->since = 0;
+        E->checks += 1;
+    }
+    memcpy(y, saved, (size_t)ny * sizeof(double));
+    memcpy(f->kept, saved + ny, (size_t)f->nkept * sizeof(double));
+    return st;
+}
+
 /* Integrator._advance_fixed from f->t_now to end with CompiledNewton's runs of steps
 (implicit_c.py _run_steps: each step's inputs at (t0 + h (j - 1)) + h, as stage_inputs
  gets them), the energy check after each step, the estimate charged after each run:
- RUN_DONE, or RUN_PYTHON for anything Python must do (a check due, a step the kernel hands
- back or whose Newton iteration fails, more steps than the work limit allows, the energy
- check or the estimate stopping the run). */
+ RUN_DONE, or RUN_PYTHON for anything Python must do (a step the kernel hands back or
+ whose Newton iteration fails, a check's too, more steps than the work limit allows, the
+ energy check or the estimate stopping the run). */
 static int imp_fixed(const Model *M, ImpFast *f, double end) {
     ImpRun *r = &f->run;
     Estimate *E = f->est;
@@ -210,7 +257,9 @@ static int imp_fixed(const Model *M, ImpFast *f, double end) {
     if (fabs((double)n * f->h_max - span) <= f->same_step * span) hh = f->h_max;
     if (n > f->max_work) return RUN_PYTHON;
     for (I k = 0; k < n;) {
-        if (E->unchecked >= E->every) return RUN_PYTHON;
+        if (E->unchecked >= E->every &&
+                imp_check(M, f, &s, w, q, t0 + hh * (double)k, hh) != ST_OK)
+            return RUN_PYTHON;
         I run = n - k, room = E->every - E->unchecked;
         if (room < 1) room = 1;
         if (run > room) run = room;
@@ -222,7 +271,8 @@ static int imp_fixed(const Model *M, ImpFast *f, double end) {
             E->nsteps++;
             r->nsteps++;
             if (r->audit && r->audit[A_ACTIVE] != 0.0 &&
-                    !energy_check(M, q, r->y + Y_QD * n_coord, r->audit, r->divergence, r->roundoff))
+                    !energy_check(M, q, r->y + Y_QD * n_coord, r->audit, r->divergence,
+                                  r->roundoff))
                 return RUN_PYTHON;
         }
         k += run;
@@ -277,7 +327,10 @@ int mbd_implicit_fast_step(const Model *M, ImpFast *f, double t, double hc, doub
         imp_save(M, f, 1);
         if (f->fixed) *f->est = est_before;
         r->h = h;
-        p->nnewton = counts[0]; p->njev = counts[1]; p->nlu = counts[2]; p->nprojections = counts[3];
+        p->nnewton = counts[0];
+        p->njev = counts[1];
+        p->nlu = counts[2];
+        p->nprojections = counts[3];
         return ST_ERROR_NORM;
     }
     f->restarts += f->changed;
