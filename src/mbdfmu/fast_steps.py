@@ -16,9 +16,10 @@ wrapper serves are Python's bit for bit (tests/test_fmu_fast.py):
   energy audit's check after each in C too; in a scene with end stops or friction the
   current contact mode's equations, its event functions watched after each step;
 * ``prk``: an embedded pair's steps landing on the communication point (``ckernel/adaptive.h``);
-* ``implicit``: genalpha's and ali3p's controlled steps (auto's stiff scenes) landing on it
-  (``ckernel/implicit_run.h``, ``integrators.implicit_runs``), the energy audit's check
-  after each, with the force inputs held and no sampled drivers, end stops or friction.
+* ``implicit``: genalpha's and ali3p's steps landing on it, controlled (auto's stiff
+  scenes) or fixed with the stated accuracy's checks (``ckernel/implicit_run.h``,
+  ``integrators.implicit_runs``), the energy audit's check after each; the force inputs
+  the master sets taken too; no sampled drivers, end stops or friction.
 
 The last two take the force inputs the master sets before each step (the wrapper takes
 those fmi2SetReal calls too, then restarts as Python does; rk4p where the restart starts
@@ -224,8 +225,8 @@ def arm(sim, limit, time_tol: float, inputs, published) -> tuple | None:
 
 
 def implicit_ahead(sim, limit, time_tol: float, inputs, published) -> tuple | None:
-    """The arguments of ``arm_fast_steps`` for the coming steps as runs of genalpha's or
-    ali3p's controlled steps (``implicit_runs.arm_fast_implicit``), the force inputs among
+    """The arguments of ``arm_fast_steps`` for the coming steps as genalpha's or ali3p's
+    controlled or fixed steps (``implicit_runs.arm_fast_implicit``), the force inputs among
     ``inputs`` (``settable_inputs``) taken from fmi2SetReal too, or None: they need every
     force input held and none set since the step, no driver driven by the inputs, no end
     stops or friction, and under auto a watcher at rest."""

@@ -5,24 +5,27 @@ auto's stiff scenes) in the C kernel (``ckernel/implicit_run.h``): the steps of
 check after each step, the same decisions and counters as Python's loop taking the same C
 attempts one at a time (tests/test_implicit_runs.py); and the same runs as an FMU's
 communication steps taken by its wrapper without Python (``arm_fast_implicit``, read back
-by ``adopt_fast_implicit``).
+by ``adopt_fast_implicit``), which takes the fixed steps of a method named with its step
+too (``can_run_fixed``: ``_advance_fixed``'s grid, the stated accuracy's estimate and
+checks).
 
 They apply to the kernel's attempts (``implicit_c.kernel_newton``) on a scene without
-force inputs (the wrapper's: held over the step) whose drivers' motions the kernel
-evaluates, with no watch after each step that would see them (``can_run``). Python takes
-over at an attempt the kernel hands back, a commit that fails, the energy audit's
-verdict, the step size failure, and checks the work limit between runs.
+force inputs (the wrapper's: held over the step, or set by the master before it) whose
+drivers' motions the kernel evaluates, with no watch after each step that would see them
+(``can_run``). Python takes over at an attempt the kernel hands back, a commit that
+fails, the energy audit's verdict, the step size failure, and checks the work limit
+between runs.
 """
 
 from __future__ import annotations
 
 import math
 
+from ..equations.projection import PROJECTION_MAX_ITER
+from .base import STEP_COUNT_SLACK
 from .c_steps import (PRK_RUN_LENGTH, PRK_RUN_LENGTH_FREE, RUN_ENERGY, audit_back, audit_state,
                       wrapper_attempts)
-from ..equations.projection import PROJECTION_MAX_ITER
 from .energy_audit import ENERGY_DIVERGENCE_FRACTION, ENERGY_ROUNDOFF
-from .base import STEP_COUNT_SLACK
 from .implicit_control import ERROR_SHARE, KEEP_GROWTH, MAX_CUT, MAX_GROWTH, SAFETY
 from .newton import H_FINE, SAME_STEP
 from .stated_accuracy import adopt_c_estimate, c_estimate
@@ -120,13 +123,13 @@ def implicit_run(method, t_target: float, rejections: int) -> tuple[int, int]:
 def arm_fast_implicit(method, kernel, limit, time_tol: float, u, inputs, published,
                       reinitialize_tol: float) -> tuple | None:
     """The arguments of the FMU slave's ``arm_fast_steps`` for the coming communication
-    steps as runs of method's controlled steps in ``kernel`` (``Kernel.arm_implicit_steps``)
+    steps as method's controlled or fixed steps in ``kernel`` (``Kernel.arm_implicit_steps``)
     from its state, the force inputs ``u`` held, publishing ``published`` (value
     references, places); ``inputs``: (value references, places in u.forces) of the force
     inputs the wrapper may take from fmi2SetReal, then restarting as
     ``Simulation._reinitialize`` does with ``reinitialize_tol`` (none in a scene with an
     energy audit, which the restart would start). None when the steps must go through
-    Python (``can_run``, another kernel, a short CPU limit)."""
+    Python (``can_run``, ``can_run_fixed``, another kernel, a short CPU limit)."""
     kn = method.c_newton
     if not (can_run(method, held=True) or can_run_fixed(method)) or kn.kernel is not kernel:
         return None
@@ -149,8 +152,9 @@ def arm_fast_implicit(method, kernel, limit, time_tol: float, u, inputs, publish
 
 
 def adopt_fast_implicit(method, taken: dict) -> None:
-    """The state, step, energy audit and counters the wrapper's runs left
-    (``Kernel.implicit_taken``), as ``_advance_adaptive`` leaves them."""
+    """The state, step, energy audit, stated accuracy's estimate and counters the
+    wrapper's steps left (``Kernel.implicit_taken``), as ``_advance_adaptive`` or
+    ``_advance_fixed`` leaves them."""
     kn, stats = method.c_newton, method.stats
     kn.count(stats)
     kn.prepare(method)

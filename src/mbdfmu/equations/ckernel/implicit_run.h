@@ -9,8 +9,8 @@
  *
  * The drivers' motions come from the motion table (motions.h) at each step's end, or are
  * the constant `motion` of a scene without drivers; the force inputs `uf` are held over the
- * run (Python's runs: a scene without force inputs, integrators/implicit_c.py
- * implicit_runs; an FMU's wrapper: the held inputs).
+ * run (Python's runs: a scene without force inputs, integrators/implicit_runs.py
+ * can_run; an FMU's wrapper: the held inputs).
  *
  * mbd_implicit_fast_step is such a run as an FMU's communication step taken by its wrapper
  * without Python (fmu_build/runtime real_cache.py FastSteps), landing on the communication
@@ -20,7 +20,10 @@
  * restart the method first as Python does (Simulation._reinitialize's projection,
  * Integrator.reset_state, ImplicitMethod.restart: q'' and lam of eq. (14), the angles
  * wrapped anew, a fresh iteration matrix, genalpha's a = q''; the step kept); only in
- * scenes without an energy audit, which such a restart would start.
+ * scenes without an energy audit, which such a restart would start. For a method named
+ * with its step the wrapper's step is Integrator._advance_fixed instead (imp_fixed): the
+ * grid, the energy check after each step, the stated accuracy's estimate charged and its
+ * step-doubling checks taken as fixed.h does them for rk4p.
  */
 
 typedef struct {
