@@ -65,6 +65,11 @@ point_i = [0.0, 0.0]
 body_j = "hook"
 point_j = [0.1, 0.0]
 """
+# the spring stretched by 0.1 mm at the start and damped (test_auto_watch.py's): auto
+# starts with dop853p, which resolves the ringing, then switches to genalpha at its fixed
+# step once stability holds dop853p's steps
+STRETCHED = SPRING.replace("position = [1.0, 0.0]", "position = [1.0001, 0.0]").replace(
+    "damping = 0.0", "damping = 1000.0")
 PUSH = """
 [[force]]
 name = "push"
@@ -97,6 +102,7 @@ def fmus(tmp_path_factory):
                             'body_i = "hook"\npoint_i = [0.1, 0.0]') + HOOK + PUSH
     assert 'body_i = "hook"' in hooked
     sources = {"spring": SPRING, "pushed": SPRING + PUSH, "hooked": hooked,
+               "stretched": STRETCHED,
                "crank_genalpha": adaptive("slider_crank", "genalpha"),
                "crank_ali3p": adaptive("slider_crank", "ali3p"),
                "p2_genalpha": fixed("n_four_bar_2", "genalpha", 1e-3),
@@ -193,6 +199,16 @@ def test_fixed_steps_are_taken_by_the_wrapper_as_in_python(which, fmus, scene_ho
     lockstep(fast, slow, 400)
     assert wrapper_steps(fast) == 399       # all but the first, which arms them
     assert same_state(fast, slow)
+
+
+def test_auto_switching_to_genalpha_for_stiffness_goes_on_in_the_wrapper(fmus, scene_host):
+    """After auto's switch from dop853p (its fixed step; retried at half the step where the
+    stated accuracy asks, test_auto_watch.py), the steps are the wrapper's."""
+    fast, slow = hosts(scene_host, fmus["stretched"])
+    lockstep(fast, slow, 300)
+    assert same_state(fast, slow)
+    assert any("auto switched from dop853p to genalpha" in m for _, _, m in slow.messages)
+    assert wrapper_steps(fast) >= 280       # all but the first few, which dop853p took
 
 
 def test_a_torque_set_before_every_fixed_step(fmus, scene_host):

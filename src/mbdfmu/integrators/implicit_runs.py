@@ -48,23 +48,27 @@ def can_run(method, held: bool = False) -> bool:
     watch after each step that would see them (events; auto's, unless idle for this
     method: ``AutoWatch.idle``)."""
     kn, eq = method.c_newton, method.equations
-    if not (IMPLICIT_RUNS and kn is not None and method.adaptive and
-            (held or kn.kernel.nf == 0) and not eq.layout.drivers):
-        return False
+    return (IMPLICIT_RUNS and kn is not None and method.adaptive and
+            (held or kn.kernel.nf == 0) and not eq.layout.drivers and unwatched(method) and
+            (not eq.scene.drivers or kn.kernel.motion_table(eq.constraint_set) is not None))
+
+
+def unwatched(method) -> bool:
+    """No watch after each step would see method's coming steps: none (events run their
+    own), or auto's at rest for this method (``AutoWatch.idle``)."""
     watch = method.watch
-    if watch is not None and not getattr(getattr(watch, "__self__", None), "idle",
-                                         lambda _: False)(method):
-        return False
-    return not eq.scene.drivers or kn.kernel.motion_table(eq.constraint_set) is not None
+    return watch is None or getattr(getattr(watch, "__self__", None), "idle",
+                                    lambda _: False)(method)
 
 
 def can_run_fixed(method) -> bool:
     """Whether an FMU's wrapper can take method's fixed steps (``_advance_fixed``): the
     kernel's attempts, no Newton failure pending, steps coarser than those whose ends
     ``crossing_step.py`` watches next to a singular configuration (or no constraints), the
-    stated accuracy's estimate, and the scene's inputs as ``can_run`` asks."""
+    stated accuracy's estimate, and the scene's inputs and watch as ``can_run`` asks (auto
+    runs genalpha at a fixed step after a switch for stiffness)."""
     kn, eq = method.c_newton, method.equations
-    return (IMPLICIT_RUNS and kn is not None and not method.adaptive and method.watch is None
+    return (IMPLICIT_RUNS and kn is not None and not method.adaptive and unwatched(method)
             and method._failed is None and method.accuracy is not None
             and (method.h > H_FINE or eq.m == 0) and not eq.layout.drivers
             and (not eq.scene.drivers or kn.kernel.motion_table(eq.constraint_set) is not None))
