@@ -84,6 +84,7 @@ class AdaptiveStepping:
             planned = self._plan_step(h, lands, proposal)
             lands = lands and planned == h
             h = planned
+            self.rejections_in_a_row = rejections     # for step controls that read it
             accepted, h_next = self._step_impl(h)
             if accepted:
                 rejections = 0

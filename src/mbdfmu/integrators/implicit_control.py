@@ -24,7 +24,12 @@ err = [S^-1 (M e, 0)]_q with S = [[M + G C + D K, Psi_q^T], [Psi_q, 0]], which l
 slow components as they are, divides a stiff one by about D k / m = (h w)^2 beta', and
 keeps only the part tangent to the constraints (the normal part is projected out by the
 index-3 position constraints). The steps then follow the slow motion and their number per
-simulated second does not grow with the stiffness.
+simulated second does not grow with the stiffness. After a rejected step the estimate is
+filtered twice, as Radau5 does on its first and rejected steps (ibid., p. 124): a stiff
+mode rung by a sudden force (a push along a stiff spring) leaves a filtered error that no
+longer falls with h, since the filter divides it by about (h w)^2, so that cutting the step
+only made it larger relative to what the step may leave, down to steps that resolve the
+ringing.
 
 The step is kept unless it may grow by KEEP_GROWTH or must be cut: the Newton
 iteration matrix is then reused (``newton.IterationMatrix`` is kept for one step size).
@@ -84,8 +89,10 @@ class StepControl(AdaptiveStepping):
         err = self._local_error(x, h)
         if self.matrix.lu is not None:
             # filtered through the iteration matrix (stiff components count as the
-            # method damps them, tangent to the constraints)
-            err = self.matrix.solve(np.concatenate((eq.mass * err, np.zeros(eq.m))))[:eq.n]
+            # method damps them, tangent to the constraints); after a rejection twice
+            passes = 2 if getattr(self, "rejections_in_a_row", 0) > 0 else 1
+            for _ in range(passes):
+                err = self.matrix.solve(np.concatenate((eq.mass * err, np.zeros(eq.m))))[:eq.n]
         err = err.reshape(-1, 3) * np.array([1.0, 1.0, eq.length_scale])
         allowed = ERROR_SHARE * self._tolerance() * h / T_REF
         return float(np.max(np.abs(err), initial=0.0)) / allowed

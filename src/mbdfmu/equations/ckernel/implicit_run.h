@@ -59,10 +59,12 @@ static double implicit_error_ratio(const Model *M, const Implicit *p, const ImpR
     }
     if (kept[KEPT_VALID] != 0.0) {
         Scratch s = scratch(M, M->work);
-        for (I k = 0; k < n; k++) rhs[k] = M->mass[k] * e[k];
-        for (I k = 0; k < m; k++) rhs[n + k] = 0.0;
-        kept_solve(M, p, kept, rhs, rhs + n, out, out + n, s.qv, s.qv + m);
-        e = out;
+        for (int pass = 0; pass < (r->rejections > 0 ? 2 : 1); pass++) {
+            for (I k = 0; k < n; k++) rhs[k] = M->mass[k] * e[k];
+            for (I k = 0; k < m; k++) rhs[n + k] = 0.0;
+            kept_solve(M, p, kept, rhs, rhs + n, out, out + n, s.qv, s.qv + m);
+            e = out;
+        }
     }
     double big = 0.0;
     int nan = 0;
