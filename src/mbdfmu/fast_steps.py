@@ -144,6 +144,14 @@ def auto_stiff_limit(integrator, watcher) -> float | None:
     return STIFF_HLAMBDA if integrator.name == DOP853P.name else 0.0
 
 
+def steady(sim) -> bool:
+    """What every step the wrapper takes with inputs needs: no input set since the last
+    step, every force input held, and under auto no switch pending."""
+    watcher = getattr(sim.integrator, "watcher", None)
+    return not sim._inputs_changed and all(type(f) is Held for f in sim._forces.values()) \
+        and (watcher is None or watcher.pending is None)
+
+
 def fast_steps_ahead(sim, limit, time_tol: float, inputs=None):
     """("fixed", kernel, the arguments of ``arm_fixed_steps`` before the published values,
     and the keywords after them), ("prk", kernel, those of ``arm_prk_steps`` before the
@@ -153,9 +161,7 @@ def fast_steps_ahead(sim, limit, time_tol: float, inputs=None):
     integrator, eq = sim.integrator, sim.stepped_equations
     kernel, watcher = eq.ckernel, getattr(integrator, "watcher", None)
     drivers = sampled_drivers(sim)
-    if kernel is None or sim._inputs_changed or drivers is None or \
-            any(type(f) is not Held for f in sim._forces.values()) or \
-            (watcher is not None and watcher.pending is not None):
+    if kernel is None or drivers is None or not steady(sim):
         return None
     current = getattr(integrator, "current", integrator)     # auto's integrator of the moment
     u = sim.inputs_at(sim.t)
@@ -230,11 +236,9 @@ def implicit_ahead(sim, limit, time_tol: float, inputs, published) -> tuple | No
     ``inputs`` (``settable_inputs``) taken from fmi2SetReal too, or None: they need every
     force input held and none set since the step, no driver driven by the inputs, no end
     stops or friction, and under auto a watcher at rest."""
-    eq, watcher = sim.stepped_equations, getattr(sim.integrator, "watcher", None)
-    if eq.ckernel is None or sim.events is not None or sim._inputs_changed or \
-            sim.equations.layout.drivers or \
-            any(type(f) is not Held for f in sim._forces.values()) or \
-            (watcher is not None and watcher.pending is not None):
+    eq = sim.stepped_equations
+    if eq.ckernel is None or sim.events is not None or sim.equations.layout.drivers or \
+            not steady(sim):
         return None
     current = getattr(sim.integrator, "current", sim.integrator)
     if getattr(current, "c_newton", None) is None:

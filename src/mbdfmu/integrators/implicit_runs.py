@@ -143,7 +143,7 @@ def arm_fast_implicit(method, kernel, limit, time_tol: float, u, inputs, publish
     method.matrix._lu = None
     settings, table = run_settings(method)
     settings.update(t_now=method.t, time_tol=time_tol, max_work=max_work,
-                    periodic=method.periodic, tol=reinitialize_tol, max_iter=PROJECTION_MAX_ITER)
+                    tol=reinitialize_tol, max_iter=PROJECTION_MAX_ITER)
     if not method.adaptive:
         settings.update(fixed=1, h_max=method.h, slack=STEP_COUNT_SLACK, same_step=SAME_STEP,
                         estimate=c_estimate(method))

@@ -17,6 +17,8 @@ import numpy as np
 from .fixed import Estimate, estimate_values, table_arrays
 
 _P, _I, _D = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
+# Doubles of room for the energy audit's state in a run's buffers (c_steps.AUDIT_FIELDS: 13)
+AUDIT_ROOM = 16
 METHODS = {"genalpha": 0, "ali3p": 1}
 # implicit.h's NF_* reasons of a failed Newton iteration
 NEWTON_REASONS = {1: "non-finite residual", 2: "non-finite iteration matrix",
@@ -58,7 +60,7 @@ class ImpFast(ctypes.Structure):
                 ("steps", _I), ("nsteps", _I), ("nrejected", _I), ("restarts", _I),
                 ("nout", _I), ("npub", _I), ("pub_dst", _P), ("pub_src", _P), ("V", _P),
                 ("nvr", _I), ("vrs", _P), ("slots", _P), ("set", _P), ("changed", _I),
-                ("uf_step", _P), ("periodic", _P), ("tol", _D), ("max_iter", _I),
+                ("uf_step", _P), ("tol", _D), ("max_iter", _I),
                 ("fixed", _I), ("h_max", _D), ("slack", _D), ("same_step", _D), ("est", _P),
                 ("check", _P)]
 
@@ -148,6 +150,23 @@ class ImplicitCalls:
                                                 py, h, b.p_motion, b.p_uf, px)
         return status, self._split(self.imp_x.copy())
 
+    def _state_of(self, y):
+        """A copy of y (5n + m) as the state ``implicit_attempt`` takes: (q wrapped, turns,
+        q', q'', a, lam)."""
+        n, y = self.n, y[:5 * self.n + self.m].copy()
+        return y[:n], y[n:2 * n], y[2 * n:3 * n], y[3 * n:4 * n], y[4 * n:5 * n], y[5 * n:]
+
+    def _run_buffers(self, r: ImpRun, uf_copies: int) -> tuple:
+        """One array for an ImpRun's motion (3m), audit state (AUDIT_ROOM), work (3 (n +
+        m)) and ``uf_copies`` rows of force inputs, r pointed at it: (the array, where the
+        audit and the inputs start)."""
+        n, m, nf = self.n, self.m, max(self.nf, 1)
+        audit_at, uf_at = 3 * m, 3 * m + AUDIT_ROOM + 3 * (n + m)
+        buffers = np.zeros(uf_at + uf_copies * nf)
+        base = buffers.ctypes.data
+        r.motion, r.work, r.uf = base, base + 8 * (audit_at + AUDIT_ROOM), base + 8 * uf_at
+        return buffers, audit_at, uf_at
+
     def _split(self, x):
         n = self.n
         return x[:n], x[n:2 * n], x[2 * n:3 * n], x[3 * n:4 * n], x[4 * n:4 * n + self.m]
@@ -157,16 +176,13 @@ class ImplicitCalls:
         the end of step k): (status, steps done, the new state as ``implicit_attempt``
         takes it)."""
         self._load_state(*state)
-        b, n = self.buf, self.n
+        b = self.buf
         b.audit[:] = audit
         status = self._imp.mbd_implicit_steps(
             self.address, ctypes.byref(p), kept.ctypes.data, self.imp_y.ctypes.data, h, count,
             b.p_motions, b.p_ufs, self.nf, b.p_audit, divergence, roundoff,
             self.imp_x.ctypes.data, b.p_done)
-        y = self.imp_y.copy()
-        state = (y[:n], y[n:2 * n], y[2 * n:3 * n], y[3 * n:4 * n], y[4 * n:5 * n],
-                 y[5 * n:5 * n + self.m])
-        return status, int(b.done[0]), state
+        return status, int(b.done[0]), self._state_of(self.imp_y)
 
     def implicit_run(self, p: Implicit, kept, state, settings: dict, motion, audit=None,
                      table=None) -> tuple:
@@ -176,14 +192,11 @@ class ImplicitCalls:
         ``motion_table`` and the constraints' offsets), evaluated there; ``audit`` the energy
         audit's state or None. Returns (status, the ImpRun with its counters, the new state,
         the audit's state after it)."""
-        n, m = self.n, self.m
+        m = self.m
         if "_imp_run" not in self.__dict__:
-            buffers = np.zeros(3 * m + 16 + 3 * (n + m) + max(self.nf, 1))
             r = ImpRun()
             r.y, r.x = self.imp_y.ctypes.data, self.imp_x.ctypes.data
-            r.motion, r.work = buffers.ctypes.data, buffers.ctypes.data + 8 * (3 * m + 16)
-            r.uf = r.work + 8 * 3 * (n + m)         # no force inputs in Python's runs
-            self._imp_run = (r, buffers)
+            self._imp_run = (r, self._run_buffers(r, 1)[0])   # no force inputs in Python's runs
         r, buffers = self._imp_run
         self._load_state(*state)
         for name, value in settings.items():
@@ -192,16 +205,14 @@ class ImplicitCalls:
         r.nmotion = 0
         if table is not None:      # the arrays the run points at, kept with it
             self._imp_table = table_arrays(r, *table)
-        audit_now = buffers[3 * m:3 * m + 16]
+        audit_now = buffers[3 * m:3 * m + AUDIT_ROOM]
         r.audit = None if audit is None else audit_now.ctypes.data
         if audit is not None:
             audit_now[:len(audit)] = audit
         status = self._imp.mbd_implicit_run(self.address, ctypes.byref(p), kept.ctypes.data,
                                             ctypes.byref(r))
-        y = self.imp_y.copy()
-        state = (y[:n], y[n:2 * n], y[2 * n:3 * n], y[3 * n:4 * n], y[4 * n:5 * n],
-                 y[5 * n:5 * n + m])
-        return status, r, state, audit_now[:len(audit) if audit is not None else 0].copy()
+        return (status, r, self._state_of(self.imp_y),
+                audit_now[:len(audit) if audit is not None else 0].copy())
 
     imp_fast: ImpFast | None = None
 
@@ -211,8 +222,8 @@ class ImplicitCalls:
         steps (``mbd_implicit_fast_step``) from ``state`` (as ``implicit_attempt``) at
         ``settings["t_now"]``, with the method's settings ``p`` (its counters add up until
         ``implicit_taken``) and its kept matrix ``kept`` (shared: the steps update it),
-        ImpRun's scalar ``settings`` and ImpFast's (t_now, time_tol, max_work; periodic, tol,
-        max_iter: the restart's wrapped angles and projection), the motion and ``table`` as
+        ImpRun's scalar ``settings`` and ImpFast's (t_now, time_tol, max_work; tol,
+        max_iter: the restart's projection), the motion and ``table`` as
         ``implicit_run``, the held force inputs ``uf``, the energy audit's state or None,
         ``inputs`` (value references and places in uf of the force inputs fmi2SetReal may
         set here: ``mbd_implicit_set``; none with an audit), publishing as
@@ -227,36 +238,32 @@ class ImplicitCalls:
         ny, naudit = 5 * n + max(m, 1), 0 if audit is None else len(audit)
         y = np.zeros(2 * ny + 4 * n + max(m, 1))       # y, x (its first 4n + m), y2
         y[:ny] = np.concatenate((*state[:5], state[5], np.zeros(ny - 5 * n - m)))
-        buffers = np.zeros(3 * m + 16 + 3 * (n + m) + 2 * nf)
+        buffers, audit_at, uf_at = self._run_buffers(r, 2)     # uf, then the last step's
         buffers[:3 * m] = np.concatenate(motion)
-        audit_at = 3 * m
         if audit is not None:
             buffers[audit_at:audit_at + naudit] = audit
-        uf_at = 3 * m + 16 + 3 * (n + m)
         buffers[uf_at:uf_at + self.nf] = buffers[uf_at + nf:uf_at + nf + self.nf] = uf
         vrs, slots = (np.ascontiguousarray(a, dtype=np.int64) for a in inputs)
         flags = np.zeros(max(vrs.size, 1), dtype=np.int64)
-        periodic = np.ascontiguousarray(settings.pop("periodic"), dtype=float)
         dst, src = (np.ascontiguousarray(a, dtype=np.int64) for a in (pub_dst, pub_src))
         save, check = np.zeros(ny + kept.size + 16), np.zeros(ny + kept.size + 2 * n)
         f.check = check.ctypes.data
         self._imp_fast_arrays = dict(y=y, buffers=buffers, dst=dst, src=src, save=save,
                                      check=check, kept=kept, p=p, vrs=vrs, slots=slots, set=flags,
-                                     periodic=periodic, table=table_arrays(r, *table)
+                                     uf_at=uf_at, table=table_arrays(r, *table)
                                      if table is not None else None)
         if table is None:
             r.nmotion = 0
         self._imp_fast_arrays["estimate"] = fill_fast(f, settings)
         base = buffers.ctypes.data
         r.y, r.x, f.y2 = y.ctypes.data, y.ctypes.data + 8 * ny, y.ctypes.data + 16 * ny
-        r.motion, r.work, r.uf = base, base + 8 * (3 * m + 16), base + 8 * uf_at
         r.audit = None if audit is None else base + 8 * audit_at
         f.p, f.kept, f.nkept, f.naudit = ctypes.addressof(p), kept.ctypes.data, kept.size, naudit
         f.save, f.pub_dst, f.pub_src = save.ctypes.data, dst.ctypes.data, src.ctypes.data
         f.nout, f.npub, f.V = self.nout, dst.size, self._dense_scratch.ctypes.data
         f.nvr, f.vrs, f.slots, f.set = vrs.size, vrs.ctypes.data, slots.ctypes.data, \
             flags.ctypes.data
-        f.uf_step, f.periodic = base + 8 * (uf_at + nf), periodic.ctypes.data
+        f.uf_step = base + 8 * (uf_at + nf)
         step = ctypes.cast(self._imp.mbd_implicit_fast_step, ctypes.c_void_p).value
         setter = ctypes.cast(self._imp.mbd_implicit_set, ctypes.c_void_p).value
         return step, self.address, ctypes.addressof(f), setter if vrs.size else 0
@@ -270,22 +277,20 @@ class ImplicitCalls:
         f = self.imp_fast
         if f is None:
             return None, []
-        a, n, m, nf = self._imp_fast_arrays, self.n, self.m, max(self.nf, 1)
-        uf_at = 3 * m + 16 + 3 * (n + m)
+        a, m, nf = self._imp_fast_arrays, self.m, max(self.nf, 1)
+        uf_at = a["uf_at"]
         pending = [(int(vr), float(a["buffers"][uf_at + slot])) for vr, slot, flag in
                    zip(a["vrs"], a["slots"], a["set"]) if flag]
         a["set"][:] = 0
         if f.steps == 0:
             return None, pending
-        y = a["y"][:5 * n + m].copy()
         audit = a["buffers"][3 * m:3 * m + f.naudit].copy()
         estimate = a["estimate"]
         taken = dict(t=float(f.t_now), h=float(f.run.h), audit=audit, nsteps=int(f.nsteps),
                      estimate=estimate_values(estimate) if f.fixed else None,
                      nrejected=int(f.nrejected), restarts=int(f.restarts),
                      uf=a["buffers"][uf_at + nf:uf_at + nf + self.nf].copy(),
-                     state=(y[:n], y[n:2 * n], y[2 * n:3 * n], y[3 * n:4 * n], y[4 * n:5 * n],
-                            y[5 * n:5 * n + m]))
+                     state=self._state_of(a["y"]))
         f.steps = f.nsteps = f.nrejected = f.restarts = 0
         return taken, pending
 

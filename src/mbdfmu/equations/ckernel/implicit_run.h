@@ -133,6 +133,11 @@ int mbd_implicit_run(const Model *M, Implicit *p, double *kept, ImpRun *r) {
 
 /* ---- an FMU's communication step (the wrapper's, see the header) --------------------------- */
 
+/* q (n), unwrapped, of the state y: q wrapped plus 2 pi turns (Python's q). */
+static void unwrapped(I n, const double *y, double *q) {
+    for (I k = 0; k < n; k++) q[k] = y[k] + 2.0 * M_PI * y[Y_TURNS * n + k];
+}
+
 typedef struct {
     ImpRun run;              /* the run: its state run.y, its buffers and settings */
     Implicit *p;             /* the method's settings (their counters add up since armed) */
@@ -140,8 +145,8 @@ typedef struct {
     I nkept, naudit;         /* its size; the audit's (0: none) */
     double t_now, time_tol;  /* the FMU's time */
     I max_work;              /* attempts one doStep may take */
-    double *save;            /* y, kept, audit and h at the doStep's start, put back if the
-                              * run hands it to Python */
+    double *save;            /* y, kept and audit at the doStep's start, put back if the
+                              * run hands it to Python (with h, the estimate, the counters) */
     double *y2;              /* (q, q') at the step's end (2n) for the outputs */
     I steps, nsteps, nrejected, restarts;   /* since armed */
     I nout, npub; const I *pub_dst, *pub_src;
@@ -151,7 +156,6 @@ typedef struct {
     I *set;                  /* nvr: 1 where set since the last step */
     I changed;               /* an input was set since the last step */
     double *uf_step;         /* the inputs the last step held (nf) */
-    const double *periodic;  /* 1.0 on the wrapped angles (n) */
     double tol; I max_iter;  /* the restart's position projection */
     /* a method named with its step (fixed: 1): Integrator._advance_fixed's grid of steps
      * of at most h_max (STEP_COUNT_SLACK, newton.SAME_STEP) and the stated accuracy's
@@ -176,7 +180,7 @@ static int imp_restart(const Model *M, ImpFast *f) {
     I n = M->n, m = M->m;
     double *y = r->y, *q = f->y2, *qd = f->y2 + n;
     if (r->mt.nmotion) motion_at(M, &r->mt, f->t_now, r->motion);
-    for (I k = 0; k < n; k++) q[k] = y[k] + 2.0 * M_PI * y[Y_TURNS * n + k];
+    unwrapped(n, y, q);
     memcpy(qd, y + Y_QD * n, (size_t)n * sizeof(double));
     if (m) {
         int st = mbd_project_positions(M, q, r->motion, f->tol, f->max_iter);
@@ -187,7 +191,7 @@ static int imp_restart(const Model *M, ImpFast *f) {
                                y + Y_A * n + n);
     if (st != ST_OK) return st;
     for (I k = 0; k < n; k++) {
-        double turn = f->periodic[k] != 0.0 ? floor((q[k] + M_PI) / (2.0 * M_PI)) : 0.0;
+        double turn = f->p->periodic[k] != 0.0 ? floor((q[k] + M_PI) / (2.0 * M_PI)) : 0.0;
         y[k] = q[k] - 2.0 * M_PI * turn;
         y[Y_TURNS * n + k] = turn;
     }
@@ -321,8 +325,7 @@ int mbd_implicit_fast_step(const Model *M, ImpFast *f, double t, double hc, doub
     st = f->fixed ? imp_fixed(M, f, t + hc) : mbd_implicit_run(M, p, f->kept, r);
     if (st == RUN_DONE) {
         Scratch s = scratch(M, M->work);
-        const double *qw = r->y, *turns = r->y + Y_TURNS * n;
-        for (I k = 0; k < n; k++) f->y2[k] = qw[k] + 2.0 * M_PI * turns[k];
+        unwrapped(n, r->y, f->y2);
         memcpy(f->y2 + n, r->y + Y_QD * n, (size_t)n * sizeof(double));
         if (r->mt.nmotion) motion_at(M, &r->mt, r->t, r->motion);
         st = publish_step_end(M, &s, f->y2, r->motion, r->uf, f->nout, f->npub, f->pub_src,
