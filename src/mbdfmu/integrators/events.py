@@ -168,9 +168,15 @@ class EventRunner(ContactModes):
         earlier end's value and slope and the later end's value, aimed a quarter of the
         tolerance past the last side found (so that the bracket closes from both sides)."""
         point, last = start, 0
-        if ga < 0:
-            return a, point       # already past it at the step's start: change at once
         sa = self._slope(key, start["q"], start["qd"])
+        if ga < 0:
+            if sa is None or sa < 0 or ga < -integrator._projection_tol():
+                return a, point   # already past it at the step's start: change at once
+            # On its stop to the projection's tolerance and not moving in: it has just left
+            # it (its held row held it there to that tolerance). A return to the stop is
+            # later in the step; taken at once, it would be an impact at zero rate that
+            # leaves again, at the same instant, for ever.
+            ga = 0.0
         for _ in range(LOCATE_MAX_ITER):
             if b - a <= max(EVENT_TIME_TOL, 4 * np.spacing(b)):
                 return a, point
