@@ -71,7 +71,11 @@ class Equations:
 
     def constraint_values(self, t, q, qd=None, u: InputValues | None = None):
         """Psi (m,), Psi_q's values on ``pattern``, nu and gamma (None without qd)."""
-        return self.constraint_set.values(t, q, qd, self._u(u))
+        if getattr(self, "ckernel", None) is None:     # the numpy kernel, or not bound yet
+            return self.constraint_set.values(t, q, qd, self._u(u))
+        c, cd, cdd = self.motion_values(t, u)
+        Psi, data, gamma = self.ckernel.constraint_values(q, qd, c)
+        return (Psi, data, None, None) if qd is None else (Psi, data, cd, gamma + cdd)
 
     def constraints(self, t: float, q: np.ndarray, qd: np.ndarray | None = None,
                     u: InputValues | None = None, *, extended: bool = False,

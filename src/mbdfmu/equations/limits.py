@@ -27,7 +27,7 @@ FRICTION_TOL = 1e-14
 
 def body_poses(q: np.ndarray, index: int | None) -> tuple[float, float, float]:
     """(x, y, angle) of body ``index`` in q, the ground's (None) at the origin."""
-    return (0.0, 0.0, 0.0) if index is None else tuple(q[3 * index:3 * index + 3])
+    return (0.0, 0.0, 0.0) if index is None else tuple(q[3 * index:3 * index + 3].tolist())
 
 
 class Coordinate:
@@ -41,7 +41,7 @@ class Coordinate:
         self.revolute = isinstance(joint, RevoluteJoint)
         if not self.revolute:
             u = np.asarray(joint.axis_i, dtype=float)
-            self.u = u / math.hypot(*u)
+            self.u = tuple((u / math.hypot(*u)).tolist())
         self.n = 3 * len(scene.bodies)
 
     def gradient(self, q: np.ndarray) -> np.ndarray:
@@ -52,20 +52,25 @@ class Coordinate:
             if self.i is not None:
                 g[3 * self.i + 2] -= 1.0
             return g
+        on_i, on_j = self._translational_entries(q)
+        if self.j is not None:
+            g[3 * self.j:3 * self.j + 3] = on_j
+        if self.i is not None:
+            g[3 * self.i:3 * self.i + 3] += on_i
+        return g
+
+    def _translational_entries(self, q: np.ndarray):
+        """The gradient's entries on body i's (x, y, angle) and on body j's."""
         (xi, yi, ai), (xj, yj, aj) = body_poses(q, self.i), body_poses(q, self.j)
         ci, si, cj, sj = math.cos(ai), math.sin(ai), math.cos(aj), math.sin(aj)
-        a = np.array([ci * self.u[0] - si * self.u[1], si * self.u[0] + ci * self.u[1]])
+        u0, u1 = self.u
+        a0, a1 = ci * u0 - si * u1, si * u0 + ci * u1          # the axis, turned with body i
         (pi0, pi1), (pj0, pj1) = self.joint.point_i, self.joint.point_j
-        Ai = np.array([ci * pi0 - si * pi1, si * pi0 + ci * pi1])
-        Aj = np.array([cj * pj0 - sj * pj1, sj * pj0 + cj * pj1])
-        d = np.array([xj, yj]) + Aj - np.array([xi, yi]) - Ai
-        if self.j is not None:
-            g[3 * self.j:3 * self.j + 2] += a
-            g[3 * self.j + 2] += a @ np.array([-Aj[1], Aj[0]])
-        if self.i is not None:
-            g[3 * self.i:3 * self.i + 2] -= a
-            g[3 * self.i + 2] += np.array([-a[1], a[0]]) @ d - a @ np.array([-Ai[1], Ai[0]])
-        return g
+        ai0, ai1 = ci * pi0 - si * pi1, si * pi0 + ci * pi1     # the points, turned
+        aj0, aj1 = cj * pj0 - sj * pj1, sj * pj0 + cj * pj1
+        d0, d1 = xj + aj0 - xi - ai0, yj + aj1 - yi - ai1
+        return ((-a0, -a1, (-a1 * d0 + a0 * d1) - (a0 * -ai1 + a1 * ai0)),
+                (a0, a1, a0 * -aj1 + a1 * aj0))
 
     def value(self, q: np.ndarray) -> float:
         if self.revolute:
@@ -78,7 +83,12 @@ class Coordinate:
         return (ci * self.u[0] - si * self.u[1]) * dx + (si * self.u[0] + ci * self.u[1]) * dy
 
     def rate(self, q: np.ndarray, qd: np.ndarray) -> float:
-        return float(self.gradient(q) @ qd)
+        if self.revolute:      # the gradient's two entries: the angles' rates
+            return body_poses(qd, self.j)[2] - body_poses(qd, self.i)[2]
+        on_i, on_j = self._translational_entries(q)
+        vi, vj = body_poses(qd, self.i), body_poses(qd, self.j)
+        return (on_j[0] * vj[0] + on_j[1] * vj[1] + on_j[2] * vj[2]
+                + on_i[0] * vi[0] + on_i[1] * vi[1] + on_i[2] * vi[2])
 
 
 def friction_bound(eq: Equations, k: int, q: np.ndarray, lam: np.ndarray) -> float:

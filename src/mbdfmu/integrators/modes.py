@@ -43,6 +43,7 @@ class ContactModes:
         self.base_drivers = len(scene.drivers)
         self.log: list[tuple[float, str, str]] = []
         self._cache: dict = {}
+        self._last: tuple = (None, None)     # the last mode asked for, its equations
         self._event_tables: dict = {}     # c_events' tables, per joints' states
         self.mode = {k: JointMode(FREE) for k in self.joints}
         for k, c in self.coordinates.items():
@@ -88,6 +89,8 @@ class ContactModes:
         return self.mode_equations(self.mode)
 
     def mode_equations(self, mode) -> ModeEquations:
+        if mode == self._last[0]:          # asked for at every event function and step
+            return self._last[1]
         key = tuple(sorted(mode.items()))
         eq = self._cache.get(key)
         if eq is None and self.base is not None and \
@@ -101,6 +104,7 @@ class ContactModes:
             eq.held_rows = {k: int(eq.constraint_set.driver_rows[self.base_drivers + i])
                             for i, k in enumerate(held)}
             self._cache[key] = eq
+        self._last = (dict(mode), eq)
         return eq
 
     def _settle(self, t, q, qd, why: str) -> None:

@@ -72,6 +72,7 @@ def library():
         for name, restype in (("mbd_work_size", _I), ("mbd_memo_size", _I)):
             getattr(lib, name).restype, getattr(lib, name).argtypes = restype, [_P, _I][:1 + (name == "mbd_work_size")]
         _declare(lib, _SIGNATURES, ctypes.c_int)     # once per library, not per Kernel
+        _declare(lib, {"mbd_constraints": [_P] * 7}, None)
         declare_implicit(lib)
         _library = lib
     return _library
@@ -124,6 +125,7 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
     def __init__(self, eq):
         lib = library()
         self.n, self.m, self.nf = eq.n, eq.m, eq.layout.size
+        self._size = eq.pattern.size
         arrays = model_arrays(eq)
         self._weights = (np.asarray(eq.minv, dtype=float), np.asarray(arrays["cols"])[
             np.asarray(arrays["pair_a"])])
@@ -216,6 +218,20 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
                                     b.p_motion + 8 * m) != OK:
             return None
         return b.qd.copy()
+
+    def constraint_values(self, q, qd, c):
+        """(Psi, Psi_q's merged values, gamma without c'', or None without qd) at (q, q'),
+        c the rows' motions: ``ConstraintSet.values`` computed in C (its own arrays: the
+        buffers hold what a run or a dense read left)."""
+        m = self.m
+        q, c = np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(c, dtype=float)
+        qd = None if qd is None else np.ascontiguousarray(qd, dtype=float)
+        psi, data, gamma = np.empty(max(m, 1)), np.empty(self._size + 1), np.empty(max(m, 1))
+        self.library.mbd_constraints(self.address, q.ctypes.data,
+                                     None if qd is None else qd.ctypes.data,
+                                     c.ctypes.data if m else None, psi.ctypes.data,
+                                     data.ctypes.data, gamma.ctypes.data)
+        return psi[:m], data[:self._size], None if qd is None else gamma[:m]
 
     def singularity_indicator(self, q, motion) -> float:
         """``singular.singularity_indicator`` of Psi_q at q (motion: (c, c', c''))."""
