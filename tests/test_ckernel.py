@@ -141,6 +141,30 @@ def test_c_kernel_equals_numpy_kernel(name, data):
     np.testing.assert_allclose(y_c, y, rtol=1e-12, atol=1e-12 * max(1.0, np.nanmax(np.abs(y))))
 
 
+@pytest.mark.parametrize("name", ALL)
+@settings(max_examples=10, deadline=None)
+@given(data=st.data())
+def test_c_constraint_values_are_the_numpy_ones(name, data):
+    """Psi, Psi_q's values, nu and gamma that Python's own code reads (velocity jumps,
+    indicators) come from the C kernel where the equations have it: against the numpy
+    path's at random states, inputs and times."""
+    plain, fast = Equations(any_scene(name), kernel="numpy"), Equations(any_scene(name), kernel="c")
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**31)))
+    q0, _ = assemble(plain)
+    q = q0 + rng.normal(scale=0.1, size=q0.size)
+    qd = rng.normal(scale=2.0, size=q0.size)
+    u, t = random_inputs(plain, rng), data.draw(st.floats(0.0, 1.0))
+    for with_qd in (None, qd):
+        got, expected = fast.constraint_values(t, q, with_qd, u), plain.constraint_values(
+            t, q, with_qd, u)
+        for a, b in zip(got, expected):
+            if b is None:
+                assert a is None
+            else:
+                np.testing.assert_allclose(a, b, rtol=1e-13,
+                                           atol=1e-13 * max(1.0, np.abs(b).max(initial=0.0)))
+
+
 @pytest.mark.parametrize("name", ALL + ["n_four_bar_40"])
 def test_c_singularity_indicator_is_the_numpy_one(name):
     """The C indicator against singular.singularity_indicator on the same Psi_q (dense and
