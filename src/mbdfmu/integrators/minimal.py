@@ -88,7 +88,7 @@ class MinimalCoordinates(DOP853P):
     local_tolerance = DOP853P.local_tolerance
     # The I controller (adaptive.py): with dop853p's PI_BETA its P2 N = 2 run at rtol 1e-10
     # ends beyond the bench's line for a silently wrong result, where it ended just inside
-    # it before (docs/performance.md, "dop853p's PI controller").
+    # it before (docs/performance_history.md, "dop853p's PI controller").
     beta, alpha = 0.0, 1.0 / (DOP853P.order + 1)
 
     @property

@@ -45,7 +45,7 @@ MIN_FACTOR = 0.2   # Minimum allowed decrease of the step after a rejection.
 MAX_FACTOR = 10.0  # Maximum allowed increase of the step after an acceptance.
 # The PI controller's beta (adaptive.py), Hairer's stabilisation parameter: his DOPRI5
 # code's default; his DOP853 code defaults to 0 (the I controller), but with 0.04 dop853p
-# takes fewer evaluations for the same error on the bench's long runs (docs/performance.md).
+# takes fewer evaluations for the same error on the bench's long runs (docs/performance_history.md).
 PI_BETA = 0.04
 # Projection tolerance, relative to atol and to the mechanism's size, with a floor near
 # rounding so that Newton always converges; atol above PROJECTION_ATOL_MAX (a loose
@@ -314,7 +314,7 @@ class RK45P(ProjectedRK):
     n_stages, order = tableaux.RK45_STAGES, 4
     # the I controller: with PI_BETA and Hairer's DOPRI5 alpha, more evaluations for the
     # same error at tight tolerances, and P2 N = 2 stopping at rtol 1e-8 next to a
-    # singular crossing (docs/performance.md)
+    # singular crossing (docs/performance_history.md)
     beta = 0.0
     alpha = 1.0 / (order + 1)
     interpolant = "rk45"

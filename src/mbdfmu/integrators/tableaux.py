@@ -5,7 +5,7 @@ Dormand and Prince's 5(4) pair (J. Comput. Appl. Math. 6, 1980) and Hairer's DOP
 *Solving ODEs I*, sec. II.5, and the coefficients of his code dop853.f): the same doubles as
 scipy.integrate's RK45 and DOP853 (tests/test_step_control.py holds them to scipy's). They
 are kept here because importing scipy.integrate, which imports scipy.optimize, is a large
-share of an FMU's cold start (docs/performance.md), and nothing else an FMU runs needs it.
+share of an FMU's cold start (docs/performance_history.md), and nothing else an FMU runs needs it.
 """
 
 import numpy as np
