@@ -117,16 +117,22 @@ def random_inputs(system: Equations, rng) -> mbdfmu.model.variables.InputValues:
     return type(u)(motions, rng.normal(scale=3.0, size=u.forces.shape))
 
 
+def both_kernels_at_a_random_state(name, data, spread: float):
+    """(numpy Equations, C Equations, t, q, q', inputs): q the assembly moved by ``spread``
+    (normal), q' and the inputs random, t in [0, 1]."""
+    plain, fast = Equations(any_scene(name), kernel="numpy"), Equations(any_scene(name), kernel="c")
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**31)))
+    q0, _ = assemble(plain)
+    q = q0 + rng.normal(scale=spread, size=q0.size)
+    qd = rng.normal(scale=2.0, size=q0.size)
+    return plain, fast, data.draw(st.floats(0.0, 1.0)), q, qd, random_inputs(plain, rng)
+
+
 @pytest.mark.parametrize("name", ALL)
 @settings(max_examples=10, deadline=None)
 @given(data=st.data())
 def test_c_kernel_equals_numpy_kernel(name, data):
-    plain, fast = Equations(any_scene(name), kernel="numpy"), Equations(any_scene(name), kernel="c")
-    rng = np.random.default_rng(data.draw(st.integers(0, 2**31)))
-    q0, _ = assemble(plain)
-    q = q0 + rng.normal(scale=0.01, size=q0.size)
-    qd = rng.normal(scale=2.0, size=q0.size)
-    u, t = random_inputs(plain, rng), data.draw(st.floats(0.0, 1.0))
+    plain, fast, t, q, qd, u = both_kernels_at_a_random_state(name, data, 0.01)
     qdd, lam = plain.accelerations(t, q, qd, u)
     qdd_c, lam_c = fast.accelerations(t, q, qd, u)
     # round-off of two Cholesky orders, amplified by S's condition, about 1 / indicator:
@@ -148,12 +154,7 @@ def test_c_constraint_values_are_the_numpy_ones(name, data):
     """Psi, Psi_q's values, nu and gamma that Python's own code reads (velocity jumps,
     indicators) come from the C kernel where the equations have it: against the numpy
     path's at random states, inputs and times."""
-    plain, fast = Equations(any_scene(name), kernel="numpy"), Equations(any_scene(name), kernel="c")
-    rng = np.random.default_rng(data.draw(st.integers(0, 2**31)))
-    q0, _ = assemble(plain)
-    q = q0 + rng.normal(scale=0.1, size=q0.size)
-    qd = rng.normal(scale=2.0, size=q0.size)
-    u, t = random_inputs(plain, rng), data.draw(st.floats(0.0, 1.0))
+    plain, fast, t, q, qd, u = both_kernels_at_a_random_state(name, data, 0.1)
     for with_qd in (None, qd):
         got, expected = fast.constraint_values(t, q, with_qd, u), plain.constraint_values(
             t, q, with_qd, u)
