@@ -265,7 +265,9 @@ int mbd_prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *va
  * RUN_ENERGY after a step whose energy check failed (Python's check says why); RUN_FAILED
  * when the step size fell below its minimum or too many steps were rejected in a row;
  * RUN_EVENT after a step that changed the sign of a watched event function (events.h:
- * only an FMU wrapper's dense run watches them, and puts the run back). */
+ * only an FMU wrapper's dense run watches them; with `undo` the run is first put back to
+ * that step's start, and `coming` says where the change comes when the step ended past
+ * a dense run's target, else NAN). */
 
 enum { RUN_DONE = 0, RUN_PYTHON = 1, RUN_WORK = 2, RUN_ENERGY = 3, RUN_FAILED = 4 };
 
@@ -282,7 +284,73 @@ typedef struct {
     I ngaps; const double *gap_mid, *gap_width;   /* singular_zone.gaps of the nodes */
     double cpu_limit, cpu_start; /* > 0: RUN_WORK once the thread's CPU time since cpu_start
                                   * passes cpu_limit (s; WorkLimit's max_cpu), else unchecked */
+    double *undo;                /* with watched events: the state at the last step's end
+                                  * (save_pair), where a step that changes a sign puts the
+                                  * run back (the event runner's watching point), or NULL */
+    double coming;               /* then: where that sign change comes (coming_event) */
 } PrkPy;
+
+/* doubles of a pair's state (save_pair): y, f, y_old, y_end (2n each), K_old, the
+ * audit, PAIR_SCALARS, the event functions' values */
+#define PAIR_SCALARS 13
+
+static I pair_state_size(const Model *M, const PrkPy *p) {
+    return (4 + p->r.ns + 1) * 2 * M->n + A_FIELDS + PAIR_SCALARS + p->r.ev.nevent;
+}
+
+/* The pair's state after a step (or at a run's start) into b: what the event runner's
+ * watching point (Integrator.rollback_point) holds. */
+static void save_pair(const Model *M, const PrkPy *p, double *b) {
+    const PrkRun *r = &p->r;
+    I n2 = 2 * M->n, rows = r->ns + 1;
+    memcpy(b, r->y, (size_t)n2 * sizeof(double)); b += n2;
+    memcpy(b, r->f, (size_t)n2 * sizeof(double)); b += n2;
+    memcpy(b, p->y_old, (size_t)n2 * sizeof(double)); b += n2;
+    memcpy(b, p->y_end, (size_t)n2 * sizeof(double)); b += n2;
+    memcpy(b, p->K_old, (size_t)(rows * n2) * sizeof(double)); b += rows * n2;
+    if (p->audit) memcpy(b, p->audit, A_FIELDS * sizeof(double));
+    b += A_FIELDS;
+    double scalars[PAIR_SCALARS] = {
+        r->h, r->err_old, r->indicator, (double)r->landing, p->t, p->energy_rejected,
+        p->t_old, p->h_old, (double)p->stepped, (double)r->nsteps, (double)r->nrejected,
+        (double)r->naccel, (double)r->nprojections};
+    memcpy(b, scalars, sizeof scalars);
+    b += PAIR_SCALARS;
+    if (r->ev.nevent) memcpy(b, r->ev.ev_g, (size_t)r->ev.nevent * sizeof(double));
+}
+
+static void restore_pair(const Model *M, PrkPy *p, const double *b) {
+    PrkRun *r = &p->r;
+    I n2 = 2 * M->n, rows = r->ns + 1;
+    memcpy(r->y, b, (size_t)n2 * sizeof(double)); b += n2;
+    memcpy(r->f, b, (size_t)n2 * sizeof(double)); b += n2;
+    memcpy(p->y_old, b, (size_t)n2 * sizeof(double)); b += n2;
+    memcpy(p->y_end, b, (size_t)n2 * sizeof(double)); b += n2;
+    memcpy(p->K_old, b, (size_t)(rows * n2) * sizeof(double)); b += rows * n2;
+    if (p->audit) memcpy(p->audit, b, A_FIELDS * sizeof(double));
+    b += A_FIELDS;
+    r->h = b[0]; r->err_old = b[1]; r->indicator = b[2]; r->landing = (I)b[3];
+    p->t = b[4]; p->energy_rejected = b[5]; p->t_old = b[6]; p->h_old = b[7];
+    p->stepped = (I)b[8]; r->nsteps = (I)b[9]; r->nrejected = (I)b[10]; r->naccel = (I)b[11];
+    r->nprojections = (I)b[12];
+    b += PAIR_SCALARS;
+    if (r->ev.nevent) memcpy(r->ev.ev_g, b, (size_t)r->ev.nevent * sizeof(double));
+}
+
+/* EventRunner.advance's estimate of where the sign change of a step from t0 to t1 comes
+ * (the watched values before it in ev_g, after it next to them): the earliest crossing
+ * by linear interpolation (events._fraction); NAN unless every crossing is a stop's
+ * distance, whose value is Python's to the bit (events.h coordinate_value). */
+static double coming_event(const EventWatch *w, double t0, double t1) {
+    const double *g0 = w->ev_g, *g1 = w->ev_g + w->nevent;
+    double fraction = INFINITY;
+    for (I e = 0; e < w->nevent; e++) {
+        if (!(g1[e] < 0.0 && (g0[e] >= 0.0 || g1[e] < g0[e]))) continue;
+        if (w->ev_int[EV_INTS * e + EV_KIND] != EV_DISTANCE) return NAN;
+        fraction = fmin(fraction, g0[e] <= 0.0 ? 0.0 : g0[e] / (g0[e] - g1[e]));
+    }
+    return t0 + (t1 - t0) * fraction;
+}
 
 /* The calling thread's CPU time (s): WorkLimit's clock (time.thread_time). */
 static double thread_cpu(void) {
@@ -411,6 +479,7 @@ int mbd_prk_run(const Model *M, PrkPy *p) {
     I n = M->n, n2 = 2 * n, ns = r->ns, attempts = 0;
     Scratch s = scratch(M, M->work);
     double *y = r->y, *f = r->f;
+    if (p->undo) save_pair(M, p, p->undo);
     while (p->t < p->t_target) {
         if (attempts >= r->max_work) return RUN_WORK;
         if (p->cpu_limit > 0.0 && thread_cpu() - p->cpu_start > p->cpu_limit) return RUN_WORK;
@@ -467,7 +536,14 @@ int mbd_prk_run(const Model *M, PrkPy *p) {
         if (!cut) r->err_old = fmax(err, ERR_OLD_MIN);
         if (r->ev.nevent) {              /* the event runner's watch, before the audit */
             int crossed = events_crossed(M, &r->ev, end_motion(M, r), r->ufs, &s, y);
+            if (crossed > 0 && p->undo) {    /* back to the step's start (set_state) */
+                double t1 = p->t;
+                int past = p->dense && t1 > p->t_target;
+                restore_pair(M, p, p->undo);
+                p->coming = past ? coming_event(&r->ev, p->t, t1) : NAN;
+            }
             if (crossed) return crossed > 0 ? RUN_EVENT : RUN_PYTHON;
+            if (p->undo) save_pair(M, p, p->undo);
         }
         if (p->audit && p->audit[A_ACTIVE] != 0.0 &&
                 !energy_check(M, y, y + n, p->audit, p->divergence, p->roundoff))

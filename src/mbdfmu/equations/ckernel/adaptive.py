@@ -156,7 +156,7 @@ class PrkPy(ctypes.Structure):
                 ("min_gain", _D), ("jump_limit", _D), ("divergence", _D), ("roundoff", _D),
                 ("t_old", _D), ("h_old", _D), ("y_old", _P), ("y_end", _P), ("K_old", _P),
                 ("stepped", _I), ("ngaps", _I), ("gap_mid", _P), ("gap_width", _P),
-                ("cpu_limit", _D), ("cpu_start", _D)]
+                ("cpu_limit", _D), ("cpu_start", _D), ("undo", _P), ("coming", _D)]
 
 
 class PrkRunBuffers:

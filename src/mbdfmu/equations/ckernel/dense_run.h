@@ -13,7 +13,8 @@
  * takes the same steps and says why; so does a run that passes the doStep's CPU limit
  * (PrkPy.cpu_limit), which Python then discards. In a scene with end stops or friction the
  * run watches the contact mode's event functions after each step (events.h) and keeps its
- * steps within the event runner's horizon; a step that changes a sign is Python's too.
+ * steps within the event runner's horizon, closing in on a stop ahead as the runner does
+ * (run_within_horizon); a step that changes a sign within the doStep is Python's.
  *
  * Python's own interpolants (DOP853P._interpolant, RK45P._interpolant with the C kernel)
  * call the same functions, so a value read here is the one Python reads, bit for bit.
@@ -92,50 +93,46 @@ typedef struct {
     const double *c_extra;       /* DOP853's extra nodes in a step (with drivers) */
 } DenseRun;
 
-/* doubles of saved: y, f, y_old, y_end (2n each), K_old (13 x 2n), the audit (13), the
- * scalars below, the event functions (nevent) */
-#define RUN_SCALARS 17
+/* doubles of saved: the pair's state (save_pair), then the scalars below */
+#define RUN_SCALARS 4
 #define HORIZON_REACHED 1e-12    /* events.HORIZON_REACHED */
+#define HORIZON_FRACTION 0.9     /* events.HORIZON_FRACTION */
 
 static void save_run(const Model *M, const DenseRun *R, double *b) {
-    const PrkPy *p = &R->p;
-    const PrkRun *r = &p->r;
-    I n2 = 2 * M->n, rows = r->ns + 1;
-    memcpy(b, r->y, (size_t)n2 * sizeof(double)); b += n2;
-    memcpy(b, r->f, (size_t)n2 * sizeof(double)); b += n2;
-    memcpy(b, p->y_old, (size_t)n2 * sizeof(double)); b += n2;
-    memcpy(b, p->y_end, (size_t)n2 * sizeof(double)); b += n2;
-    memcpy(b, p->K_old, (size_t)(rows * n2) * sizeof(double)); b += rows * n2;
-    if (p->audit) memcpy(b, p->audit, A_FIELDS * sizeof(double));
-    b += A_FIELDS;
-    double scalars[RUN_SCALARS] = {
-        r->h, r->err_old, r->indicator, (double)r->landing, p->t, p->energy_rejected,
-        p->t_old, p->h_old, (double)p->stepped, (double)r->nsteps, (double)r->nrejected,
-        (double)r->naccel, (double)r->nprojections, R->d.t_old, R->d.h, (double)R->taken,
-        R->horizon};
-    memcpy(b, scalars, sizeof scalars);
-    b += RUN_SCALARS;
-    if (p->r.ev.nevent) memcpy(b, p->r.ev.ev_g, (size_t)p->r.ev.nevent * sizeof(double));
+    save_pair(M, &R->p, b);
+    b += pair_state_size(M, &R->p);
+    b[0] = R->d.t_old; b[1] = R->d.h; b[2] = (double)R->taken; b[3] = R->horizon;
 }
 
 static void restore_run(const Model *M, DenseRun *R, const double *b) {
+    restore_pair(M, &R->p, b);
+    b += pair_state_size(M, &R->p);
+    R->d.t_old = b[0]; R->d.h = b[1]; R->taken = (I)b[2]; R->horizon = b[3];
+}
+
+/* EventRunner.advance's run to `end` within its horizon: a horizon reached is dropped,
+ * else the steps end by it; a step past `end` that changes a stop's distance's sign is
+ * taken again from its start, the horizon HORIZON_FRACTION of the way to where the change
+ * comes, as long as that horizon is past `end` (else the event is this doStep's: Python's).
+ * The pair's RUN_* status. */
+static int run_within_horizon(const Model *M, DenseRun *R, double end) {
     PrkPy *p = &R->p;
-    PrkRun *r = &p->r;
-    I n2 = 2 * M->n, rows = r->ns + 1;
-    memcpy(r->y, b, (size_t)n2 * sizeof(double)); b += n2;
-    memcpy(r->f, b, (size_t)n2 * sizeof(double)); b += n2;
-    memcpy(p->y_old, b, (size_t)n2 * sizeof(double)); b += n2;
-    memcpy(p->y_end, b, (size_t)n2 * sizeof(double)); b += n2;
-    memcpy(p->K_old, b, (size_t)(rows * n2) * sizeof(double)); b += rows * n2;
-    if (p->audit) memcpy(p->audit, b, A_FIELDS * sizeof(double));
-    b += A_FIELDS;
-    r->h = b[0]; r->err_old = b[1]; r->indicator = b[2]; r->landing = (I)b[3];
-    p->t = b[4]; p->energy_rejected = b[5]; p->t_old = b[6]; p->h_old = b[7];
-    p->stepped = (I)b[8]; r->nsteps = (I)b[9]; r->nrejected = (I)b[10]; r->naccel = (I)b[11];
-    r->nprojections = (I)b[12]; R->d.t_old = b[13]; R->d.h = b[14]; R->taken = (I)b[15];
-    R->horizon = b[16];
-    b += RUN_SCALARS;
-    if (p->r.ev.nevent) memcpy(p->r.ev.ev_g, b, (size_t)p->r.ev.nevent * sizeof(double));
+    double max_step = p->r.max_step;
+    int status;
+    for (;;) {
+        if (!isnan(R->horizon) && p->t >= R->horizon - HORIZON_REACHED * fmax(1.0, R->horizon))
+            R->horizon = NAN;
+        p->r.max_step = isnan(R->horizon) ? max_step : fmin(max_step, R->horizon - p->t);
+        status = mbd_prk_run(M, p);
+        p->r.max_step = max_step;
+        if (status != RUN_EVENT || !p->undo || isnan(p->coming)) break;
+        double horizon = p->t + HORIZON_FRACTION * (p->coming - p->t);
+        if (!(horizon > end)) break;
+        R->horizon = horizon;
+        p->rejections = 0;              /* a new advance: its own count and CPU limit */
+        p->cpu_start = thread_cpu();
+    }
+    return status;
 }
 
 /* The wrapper's doStep from t over h (dense.h's mbd_dense_step inside the step read; past
@@ -152,14 +149,8 @@ int mbd_dense_run_step(const Model *M, DenseRun *R, double t, double h, double *
     p->t_target = end;
     p->rejections = 0;              /* _advance_adaptive counts them per call */
     p->stepped = 0;
-    /* EventRunner.advance: a horizon reached is dropped, else this call's steps end by it */
-    double max_step = p->r.max_step;
-    if (!isnan(R->horizon) && p->t >= R->horizon - HORIZON_REACHED * fmax(1.0, R->horizon))
-        R->horizon = NAN;
-    if (!isnan(R->horizon)) p->r.max_step = fmin(max_step, R->horizon - p->t);
-    int st = mbd_prk_run(M, p) == RUN_DONE && p->stepped && end < p->t_old + p->h_old ? ST_OK
-             : ST_ERROR_NORM;
-    p->r.max_step = max_step;
+    int st = run_within_horizon(M, R, end) == RUN_DONE && p->stepped &&
+             end < p->t_old + p->h_old ? ST_OK : ST_ERROR_NORM;
     I w = d->coef == R->coef[R->which] ? !R->which : R->which;
     if (st == ST_OK && d->kind == DENSE_RK45) {
         mbd_rk45_dense(2 * M->n, p->r.ns + 1, RK45_ROWS, p->K_old, R->D, R->coef[w]);

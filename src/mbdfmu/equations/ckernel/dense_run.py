@@ -22,7 +22,7 @@ from .model import watch_events
 _P, _I = ctypes.c_void_p, ctypes.c_int64
 ST_OK = 0                               # kernel.c's ST_OK
 DENSE_STAGES, DENSE_ROWS = 16, 7        # dense_run.h: DOP853's stages with the extra three
-RUN_SCALARS = 17                        # dense_run.h: the scalars save_run keeps
+PAIR_SCALARS, RUN_SCALARS = 13, 4       # adaptive.h's save_pair, dense_run.h's save_run
 COUNTERS = ("nsteps", "nrejected", "naccel", "nprojections")
 
 
@@ -45,8 +45,12 @@ class RunBuffers(PrkRunBuffers):
         self.node_motions, self.node_ufs = np.zeros((3, 3 * m)), np.zeros((3, max(nf, 1)))
         self.coef = np.zeros((2, DENSE_ROWS, n2))
         self.Kx, self.ys = np.zeros((DENSE_STAGES, n2)), np.zeros(n2)
-        self.saved_base = 4 * n2 + (ns + 1) * n2 + AUDIT_SIZE + RUN_SCALARS
-        self.saved = np.zeros(self.saved_base)      # and the watched event functions'
+        # the pair's state (save_pair) and the watched event functions' values: where a
+        # run puts itself back after a step that changes a sign (PrkPy.undo); with the
+        # run's own scalars, the state before a doStep's run (save_run)
+        self.pair_base = 4 * n2 + (ns + 1) * n2 + AUDIT_SIZE + PAIR_SCALARS
+        self.saved = np.zeros(self.pair_base + RUN_SCALARS)
+        self.undo = np.zeros(self.pair_base)
         self.events = None
 
 
@@ -140,9 +144,11 @@ class DenseRuns:
         """Point the run at the event functions it watches (kept in b), or at none."""
         b.events = watch_events(run.p.r, events)
         ne = 0 if events is None else len(events[2])
-        if b.saved.size < b.saved_base + ne:
-            b.saved = np.zeros(b.saved_base + ne)
+        if b.saved.size < b.pair_base + ne + RUN_SCALARS:
+            b.saved = np.zeros(b.pair_base + ne + RUN_SCALARS)
+            b.undo = np.zeros(b.pair_base + ne)
             run.saved = b.saved.ctypes.data
+        run.p.undo = b.undo.ctypes.data if ne else None
 
     def _run_coefficients(self, coef):
         """A run's interpolant as Python keeps it: DOP853's F (7, 2n), or Dormand-Prince
