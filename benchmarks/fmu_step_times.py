@@ -89,26 +89,11 @@ EVENT_CASES["crane_stop, force set"] = (ROOT / "scenes" / "crane_stop.toml", CYL
 DRIVER_CASES = {"prescribed slider-crank, position set": (
     ROOT / "scenarios" / "prescribed_motion" / "slider_crank.toml", "", "motor.position",
     lambda t: 314.1592653589793 * t + 0.1 * math.sin(2.0 * math.pi * 5.0 * t))}
-# --set stiff: P1 with its rod a 1e10 N/m spring (benchmarks/stiff.py's), auto's stiff
+# --set stiff: P1 with its rod a 1e10 N/m spring (scenes/stiff_spring.toml), auto's stiff
 # case (genalpha under step control), alone and with a push across it set before every
 # doStep, and hung from a second body pinned off its centre (constraints, a force Jacobian
 # coupling two bodies)
-STIFF_SPRING = """name = "StiffSpring"
-gravity = [0.0, -9.81]
-[[body]]
-name = "bob"
-mass = 1.0
-inertia = 1e-6
-position = [1.0, 0.0]
-[[force]]
-name = "rod"
-type = "spring_damper"
-body_j = "bob"
-point_j = [0.0, 0.0]
-stiffness = 1e10
-damping = 0.0
-rest_length = 1.0
-"""
+STIFF_SCENE = ROOT / "scenes" / "stiff_spring.toml"
 STIFF_PUSH = """
 [[force]]
 name = "push"
@@ -132,13 +117,11 @@ body_j = "hook"
 point_j = [0.1, 0.0]
 """
 STIFF_CASES = {
-    "stiff spring, auto": (None, STIFF_SPRING.replace(
-        'body_j = "bob"', 'body_i = "ground"\npoint_i = [0.0, 0.0]\nbody_j = "bob"'), None, None),
-    "stiff spring, push set": (None, STIFF_SPRING.replace(
-        'body_j = "bob"', 'body_i = "ground"\npoint_i = [0.0, 0.0]\nbody_j = "bob"')
-        + STIFF_PUSH, "push.fy", lambda t: -2.0 + math.sin(2.0 * math.pi * t)),
-    "stiff spring on a pinned hook, push set": (None, STIFF_SPRING.replace(
-        'body_j = "bob"', 'body_i = "hook"\npoint_i = [0.1, 0.0]\nbody_j = "bob"')
+    "stiff spring, auto": (STIFF_SCENE, "", None, None),
+    "stiff spring, push set": (STIFF_SCENE, STIFF_PUSH, "push.fy",
+                               lambda t: -2.0 + math.sin(2.0 * math.pi * t)),
+    "stiff spring on a pinned hook, push set": (None, STIFF_SCENE.read_text().replace(
+        'body_i = "ground"\npoint_i = [0.0, 0.0]', 'body_i = "hook"\npoint_i = [0.1, 0.0]')
         + STIFF_HOOK + STIFF_PUSH, "push.fy", lambda t: -2.0 + math.sin(2.0 * math.pi * t))}
 SETS = {"targets": (CASES, "fmu_step_times"), "events": (EVENT_CASES, "fmu_step_times_events"),
         "drivers": (DRIVER_CASES, "fmu_step_times_drivers"),

@@ -1,12 +1,13 @@
 """A stiff spring under ``auto``: cost per simulated second against the stiffness.
 
-The mechanism is P1 with its rod replaced by a spring of stiffness k (rest length 1 m)
-between ground and a 1 kg bob released horizontally at rest: the stiff limit of the
-rigid pendulum. Its second form ("two bodies") hangs the spring from a second moving body
-(1 kg, 1 kg m^2) pinned to the ground at the spring's end, which the spring cannot turn:
-the same motion, but the spring's force Jacobian couples two moving bodies (genalpha's C
-step then factorises its whole iteration matrix, ckernel/implicit_dense.h). For k >= 1e8 N/m the spring's stretch (at most m g / k, 1e-7 m) is a tenth
-of the default tolerance or less, so the rigid pendulum's closed form
+The mechanism is scenes/stiff_spring.toml, P1 with its rod a spring of stiffness k (rest
+length 1 m) between ground and a 1 kg bob released horizontally at rest: the stiff limit
+of the rigid pendulum. Its second form ("two bodies") hangs the spring from a second
+moving body (1 kg, 1 kg m^2) pinned to the ground at the spring's end, which the spring
+cannot turn: the same motion, but the spring's force Jacobian couples two moving bodies
+(genalpha's C step then factorises its whole iteration matrix, ckernel/implicit_dense.h).
+For k >= 1e8 N/m the spring's stretch (at most 3 m g / k, 3e-7 m) is a third of the
+default tolerance or less, so the rigid pendulum's closed form
 (``bench.closed_forms.pendulum``) is the reference to that accuracy.
 
 Each k runs from t = 0 to ``--t-end`` (default 20 ms, issue 13's target) with outputs every
@@ -41,6 +42,7 @@ import argparse  # noqa: E402
 import csv  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
+import tomllib  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -60,11 +62,11 @@ SPRINGS = ("ground", "two-bodies")
 
 
 def spring_pendulum(k: float, spring: str = "ground"):
-    data = {"name": "StiffSpringPendulum", "gravity": [0.0, -9.81],
-            "body": [{"name": "bob", "mass": 1.0, "inertia": 1e-6, "position": [1.0, 0.0]}],
-            "force": [{"name": "rod", "type": "spring_damper", "body_i": "ground",
-                       "point_i": [0.0, 0.0], "body_j": "bob", "point_j": [0.0, 0.0],
-                       "stiffness": k, "damping": 0.0, "rest_length": 1.0}]}
+    """scenes/stiff_spring.toml with stiffness k (N/m); "two-bodies": hung from a second,
+    pinned body instead of the ground."""
+    with open(ROOT / "scenes" / "stiff_spring.toml", "rb") as f:
+        data = tomllib.load(f)
+    data["force"][0]["stiffness"] = k
     if spring == "two-bodies":
         data["body"].append({"name": "hook", "mass": 1.0, "inertia": 1.0, "position": [0.0, 0.0]})
         data["joint"] = [{"name": "pin", "type": "revolute", "body_i": "ground",

@@ -118,16 +118,15 @@ def test_a_run_that_needs_no_switch_is_the_method_auto_picked():
 
 
 def stiff_pendulum(k=1e10, stretch=1e-4, damping=1e3):
-    """A 1 kg bob on a spring of stiffness k (N/m, rest length 1 m) from a ground pivot,
-    released horizontally with the spring stretched by ``stretch`` (m): the stretch's
-    oscillation (period 2 pi / sqrt(k) s) dies out within about 10 m / damping s."""
-    return scene_from_dict({
-        "name": "StretchedStiffPendulum", "gravity": [0.0, -9.81],
-        "body": [{"name": "bob", "mass": 1.0, "inertia": 1e-6,
-                  "position": [1.0 + stretch, 0.0]}],
-        "force": [{"name": "rod", "type": "spring_damper", "body_i": "ground",
-                   "point_i": [0.0, 0.0], "body_j": "bob", "point_j": [0.0, 0.0],
-                   "stiffness": k, "damping": damping, "rest_length": 1.0}]})
+    """The shipped stiff spring (scenes/stiff_spring.toml: a 1 kg bob on a spring of rest
+    length 1 m from a ground pivot) with stiffness k (N/m) and damping (N s/m), released
+    horizontally with the spring stretched by ``stretch`` (m): the stretch's oscillation
+    (period 2 pi / sqrt(k) s) dies out within about 10 m / damping s."""
+    with open(ref.SCENES / "stiff_spring.toml", "rb") as f:
+        data = tomllib.load(f)
+    data["body"][0]["position"] = [1.0 + stretch, 0.0]
+    data["force"][0].update(stiffness=k, damping=damping)
+    return scene_from_dict(data)
 
 
 @pytest.mark.parametrize("reference_rtol", [

@@ -28,26 +28,12 @@ pytestmark = pytest.mark.skipif(not ckernel.available(), reason="no C compiler f
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 H = 1e-3
 
-SPRING = """name = "StiffSpring"
-gravity = [0.0, -9.81]
-outputs = ["bob.*", "rod.*"]
-[[body]]
-name = "bob"
-mass = 1.0
-inertia = 1e-6
-position = [1.0, 0.0]
-angular_velocity = 50.0           # a free spin: its angle wraps (the steps' periodic angles)
-[[force]]
-name = "rod"
-type = "spring_damper"
-body_i = "ground"
-point_i = [0.0, 0.0]
-body_j = "bob"
-point_j = [0.0, 0.0]
-stiffness = 1e10
-damping = 0.0
-rest_length = 1.0
-"""
+# the shipped stiff spring with its bob spinning freely (its angle wraps: the steps'
+# periodic angles) and the spring's outputs published
+SPRING = (SCENES / "stiff_spring.toml").read_text().replace(
+    "gravity = [0.0, -9.81]", 'gravity = [0.0, -9.81]\noutputs = ["bob.*", "rod.*"]').replace(
+    "angular_velocity = 0.0", "angular_velocity = 50.0")
+assert "angular_velocity = 50.0" in SPRING and "outputs = " in SPRING
 # the spring hung from a second body pinned to the ground off its centre (a revolute whose
 # rows depend on the hook's angle, and a force Jacobian that couples two bodies, so the
 # kernel's dense LU), the spring's end at the pin

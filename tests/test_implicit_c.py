@@ -7,6 +7,9 @@ them changes (the Newton test, the predictor) without the other, these tests fai
 errors are against P1's elliptic solution and P2's exact one-degree-of-freedom reduction
 (bench/closed_forms.py), over a segment of P2 that passes its first singular crossing.
 """
+import tomllib
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -15,6 +18,8 @@ from mbdfmu.bench import closed_forms
 from mbdfmu.equations import ckernel
 from mbdfmu.integrators import implicit_c
 from mbdfmu.model.reader import scene_from_dict
+
+SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
 pytestmark = pytest.mark.skipif(not ckernel.available(), reason="no C compiler for the kernel")
 
@@ -103,13 +108,12 @@ def test_a_dense_case_beyond_its_size_runs_in_python(monkeypatch):
 
 
 def spring_pendulum(k: float, between_bodies: bool = False):
-    """P1's link replaced by a spring of stiffness k (N/m) (benchmarks/stiff.py); with
-    ``between_bodies`` hung from a second, pinned body instead of the ground."""
-    data = {"name": "spring", "gravity": [0.0, -9.81],
-            "body": [{"name": "bob", "mass": 1.0, "inertia": 1e-6, "position": [1.0, 0.0]}],
-            "force": [{"name": "rod", "type": "spring_damper", "body_i": "ground",
-                       "point_i": [0.0, 0.0], "body_j": "bob", "point_j": [0.0, 0.0],
-                       "stiffness": k, "damping": 0.0, "rest_length": 1.0}]}
+    """The shipped stiff spring (P1's link a spring, scenes/stiff_spring.toml) with
+    stiffness k (N/m); with ``between_bodies`` hung from a second, pinned body instead of
+    the ground."""
+    with open(SCENES / "stiff_spring.toml", "rb") as f:
+        data = tomllib.load(f)
+    data["force"][0]["stiffness"] = k
     if between_bodies:
         data["body"].append({"name": "hook", "mass": 1.0, "inertia": 1.0, "position": [0.0, 0.0]})
         data["joint"] = [{"name": "pin", "type": "revolute", "body_i": "ground",

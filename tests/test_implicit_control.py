@@ -19,16 +19,9 @@ TOL = 1e-6 * 1.0 + 1e-8        # default rtol times the 1 m mechanism, plus atol
 
 
 def spring_pendulum(k: float):
-    """P1's scene with its pivot replaced by a spring of stiffness k (N/m), rest length 1 m,
-    from the pivot to the bob."""
-    with open(ref.SCENES / "pendulum.toml", "rb") as f:
-        data = tomllib.load(f)
-    pivot = data.pop("joint")[0]
-    data["force"] = [{"name": "rod", "type": "spring_damper", "body_i": pivot["body_i"],
-                      "point_i": pivot["point_i"], "body_j": pivot["body_j"],
-                      "point_j": [0.0, 0.0], "stiffness": k, "damping": 0.0,
-                      "rest_length": 1.0}]
-    return scene_from_dict(data)
+    """The shipped stiff spring (P1's link a spring of rest length 1 m from the pivot to
+    the bob, scenes/stiff_spring.toml) with stiffness k (N/m)."""
+    return mbdfmu.with_parameters(mbdfmu.load_scene("stiff_spring"), {"rod.stiffness": k})
 
 
 def bob_error(res) -> float:

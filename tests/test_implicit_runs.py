@@ -14,7 +14,6 @@ from mbdfmu.equations import ckernel
 from mbdfmu.errors import SolverError, WorkLimitError
 from mbdfmu.integrators import implicit_runs
 from mbdfmu.integrators.work import WorkLimit
-from mbdfmu.model.reader import scene_from_dict
 
 pytestmark = pytest.mark.skipif(not ckernel.available(), reason="no C compiler for the kernel")
 
@@ -22,13 +21,9 @@ ADAPTIVE = {"step_control": "adaptive"}
 
 
 def spring_pendulum(k: float):
-    """P1 with its rod replaced by a spring of stiffness k (N/m): auto picks genalpha."""
-    return scene_from_dict({
-        "name": "StiffSpring", "gravity": [0.0, -9.81],
-        "body": [{"name": "bob", "mass": 1.0, "inertia": 1e-6, "position": [1.0, 0.0]}],
-        "force": [{"name": "rod", "type": "spring_damper", "body_i": "ground",
-                   "point_i": [0.0, 0.0], "body_j": "bob", "point_j": [0.0, 0.0],
-                   "stiffness": k, "damping": 0.0, "rest_length": 1.0}]})
+    """The shipped stiff spring (P1's link a spring, scenes/stiff_spring.toml) with
+    stiffness k (N/m): auto picks genalpha."""
+    return mbdfmu.with_parameters(mbdfmu.load_scene("stiff_spring"), {"rod.stiffness": k})
 
 
 CASES = {

@@ -156,31 +156,8 @@ body_j = "coupler"
 point_j = [0.5, 0.0]
 """
 
-STIFF_SPRING_PENDULUM = """
-name = "StiffSpringPendulum"
-gravity = [0.0, -9.81]
-
-[simulation]
-t_end = 2.0
-output_interval = 0.05
-
-[[body]]
-name = "bob"
-mass = 1.0
-inertia = 1.0e-6
-position = [1.0, 0.0]
-
-[[force]]
-name = "rod"
-type = "spring_damper"
-body_i = "ground"
-point_i = [0.0, 0.0]
-body_j = "bob"
-point_j = [0.0, 0.0]
-stiffness = 1.0e10
-damping = 0.0
-rest_length = 1.0
-"""
+STIFF_SPRING_PENDULUM = ((ref.SCENES / "stiff_spring.toml").read_text()
+                         + "\n[simulation]\nt_end = 2.0\noutput_interval = 0.05\n")
 
 
 def scene_from_text(tmp_path, text, name="scene"):
