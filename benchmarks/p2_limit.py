@@ -3,10 +3,12 @@ one-degree-of-freedom reduction integrated by RK4 compiled the same way as the C
 
 P2 N = 2 (scenes/n_four_bar_2.toml) moves with one degree of freedom: the cranks stay
 parallel, and the crank angle follows ``Meff theta'' = -C cos(theta)``
-(``bench.closed_forms.n_four_bar_B0``). That ODE, integrated by classic RK4 in C (the C
-kernel's compiler and flags, ``ckernel.build.CFLAGS``), is the cheapest a solver of this
-mechanism can be: what is left between it and mbdfmu is the cost of the full (absolute)
-coordinates, the constraints and their projections.
+(``bench.closed_forms.n_four_bar_B0``). That ODE, integrated by classic RK4 in C with
+the flags of the kernel measured (``build.SCENE_CFLAGS`` for the kernel built for the
+scene, which the benchmark runs by default as the scene's FMU does; ``build.CFLAGS`` with
+``--generic-kernel``), is the cheapest a solver of this mechanism can be: what is left
+between it and mbdfmu is the cost of the full (absolute) coordinates, the constraints and
+their projections.
 
 Every method runs with the C kernel (what FMUs run) from t = 0 to ``--t-end``; fixed-step
 methods over a sweep of steps, adaptive ones over a sweep of rtol (decades, and 5e-5,
@@ -17,7 +19,8 @@ time after ``Simulation()``): the machine is shared, and load only ever adds tim
 Target: the cheapest run reaching 1e-6 within 20 times the compiled reduction's cheapest
 run reaching 1e-6.
 
-    python benchmarks/p2_limit.py [--t-end 10] [--repeat 3] [--quick] [-o DIR]
+    python benchmarks/p2_limit.py [--t-end 10] [--repeat 3] [--quick] [--generic-kernel]
+                                  [-o DIR]
 
 Writes ``p2_limit.md``, ``p2_limit.csv`` and ``p2_limit.png`` into DIR (default
 docs/figures/performance).
@@ -43,7 +46,8 @@ from pathlib import Path  # noqa: E402
 
 import mbdfmu  # noqa: E402
 from mbdfmu.bench.closed_forms import G, n_four_bar_B0  # noqa: E402
-from mbdfmu.equations.ckernel.build import CFLAGS  # noqa: E402
+from mbdfmu.equations import Equations, ckernel  # noqa: E402
+from mbdfmu.equations.ckernel.build import CFLAGS, SCENE_CFLAGS  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 N, LEVEL, TARGET = 2, 1e-6, 20.0
@@ -83,12 +87,12 @@ void rk4_theta(double h, long n, double a, double *theta, double *omega) {
 """
 
 
-def reduced_library(folder: Path):
-    """The reduced ODE's RK4, compiled with the C kernel's flags."""
+def reduced_library(folder: Path, flags=CFLAGS):
+    """The reduced ODE's RK4, compiled with the C kernel's flags (``flags``)."""
     source, lib = folder / "reduced.c", folder / "reduced.so"
     source.write_text(REDUCED_C)
     compiler = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
-    subprocess.run([compiler, *CFLAGS, "-o", str(lib), str(source), "-lm"], check=True)
+    subprocess.run([compiler, *flags, "-o", str(lib), str(source), "-lm"], check=True)
     rk4 = ctypes.CDLL(str(lib)).rk4_theta
     rk4.argtypes = [ctypes.c_double, ctypes.c_long, ctypes.c_double,
                     ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_double)]
@@ -183,25 +187,34 @@ def main(argv=None) -> int:
     parser.add_argument("--t-end", type=float, default=10.0)
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--quick", action="store_true", help="t_end 2 s, one repeat")
+    parser.add_argument("--generic-kernel", action="store_true",
+                        help="the generic C kernel, not the one built for the scene")
     parser.add_argument("-o", "--output", default=str(ROOT / "docs" / "figures" / "performance"))
     args = parser.parse_args(argv)
     if args.quick:
         args.t_end, args.repeat = 2.0, 1
     scene = mbdfmu.load_scene(ROOT / "scenes" / "n_four_bar_2.toml")
+    if not args.generic_kernel:     # what the scene's FMU runs: compiled here once, cached
+        ckernel.specialize(Equations(scene, kernel="c"))
+    which = ("the generic C kernel" if args.generic_kernel else
+             "the C kernel built for this scene (its FMU's; `--generic-kernel`: the generic one)")
     b0 = n_four_bar_B0([args.t_end], N)
     exact = (float(b0["x"][-1]), float(b0["y"][-1]))
     mbdfmu.Simulation(scene, kernel="c", method="rk4p").advance(0.01)     # warm-up
     with tempfile.TemporaryDirectory() as tmp:
-        rows = reduced_rows(reduced_library(Path(tmp)), args.t_end, exact, args.repeat)
+        flags = CFLAGS if args.generic_kernel else SCENE_CFLAGS    # the kernel's own
+        rows = reduced_rows(reduced_library(Path(tmp), flags), args.t_end, exact, args.repeat)
     for method, settings in [*FIXED.items(), *ADAPTIVE.items()]:
         kind = "step" if method in FIXED else "rtol"
         for setting in settings:
             rows.append(mbdfmu_row(scene, method, kind, setting, args.t_end, exact, args.repeat))
             print(rows[-1], flush=True)
     limit = cheapest(rows, "reduced ODE, RK4 in C")
-    lines = [f"`python benchmarks/p2_limit.py --t-end {args.t_end:g} --repeat {args.repeat}`: "
-             f"CPU time of the cheapest run of each method reaching a B0 error of {LEVEL:g} at "
-             f"t = {args.t_end:g} s, and its ratio to the compiled reduction's.", "",
+    flag = " --generic-kernel" if args.generic_kernel else ""
+    lines = [f"`python benchmarks/p2_limit.py --t-end {args.t_end:g} --repeat {args.repeat}"
+             f"{flag}`: CPU time of the cheapest run of each method reaching a B0 error of "
+             f"{LEVEL:g} at t = {args.t_end:g} s, and its ratio to the compiled reduction's; "
+             f"mbdfmu on {which}.", "",
              "Simulation() (scene to equations, assembly) is part of every mbdfmu run's CPU "
              "time; the last two columns leave it out (`advance` alone).", "",
              "| method | cheapest run to 1e-6 | error (m) | CPU s | ratio to the reduced ODE "

@@ -12,10 +12,11 @@ FMI_VERSIONS = (2, 3)
 
 
 def build(path, output=None, parameters: dict[str, float] | None = None,
-          fmi_version: int = 2) -> Path:
+          fmi_version: int = 2, scene_kernel: bool | None = None) -> Path:
     """``mbdfmu build``: a scene or a companion source into an FMI 2.0 (``fmi_version`` 3:
     FMI 3.0) co-simulation FMU; returns the FMU's path. ``parameters``: start values baked
-    into a scene's FMU."""
+    into a scene's FMU; ``scene_kernel``: ship the C kernel built for the scene as well
+    (default: yes, unless ``$MBDFMU_SCENE_KERNEL`` is 0)."""
     if fmi_version not in FMI_VERSIONS:
         raise BuildError(f"FMI version {fmi_version!r}: mbdfmu builds FMI 2.0 and 3.0 FMUs "
                          "(--fmi-version 2 or 3)")
@@ -25,7 +26,7 @@ def build(path, output=None, parameters: dict[str, float] | None = None,
         from .companion import build_companion
         return build_companion(path, output, fmi_version)
     from .scene_fmu import build_fmu
-    return build_fmu(path, output, parameters, fmi_version)
+    return build_fmu(path, output, parameters, fmi_version, scene_kernel)
 
 
 __all__ = ["BuildError", "FMI_VERSIONS", "build"]

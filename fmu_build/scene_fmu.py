@@ -22,12 +22,14 @@ no second list of names.
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 from .. import __file__ as core_init
 from .. import __version__
 from ..equations import Equations
 from ..equations.ckernel.build import KernelBuildError, compile_kernel
+from ..equations.ckernel.scene_kernel import compile_scene_kernel
 from ..equations.projection import assemble
 from ..errors import SceneError
 from ..integrators import METHOD_NAMES
@@ -40,6 +42,7 @@ from ..model.variables import (GLOBAL_OUTPUTS, TABLES, input_layout, inputs, out
 from . import osp
 from .common import BuildError, digest, fill_template, write_checked
 from .model_description import Capabilities, DefaultExperiment, ModelInfo
+from .runtime.kernels import SCENE_KERNEL_FILE
 from .runtime.variables import Variable
 
 HERE = Path(__file__).resolve().parent
@@ -57,6 +60,9 @@ MAX_CPU_DEFAULT = 10.0
 # The compiled C kernel's name in the FMU's resources (docs/performance.md): loaded at
 # instantiation, so nothing is compiled when the FMU is loaded.
 KERNEL_FILE = "mbdfmu_kernel.so"
+# Whether a build ships the kernel built for its scene too (SCENE_KERNEL_FILE) when the
+# caller does not say: "1" (the default) or "0" (a build some seconds shorter).
+SCENE_KERNEL_ENV = "MBDFMU_SCENE_KERNEL"
 
 
 def select_outputs(scene) -> list:
@@ -211,13 +217,31 @@ def with_start_values(scene_path: Path, parameters: dict) -> tuple[dict, str]:
     return tomllib.loads(text), text
 
 
-def shipped_kernel() -> dict[str, bytes]:
-    """The compiled C kernel as a resource (compiled once per content into the cache), or
-    nothing when it cannot be compiled here: the FMU then runs the numpy kernel and logs so."""
+def wants_scene_kernel(scene_kernel: bool | None) -> bool:
+    """``scene_kernel`` as given, else ``$MBDFMU_SCENE_KERNEL`` (default 1), checked."""
+    if scene_kernel is not None:
+        return bool(scene_kernel)
+    value = os.environ.get(SCENE_KERNEL_ENV, "1")
+    if value not in ("0", "1"):
+        raise BuildError(f"{SCENE_KERNEL_ENV}={value!r}: use 1 (ship the C kernel built for "
+                         "the scene, the default) or 0 (the generic C kernel only)")
+    return value == "1"
+
+
+def shipped_kernel(scene, scene_kernel: bool) -> dict[str, bytes]:
+    """The compiled C kernel as a resource (compiled once per content into the cache), with
+    the kernel built for ``scene`` (ckernel/scene_kernel.py) when ``scene_kernel`` and the
+    scene is not too large for it; nothing when no kernel can be compiled here: the FMU
+    then runs the numpy kernel and logs so."""
     try:
-        return {KERNEL_FILE: compile_kernel().read_bytes()}
+        files = {KERNEL_FILE: compile_kernel().read_bytes()}
     except KernelBuildError:
         return {}
+    try:
+        path = compile_scene_kernel(Equations(scene, kernel="numpy")) if scene_kernel else None
+    except KernelBuildError:
+        path = None             # the generic kernel runs, as fast as before
+    return files if path is None else {**files, SCENE_KERNEL_FILE: path.read_bytes()}
 
 
 def _load(scene_path, values: dict[str, float] | None):
@@ -235,11 +259,14 @@ def _load(scene_path, values: dict[str, float] | None):
 
 
 def build_fmu(scene_path, output=None, parameters: dict[str, float] | None = None,
-              fmi_version: int = 2) -> Path:
+              fmi_version: int = 2, scene_kernel: bool | None = None) -> Path:
     """Build the FMU of a scene file (or a shipped scene's name); returns its path (default
     ``<Model>.fmu`` in the cwd). ``parameters``: start values baked into the FMU
     (``{"crank.mass": 0.3}``; names and ranges as ``mbdfmu.with_parameters`` checks them);
-    ``fmi_version``: 2 (FMI 2.0) or 3 (FMI 3.0, the same variables and behaviour)."""
+    ``fmi_version``: 2 (FMI 2.0) or 3 (FMI 3.0, the same variables and behaviour);
+    ``scene_kernel``: ship the C kernel built for this scene besides the generic one
+    (default ``$MBDFMU_SCENE_KERNEL``, else yes)."""
+    with_scene_kernel = wants_scene_kernel(scene_kernel)
     scene_path, data, text, scene = _load(scene_path, parameters)
     table = variable_table(scene)
     core, core_files = _core_files()
@@ -259,7 +286,7 @@ def build_fmu(scene_path, output=None, parameters: dict[str, float] | None = Non
                      generation_tool=f"mbdfmu {__version__} (native FMI {fmi_version}.0 runtime)")
     resources = {**core_files, "scene.toml": text.encode(),
                  "scene.json": json.dumps(data, indent=1, sort_keys=True).encode(),
-                 **shipped_kernel()}
+                 **shipped_kernel(scene, with_scene_kernel)}
     capabilities = Capabilities(can_interpolate_inputs=True, max_output_derivative_order=2,
                                 provides_directional_derivative=True)
     ports = osp.scene_ports(scene, set(outputs_))

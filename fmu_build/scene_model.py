@@ -36,6 +36,7 @@ import sys
 import numpy as np
 
 from . import Discard, FmiError, Slave, load_package
+from .kernels import load_kernel, log_scene_kernel
 from .machine import State
 from .slave import TIME_TOLERANCE
 
@@ -94,7 +95,8 @@ class Model(Slave):
         self.scene = self.core.model.scene_from_dict(data, source=SCENE_FILE)
         self.parameter_names = [p.name for p in self.core.model.variables.parameters(self.scene)]
         self.input_names = frozenset(v.name for v in self.core.model.variables.inputs(self.scene))
-        self.kernel = self.load_kernel()
+        self.kernel = load_kernel(self.resources, KERNEL_FILE, self.core.equations.ckernel,
+                                  self.log)
         self.limit = None            # ((max steps, max cpu), the WorkLimit of those)
         self.sim = self.built = None
         self.slots = None
@@ -105,24 +107,6 @@ class Model(Slave):
         self.published = OUTPUTS + STATES + ACCELERATIONS      # what publish() sets, in order
         self.input_slot = self.core.model.variables.input_slots(
             self.core.model.variables.input_layout(self.scene))
-
-    def load_kernel(self) -> str:
-        """The kernel this FMU runs: ``$MBDFMU_KERNEL`` if set, else the C kernel shipped
-        in the resources (compiled at build: nothing compiles here), else numpy, logged."""
-        if os.environ.get("MBDFMU_KERNEL"):
-            return os.environ["MBDFMU_KERNEL"]
-        ckernel, path = self.core.equations.ckernel, self.resources / KERNEL_FILE
-        if not path.is_file():
-            self.log("no compiled C kernel in this FMU (no C compiler at build): the numpy "
-                     "kernel runs, about 30 times slower")
-            return "numpy"
-        try:
-            ckernel.use_library(path)
-            ckernel.library()
-        except OSError as exc:
-            self.log(f"the FMU's C kernel cannot be loaded here ({exc}): the numpy kernel runs")
-            return "numpy"
-        return "c"
 
     # ----- building the simulation ----------------------------------------------------
     def build_key(self) -> dict:
@@ -153,6 +137,7 @@ class Model(Slave):
         # the C kernel shipped in the FMU unless asked otherwise (numba would compile anew
         # in every fresh extraction of the FMU), see docs/performance.md
         sim = core.Simulation(scene, kernel=self.kernel, settings=settings, t0=build["t0"])
+        log_scene_kernel(sim, self.resources, self.log)
         self.slots = np.array([sim.output_names.index(n) for n in OUTPUTS], dtype=np.intp)
         self.fast_inputs = self.core.fast_steps.settable_inputs(sim, self.variables)
         self.published_from = published_sources(self, sim)

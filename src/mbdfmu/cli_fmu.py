@@ -15,7 +15,8 @@ def cmd_build(args) -> int:
     with Ticker(args, "build"):
         path = build(args.scene, output=args.output,
                      parameters=parse_assignments(args.set) or None,
-                     fmi_version=args.fmi_version)
+                     fmi_version=args.fmi_version,
+                     scene_kernel=False if args.generic_kernel else None)
     write_beside(Path(path))      # <name>_OspModelDescription.xml: where OSP's tools look
     print(path)
     return 0
@@ -57,6 +58,9 @@ def add_fmu_commands(sub, _command) -> None:
     add_set_option(p, "parameter's start value in the FMU")
     p.add_argument("--fmi-version", type=int, choices=[2, 3], default=2,
                    help="FMI version of the FMU (default 2; 3: FMI 3.0, the same variables)")
+    p.add_argument("--generic-kernel", action="store_true",
+                   help="ship only the generic C kernel, not also the one built for this "
+                   "scene (a build some seconds shorter, steps slower)")
     add_progress_option(p)
     p = _command(sub, "cosim", cmd_cosim, "run a co-simulation scenario (scenarios/): CSV and "
                  "plot", ("mbdfmu cosim dc_motor_slider_crank",

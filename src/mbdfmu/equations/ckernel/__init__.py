@@ -60,6 +60,49 @@ def use_library(path) -> None:
     _library_path, _library = str(path), None
 
 
+# Kernels built for one scene (scene_kernel.py), most recent first: a Kernel whose Model has
+# the structure one was built for takes it, any other the generic library.
+_scene_libraries: list = []
+
+
+def use_scene_library(path) -> None:
+    """Offer this kernel built for one scene (an FMU's shipped copy, or
+    ``specialize``'s) to every ``Kernel`` of its structure made from now on."""
+    lib = ctypes.CDLL(str(Path(path)))
+    _prepare(lib)
+    _scene_libraries.insert(0, lib)
+
+
+def specialize(eq) -> Path | None:
+    """Compile (once per content) the kernel built for the structure of ``eq`` (an
+    ``Equations``) and use it for every Kernel of that structure made from now on; its
+    path, or None where the scene is too large for it to pay (scene_kernel.scene_header)."""
+    from .scene_kernel import compile_scene_kernel
+    path = compile_scene_kernel(eq)
+    if path is not None:
+        use_scene_library(path)
+    return path
+
+
+def library_for(address: int):
+    """The library for the Model at ``address``: a scene's own where one was built for its
+    structure, else the generic one."""
+    for lib in _scene_libraries:
+        if lib.mbd_structure_check(address):
+            return lib
+    return library()
+
+
+def _prepare(lib) -> None:
+    """Declare the argument and return types of a loaded library's entry points."""
+    for name, restype in (("mbd_work_size", _I), ("mbd_memo_size", _I)):
+        getattr(lib, name).restype, getattr(lib, name).argtypes = restype, [_P, _I][:1 + (name == "mbd_work_size")]
+    lib.mbd_structure_check.restype, lib.mbd_structure_check.argtypes = _I, [_P]
+    _declare(lib, _SIGNATURES, ctypes.c_int)     # once per library, not per Kernel
+    _declare(lib, {"mbd_constraints": [_P] * 7}, None)
+    declare_implicit(lib)
+
+
 def library():
     """The loaded kernel library (see the module docstring for where it comes from)."""
     global _library
@@ -69,11 +112,7 @@ def library():
             from .build import compile_kernel   # the compiler only when nothing was given
             path = compile_kernel()
         lib = ctypes.CDLL(str(Path(path)))
-        for name, restype in (("mbd_work_size", _I), ("mbd_memo_size", _I)):
-            getattr(lib, name).restype, getattr(lib, name).argtypes = restype, [_P, _I][:1 + (name == "mbd_work_size")]
-        _declare(lib, _SIGNATURES, ctypes.c_int)     # once per library, not per Kernel
-        _declare(lib, {"mbd_constraints": [_P] * 7}, None)
-        declare_implicit(lib)
+        _prepare(lib)
         _library = lib
     return _library
 
@@ -123,7 +162,6 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
     of zero length), which then says or does what it always does."""
 
     def __init__(self, eq):
-        lib = library()
         self.n, self.m, self.nf = eq.n, eq.m, eq.layout.size
         self._size = eq.pattern.size
         arrays = model_arrays(eq)
@@ -135,6 +173,8 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
         values, self._arrays = _packed(arrays)
         model = Model(rank_tol=RANK_TOLERANCE, **values)
         self.model, self.address = model, ctypes.addressof(model)
+        lib = library_for(self.address)
+        self.scene_built = lib in _scene_libraries    # the kernel built for this structure
         # the dense read (dense.h) heads the dense run (dense_run.h): one address for both
         self.run = DenseRun()
         self.dense, self._dense_arrays, self._publish = self.run.d, (), None

@@ -131,13 +131,13 @@ static int prk_try(const Model *M, PrkRun *r, Scratch *s, const double *y, const
     *h_next = accepted_step(r, hh, err, err_old);
     *err_out = err;
     s->kept = kept;         /* the trial's scratch is this one: keep what a restart needs */
-    keep_end(M, r->kept, r->y_new, r->motions + ns * 3 * M->m, s);
+    keep_end(M, r->kept, r->y_new, r->motions + ns * 3 * S_(M, m), s);
     return 1;
 }
 
 /* The motion at the end of the last trial: its last stage row where drivers move. */
 static const double *end_motion(const Model *M, const PrkRun *r) {
-    return r->mt.nmotion ? r->motions + r->ns * 3 * M->m : r->motion;
+    return r->mt.nmotion ? r->motions + r->ns * 3 * S_(M, m) : r->motion;
 }
 
 /* c_steps.stage_inputs of a trial of hh from tt where drivers move: their motions at each
@@ -145,14 +145,14 @@ static const double *end_motion(const Model *M, const PrkRun *r) {
 static void stage_motions(const Model *M, PrkRun *r, double tt, double hh) {
     if (!r->mt.nmotion) return;
     for (I s = 0; s <= r->ns; s++)
-        motion_at(M, &r->mt, tt + hh * r->fractions[s], r->motions + s * 3 * M->m);
+        motion_at(M, &r->mt, tt + hh * r->fractions[s], r->motions + s * 3 * S_(M, m));
 }
 
 /* The wrapper's doStep from t over hc (see the header), `moved`: drivers_apply applied a
  * driver's set; values filled, state moved. */
 static int prk_fast_step(const Model *M, PrkRun *r, double t, double hc, double *values,
                          int moved) {
-    I n = M->n, n2 = 2 * n, m = M->m, nf = M->nf;
+    I n = S_(M, n), n2 = 2 * n, m = S_(M, m), nf = S_(M, nf);
     if (!(fabs(t - r->t_now) <= r->time_tol * fmax(fabs(t), fabs(r->t_now)))) return ST_ERROR_NORM;
     double end = t + hc, tt = r->t_now, h_ctl = r->h, c0 = r->indicator, err_old = r->err_old;
     if (!(end > tt)) return ST_ERROR_NORM;
@@ -295,14 +295,14 @@ typedef struct {
 #define PAIR_SCALARS 13
 
 static I pair_state_size(const Model *M, const PrkPy *p) {
-    return (4 + p->r.ns + 1) * 2 * M->n + A_FIELDS + PAIR_SCALARS + p->r.ev.nevent;
+    return (4 + p->r.ns + 1) * 2 * S_(M, n) + A_FIELDS + PAIR_SCALARS + p->r.ev.nevent;
 }
 
 /* The pair's state after a step (or at a run's start) into b: what the event runner's
  * watching point (Integrator.rollback_point) holds. */
 static void save_pair(const Model *M, const PrkPy *p, double *b) {
     const PrkRun *r = &p->r;
-    I n2 = 2 * M->n, rows = r->ns + 1;
+    I n2 = 2 * S_(M, n), rows = r->ns + 1;
     memcpy(b, r->y, (size_t)n2 * sizeof(double)); b += n2;
     memcpy(b, r->f, (size_t)n2 * sizeof(double)); b += n2;
     memcpy(b, p->y_old, (size_t)n2 * sizeof(double)); b += n2;
@@ -321,7 +321,7 @@ static void save_pair(const Model *M, const PrkPy *p, double *b) {
 
 static void restore_pair(const Model *M, PrkPy *p, const double *b) {
     PrkRun *r = &p->r;
-    I n2 = 2 * M->n, rows = r->ns + 1;
+    I n2 = 2 * S_(M, n), rows = r->ns + 1;
     memcpy(r->y, b, (size_t)n2 * sizeof(double)); b += n2;
     memcpy(r->f, b, (size_t)n2 * sizeof(double)); b += n2;
     memcpy(p->y_old, b, (size_t)n2 * sizeof(double)); b += n2;
@@ -388,7 +388,7 @@ static int crossing_step(const PrkPy *p, double d, double w, double k, double li
 static double zone_plan(const Model *M, PrkPy *p, const double *y, double h, double proposal,
                         int *crossing) {
     PrkRun *r = &p->r;
-    I n = M->n;
+    I n = S_(M, n);
     double c0 = r->indicator, speed = 0.0, ahead = 0.0, H = 0.0;
     *crossing = 0;
     if (!(REDUNDANT <= c0 && c0 < NEAR_ZONE)) return h;
@@ -415,7 +415,7 @@ static double zone_plan(const Model *M, PrkPy *p, const double *y, double h, dou
 static int near_try(const Model *M, PrkRun *r, Scratch *s, const double *y, const double *f,
                     double hh, double *h_next, double *c1, double *err_out, I *naccel,
                     I *nproj) {
-    I n2 = 2 * M->n, ns = r->ns;
+    I n2 = 2 * S_(M, n), ns = r->ns;
     double err = 0.0;
     int st = prk_trial(M, ns, r->A, r->B, r->E, r->E3, hh, y, f, r->motions, r->ufs, r->rtol,
                        r->atol, r->tol, r->max_iter, r->y_new, r->f_new, &err, r->K,
@@ -463,7 +463,7 @@ static double energy_step_error(const Model *M, const PrkPy *p, const double *q,
 static int energy_decides(const Model *M, PrkPy *p, const double *y_new, double hh,
                           double *h_next) {
     if (!p->audit) return 1;
-    double err = energy_step_error(M, p, y_new, y_new + M->n), last = p->energy_rejected;
+    double err = energy_step_error(M, p, y_new, y_new + S_(M, n)), last = p->energy_rejected;
     if (err <= 1.0) { p->energy_rejected = NAN; return 1; }
     if (isnan(last) || err < p->min_gain * last) {
         p->energy_rejected = err;
@@ -476,7 +476,7 @@ static int energy_decides(const Model *M, PrkPy *p, const double *y_new, double 
 
 int mbd_prk_run(const Model *M, PrkPy *p) {
     PrkRun *r = &p->r;
-    I n = M->n, n2 = 2 * n, ns = r->ns, attempts = 0;
+    I n = S_(M, n), n2 = 2 * n, ns = r->ns, attempts = 0;
     Scratch s = scratch(M, M->work);
     double *y = r->y, *f = r->f;
     if (p->undo) save_pair(M, p, p->undo);

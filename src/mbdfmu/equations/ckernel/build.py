@@ -20,8 +20,14 @@ HERE = Path(__file__).resolve().parent
 SOURCES = ("kernel.c", "solve.h", "nullspace.h", "friction.h", "events.h", "stepping.h",
            "outputs.h", "dense.h", "motions.h", "fixed.h", "adaptive.h", "dense_run.h",
            "implicit.h", "implicit_dense.h", "implicit_run.h")
-# -O2 without -ffast-math: the kernel must round like the numpy code it translates.
-CFLAGS = ("-O2", "-shared", "-fPIC", "-std=gnu11", "-fno-fast-math", "-Wall")
+# -O2 without -ffast-math and without contracting a * b + c into one fused operation: the
+# kernel must round like the numpy code it translates, on any target.
+CFLAGS = ("-O2", "-shared", "-fPIC", "-std=gnu11", "-fno-fast-math", "-ffp-contract=off",
+          "-Wall")
+# A kernel built for one scene (scene_kernel.py): -O3 unrolls its constant loops; it changes
+# no rounding (no reassociation without -ffast-math).
+SCENE_CFLAGS = ("-O3",) + CFLAGS[1:]
+SCENE_HEADER = "mbdfmu_scene.h"
 
 
 class KernelBuildError(RuntimeError):
@@ -42,23 +48,32 @@ def cache_dir() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "mbdfmu"
 
 
-def compile_kernel(folder: str | os.PathLike | None = None) -> Path:
-    """The compiled kernel, built now or found in ``folder`` (default ``cache_dir()``)."""
+def compile_kernel(folder: str | os.PathLike | None = None, *,
+                   scene_header: str | None = None) -> Path:
+    """The compiled kernel, built now or found in ``folder`` (default ``cache_dir()``);
+    with ``scene_header`` (scene_kernel.py's), the kernel built for that scene."""
     names = [os.environ["CC"]] if os.environ.get("CC") else ["gcc", "cc", "clang"]
     compiler = next(filter(None, map(shutil.which, names)), None)
     if compiler is None:
         raise KernelBuildError(f"no C compiler found (looked for {', '.join(names)}): the "
                                "numpy kernel runs instead")
     version = subprocess.run([compiler, "--version"], capture_output=True, text=True).stdout
-    key = hashlib.sha256(f"{source_digest()}\n{compiler}\n{version}\n{CFLAGS}".encode())
-    target = Path(folder or cache_dir()) / f"mbdfmu-kernel-{key.hexdigest()[:24]}.so"
+    flags = CFLAGS if scene_header is None else SCENE_CFLAGS
+    key = hashlib.sha256(f"{source_digest()}\n{compiler}\n{version}\n{flags}\n"
+                         f"{scene_header or ''}".encode())
+    kind = "kernel" if scene_header is None else "scene-kernel"
+    target = Path(folder or cache_dir()) / f"mbdfmu-{kind}-{key.hexdigest()[:24]}.so"
     if target.is_file():
         return target
     target.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=target.parent) as tmp:
         built = Path(tmp) / target.name
-        run = subprocess.run([compiler, *CFLAGS, "-o", str(built), str(HERE / SOURCES[0]), "-lm"],
-                             capture_output=True, text=True)
+        scene = []
+        if scene_header is not None:
+            (Path(tmp) / SCENE_HEADER).write_text(scene_header)
+            scene = [f'-DMBD_SCENE="{SCENE_HEADER}"', "-I", tmp]
+        run = subprocess.run([compiler, *flags, *scene, "-o", str(built), str(HERE / SOURCES[0]),
+                              "-lm"], capture_output=True, text=True)
         if run.returncode != 0:
             first = (run.stderr.strip().splitlines() or ["(no output)"])[0]
             raise KernelBuildError(f"compiling the C kernel failed: {first}")

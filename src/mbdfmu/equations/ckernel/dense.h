@@ -59,17 +59,17 @@ static void dense_interpolate(const DenseRead *d, I n2, double t, double *y) {
  * the case the caller's Python path takes. */
 int mbd_dense_state(const Model *M, const DenseRead *d, double t, double *q) {
     Scratch s = scratch(M, M->work);
-    dense_interpolate(d, 2 * M->n, t, q);
-    for (I i = 0; i < 2 * M->n; i++)
+    dense_interpolate(d, 2 * S_(M, n), t, q);
+    for (I i = 0; i < 2 * S_(M, n); i++)
         if (!isfinite(q[i])) return ST_NOT_FINITE;
-    return project(M, &s, q, q + M->n, d->motion, d->tol, d->max_iter);
+    return project(M, &s, q, q + S_(M, n), d->motion, d->tol, d->max_iter);
 }
 
 /* The wrapper's doStep from t over h when it ends inside the step: V and values filled,
  * t_now moved; anything else (another time, beyond the step, at its end, a failed
  * projection) returns non-zero and the wrapper calls Python instead. */
 int mbd_dense_step(const Model *M, DenseRead *d, double t, double h, double *values) {
-    I n = M->n;
+    I n = S_(M, n);
     if (!(fabs(t - d->t_now) <= d->time_tol * fmax(fabs(t), fabs(d->t_now)))) return ST_ERROR_NORM;
     double end = t + h;
     if (!(end > d->t_now && end < d->t_old + d->h && end >= d->t_old)) return ST_ERROR_NORM;

@@ -33,7 +33,7 @@ static int dop853_dense(const Model *M, Scratch *s, const double *K, const doubl
                         const double *y_end, double h, const double *a_extra,
                         const double *D, const double *motions, const double *ufs, double *F,
                         double *Kx, double *ys) {
-    I n2 = 2 * M->n, m = M->m, nf = M->nf, first = DENSE_STAGES - 3;
+    I n2 = 2 * S_(M, n), m = S_(M, m), nf = S_(M, nf), first = DENSE_STAGES - 3;
     memcpy(Kx, K, (size_t)(first * n2) * sizeof(double));
     for (I e = 0; e < 3; e++) {
         I row = first + e;
@@ -153,12 +153,12 @@ int mbd_dense_run_step(const Model *M, DenseRun *R, double t, double h, double *
              end < p->t_old + p->h_old ? ST_OK : ST_ERROR_NORM;
     I w = d->coef == R->coef[R->which] ? !R->which : R->which;
     if (st == ST_OK && d->kind == DENSE_RK45) {
-        mbd_rk45_dense(2 * M->n, p->r.ns + 1, RK45_ROWS, p->K_old, R->D, R->coef[w]);
+        mbd_rk45_dense(2 * S_(M, n), p->r.ns + 1, RK45_ROWS, p->K_old, R->D, R->coef[w]);
     } else if (st == ST_OK) {
         Scratch s = scratch(M, M->work);
         for (I e = 0; e < 3 && p->r.mt.nmotion; e++)      /* DOP853P._interpolant's times */
             motion_at(M, &p->r.mt, p->t_old + R->c_extra[e] * p->h_old,
-                      R->motions + e * 3 * M->m);
+                      R->motions + e * 3 * S_(M, m));
         st = dop853_dense(M, &s, p->K_old, p->y_old, p->y_end, p->h_old, R->a_extra, R->D,
                           R->motions, R->ufs, R->coef[w], R->Kx, R->ys);
     }

@@ -43,7 +43,7 @@ static double coordinate_value(const I *si, const double *sr, const double *q) {
  * new one; a sticking joint's bound also needs Psi_q's data there. */
 static int event_values(const Model *M, const EventWatch *w, const double *motion,
                         const double *uf, Scratch *s, const double *y, double *g) {
-    I n = M->n, m = M->m;
+    I n = S_(M, n), m = S_(M, m);
     const double *lam = NULL, *cval = motion, *cdd = motion + 2 * m;
     int data = 0;
     for (I e = 0; e < w->nevent; e++) {
@@ -62,7 +62,7 @@ static int event_values(const Model *M, const EventWatch *w, const double *motio
             continue;
         }
         if (!lam && memo_hit(M, y, y + n, cval, cdd, uf)) {
-            lam = M->memo + 1 + 3 * n + 2 * m + M->nf;
+            lam = M->memo + 1 + 3 * n + 2 * m + S_(M, nf);
         } else if (!lam) {
             int st = accelerations(M, s, y, y + n, cval, cdd, uf, s->qv, s->lam);
             if (st != ST_OK) return st;

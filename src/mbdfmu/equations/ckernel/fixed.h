@@ -138,7 +138,7 @@ int mbd_fixed_set(FixedRun *r, const unsigned int *vr, size_t nvr, const double 
  * last step's end, Psi_q's values (nkeep) and gamma (m) there, the band factor of S
  * (2 (kd + 1) m). */
 I mbd_fixed_kept_size(const Model *M) {
-    return 1 + 2 * M->n + 3 * M->m + M->nkeep + M->m + 2 * (M->kd + 1) * M->m;
+    return 1 + 2 * S_(M, n) + 3 * S_(M, m) + S_(M, nkeep) + S_(M, m) + 2 * (S_(M, kd) + 1) * S_(M, m);
 }
 
 /* After a step to y at motion (c, c', c'') whose q'' was solved by the band factor its
@@ -147,23 +147,23 @@ I mbd_fixed_kept_size(const Model *M) {
  * input was set. */
 static void keep_end(const Model *M, double *kept, const double *y, const double *motion,
                      const Scratch *s) {
-    I n2 = 2 * M->n, m = M->m;
+    I n2 = 2 * S_(M, n), m = S_(M, m);
     double *p = kept;
     if (!p) return;
     p[0] = (s->kept && m > 0) ? 1.0 : 0.0;
     if (p[0] == 0.0) return;
     memcpy(p + 1, y, (size_t)n2 * sizeof(double)); p += 1 + n2;
     memcpy(p, motion, (size_t)(3 * m) * sizeof(double)); p += 3 * m;
-    memcpy(p, s->values, (size_t)M->nkeep * sizeof(double)); p += M->nkeep;
+    memcpy(p, s->values, (size_t)S_(M, nkeep) * sizeof(double)); p += S_(M, nkeep);
     memcpy(p, s->gamma, (size_t)m * sizeof(double)); p += m;
-    memcpy(p, s->band, (size_t)(2 * (M->kd + 1) * m) * sizeof(double));
+    memcpy(p, s->band, (size_t)(2 * (S_(M, kd) + 1) * m) * sizeof(double));
 }
 
 /* Psi_q's values kept for the state y at motion (checked bit for bit), or NULL (also
  * when kept is NULL: nothing is kept). */
 static const double *kept_values(const Model *M, const double *kept, const double *y,
                                  const double *motion) {
-    I n2 = 2 * M->n, m = M->m;
+    I n2 = 2 * S_(M, n), m = S_(M, m);
     if (!kept || kept[0] == 0.0 || memcmp(kept + 1, y, (size_t)n2 * sizeof(double)) ||
             memcmp(kept + 1 + n2, motion, (size_t)(3 * m) * sizeof(double)))
         return NULL;
@@ -176,10 +176,10 @@ static const double *kept_values(const Model *M, const double *kept, const doubl
  * state, the caller evaluates it all. */
 static int solve_kept(const Model *M, const double *kept, const double *y,
                       const double *motion, const double *uf, Scratch *s, double *qdd) {
-    I n = M->n, m = M->m;
+    I n = S_(M, n), m = S_(M, m);
     const double *values = kept_values(M, kept, y, motion), *q = y, *qd = y + n;
-    if (!values || M->nslide) return 0;     /* sliding friction iterates: a whole evaluation */
-    const double *gamma = values + M->nkeep, *band = gamma + m, *cdd = motion + 2 * m;
+    if (!values || S_(M, nslide)) return 0;     /* sliding friction iterates: a whole evaluation */
+    const double *gamma = values + S_(M, nkeep), *band = gamma + m, *cdd = motion + 2 * m;
     if (forces(M, q, qd, uf, s->F) != ST_OK) return 0;
     solve_with_factor(M, s, values, gamma, band, cdd, qdd, s->lam);
     memo_store(M, q, qd, motion, cdd, uf, qdd, s->lam);
@@ -188,18 +188,18 @@ static int solve_kept(const Model *M, const double *kept, const double *y,
 
 /* After a doStep's steps (the last thing fixed_loop did was a step). */
 static void keep_step_end(const Model *M, FixedRun *r, const Scratch *s) {
-    keep_end(M, r->kept, r->y, r->motions + 6 * M->m, s);
+    keep_end(M, r->kept, r->y, r->motions + 6 * S_(M, m), s);
 }
 
 /* The restart's eq. (14) from what keep_step_end kept; 0: evaluate it all. */
 static int restart_kept(const Model *M, FixedRun *r, Scratch *s) {
-    return solve_kept(M, r->kept, r->y, r->motions, r->uf, s, r->f + M->n);
+    return solve_kept(M, r->kept, r->y, r->motions, r->uf, s, r->f + S_(M, n));
 }
 
 /* After a force input was set: the restart's f = (q', q'') at t0 with the new inputs (the
  * state as it is, Simulation._reinitialize); the inputs then held over the step's stages. */
 static int fixed_restart(const Model *M, FixedRun *r, Scratch *s, double t0) {
-    I n = M->n, m = M->m, nf = M->nf;
+    I n = S_(M, n), m = S_(M, m), nf = S_(M, nf);
     motion_at(M, &r->mt, t0, r->motions);
     memcpy(r->f, r->y + n, (size_t)n * sizeof(double));
     int st = restart_kept(M, r, s) ? ST_OK :
@@ -222,7 +222,7 @@ static int drivers_restart(const Model *M, FixedRun *r, Scratch *s, double t0) {
 /* One rk4p step of h from start on the run's state (motions evaluated here). */
 static int fixed_one(const Model *M, FixedRun *r, Scratch *s, double start, double h,
                      double *K, double *ys) {
-    I m = M->m;
+    I m = S_(M, m);
     motion_at(M, &r->mt, start, r->motions);
     motion_at(M, &r->mt, start + 0.5 * h, r->motions + 3 * m);
     motion_at(M, &r->mt, start + h, r->motions + 6 * m);
@@ -234,7 +234,7 @@ static int fixed_one(const Model *M, FixedRun *r, Scratch *s, double start, doub
  * changed (Python's check then takes it on its own path). */
 static int est_check(const Model *M, FixedRun *r, Scratch *s, Estimate *E, double t,
                      double h, double *K, double *ys) {
-    I n = M->n, n2 = 2 * n;
+    I n = S_(M, n), n2 = 2 * n;
     double *saved = r->check, *one = saved + 2 * n2;
     memcpy(saved, r->y, (size_t)n2 * sizeof(double));
     memcpy(saved + n2, r->f, (size_t)n2 * sizeof(double));
@@ -275,7 +275,7 @@ static int est_check(const Model *M, FixedRun *r, Scratch *s, Estimate *E, doubl
  * taken and not charged (Python takes the rest). */
 static int fixed_loop(const Model *M, FixedRun *r, Scratch *s, Estimate *E, double t0,
                       double step, I n, double end, I pause, I *k, I *stop) {
-    I n2 = 2 * M->n;
+    I n2 = 2 * S_(M, n);
     double *K = s->qv, *ys = K + 4 * n2;
     while (*k < n && *k < pause) {
         if (E->unchecked >= E->every &&
@@ -288,12 +288,12 @@ static int fixed_loop(const Model *M, FixedRun *r, Scratch *s, Estimate *E, doub
             *k += 1;
             E->nsteps += 1;
             if (r->ev.nevent) {
-                int crossed = events_crossed(M, &r->ev, r->motions + 6 * M->m,
-                                             r->ufs + 2 * M->nf, s, r->y);
+                int crossed = events_crossed(M, &r->ev, r->motions + 6 * S_(M, m),
+                                             r->ufs + 2 * S_(M, nf), s, r->y);
                 if (crossed) return crossed > 0 ? ST_EVENT : ST_ERROR_NORM;
             }
             if (r->audit != NULL && r->audit[A_ACTIVE] != 0.0 &&
-                    !energy_check(M, r->y, r->y + M->n, r->audit, r->divergence, r->roundoff))
+                    !energy_check(M, r->y, r->y + S_(M, n), r->audit, r->divergence, r->roundoff))
                 return ST_ENERGY;
         }
         if (!est_charge(E, *k < n ? t0 + step * (double)*k : end, step)) return ST_ESTIMATE;
@@ -315,7 +315,7 @@ int mbd_fixed_advance(const Model *M, FixedRun *r, double t0, double step, I n, 
  * accuracy, a check's step failing, or whatever the kernel hands back (Python then
  * redoes the step and says why). */
 int mbd_fixed_step(const Model *M, FixedRun *r, double t, double h, double *values) {
-    I n = M->n, n2 = 2 * n;
+    I n = S_(M, n), n2 = 2 * n;
     if (!(fabs(t - r->t_now) <= r->time_tol * fmax(fabs(t), fabs(r->t_now)))) return ST_ERROR_NORM;
     double t0 = r->t_now, end = t + h;
     if (!(end > t0)) return ST_ERROR_NORM;

@@ -20,19 +20,19 @@ enum { SL_PI = 0, SL_PJ = 2, SL_U = 4, SL_DIRECTION = 6, SL_COULOMB, SL_COEFFICI
  * data at q (Equations.reactions, eqs. 16-17, 28): (along, across, torque). */
 static void joint_reaction(const Model *M, const double *q, const double *lam,
                            const double *data, I k, double *out) {
-    I nb = M->nb, m = M->m;
+    I nb = S_(M, nb), m = S_(M, m);
     double gen[3];
     for (int b = 0; b < 3; b++) {
         double g = 0.0;
         for (int a = 0; a < 2; a++) {
-            I row = M->joint_rows[2 * k + a];
-            I e = M->reaction_entries[6 * k + 3 * a + b];
-            double l = row < m ? lam[row] : 0.0, d = e < M->size ? data[e] : 0.0;
+            I row = S_(M, joint_rows)[2 * k + a];
+            I e = S_(M, reaction_entries)[6 * k + 3 * a + b];
+            double l = row < m ? lam[row] : 0.0, d = e < S_(M, size) ? data[e] : 0.0;
             g += d * l;
         }
         gen[b] = -g;
     }
-    I bj = M->joint_bj[k], fb = M->frame_body[k];
+    I bj = S_(M, joint_bj)[k], fb = S_(M, frame_body)[k];
     double c = bj < nb ? cos(q[3 * bj + 2]) : 1.0, s = bj < nb ? sin(q[3 * bj + 2]) : 0.0;
     double px = M->frame_point[2 * k], py = M->frame_point[2 * k + 1];
     double ax = c * px - s * py, ay = s * px + c * py;
@@ -47,7 +47,7 @@ static void joint_reaction(const Model *M, const double *q, const double *lam,
  * phi_j - phi_i, or (r_Pj - r_Pi) . u_i for a translational joint. */
 static void coordinate_gradient(const Model *M, const I *si, const double *sr,
                                 const double *q, double *g) {
-    I n = M->n, i = si[SL_BI], j = si[SL_BJ];
+    I n = S_(M, n), i = si[SL_BI], j = si[SL_BJ];
     for (I k = 0; k < n; k++) g[k] = 0.0;
     if (si[SL_REVOLUTE]) {
         if (j >= 0) g[3 * j + 2] += 1.0;
@@ -94,10 +94,10 @@ static int solve_eq14(const Model *M, Scratch *s, const double *F, const double 
  * then the iterate, the update, the forces with friction (n) and the gradients. */
 static int sliding_accelerations(const Model *M, Scratch *s, const double *q,
                                  const double *cdd, double *qdd, double *lam) {
-    I n = M->n, ns = M->nslide;
+    I n = S_(M, n), ns = S_(M, nslide);
     double *last = M->slide_f, *f = last + ns, *next = f + ns, *Fx = next + ns, *g = Fx + n;
     for (I k = 0; k < ns; k++) {
-        coordinate_gradient(M, M->s_int + SL_INTS * k, M->s_real + SL_REALS * k, q, g + k * n);
+        coordinate_gradient(M, S_(M, s_int) + SL_INTS * k, M->s_real + SL_REALS * k, q, g + k * n);
         f[k] = last[k];
     }
     for (int it = 0; it < FRICTION_MAX_ITER; it++) {
@@ -111,7 +111,7 @@ static int sliding_accelerations(const Model *M, Scratch *s, const double *q,
         int same = 1;
         for (I k = 0; k < ns; k++) {
             const double *sr = M->s_real + SL_REALS * k;
-            next[k] = -sr[SL_DIRECTION] * friction_bound(M, M->s_int + SL_INTS * k, sr, q, lam,
+            next[k] = -sr[SL_DIRECTION] * friction_bound(M, S_(M, s_int) + SL_INTS * k, sr, q, lam,
                                                          s->data);
             if (!(fabs(next[k] - f[k]) <= FRICTION_TOL * (1.0 + fabs(next[k])))) same = 0;
         }

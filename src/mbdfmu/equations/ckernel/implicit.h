@@ -51,7 +51,7 @@ typedef struct {
 } Implicit;
 
 I mbd_implicit_kept_size(const Model *M) {
-    return KEPT_HEAD + 3 * M->n + M->nkeep + (M->kd + 1) * M->m;
+    return KEPT_HEAD + 3 * S_(M, n) + S_(M, nkeep) + (S_(M, kd) + 1) * S_(M, m);
 }
 
 /* ---- the convergence test (newton.py: newton_tolerances, _converged, _increment_converged,
@@ -134,7 +134,7 @@ static double check_rate(const Implicit *p, const Tolerances *t, double *kept, d
 static int block_inverses(const Model *M, const Implicit *p, const double *q, const double *qd,
                           const double *uf, const double *F0, const double *hdiag, double cq,
                           double cv, double *W, double *w) {
-    I n = M->n, nb = M->nb;
+    I n = S_(M, n), nb = S_(M, nb);
     double *xp = w, *Fp = w + n, *jac = w + 2 * n;       /* jac: dF/dq then dF/dq' (9 nb each) */
     for (int which = 0; which < 2; which++) {
         const double *x = which ? qd : q;
@@ -161,7 +161,7 @@ static int block_inverses(const Model *M, const Implicit *p, const double *q, co
         Wb[0] = c0 / det; Wb[1] = (K[2] * K[7] - K[1] * K[8]) / det; Wb[2] = (K[1] * K[5] - K[2] * K[4]) / det;
         Wb[3] = c1 / det; Wb[4] = (K[0] * K[8] - K[2] * K[6]) / det; Wb[5] = (K[2] * K[3] - K[0] * K[5]) / det;
         Wb[6] = c2 / det; Wb[7] = (K[1] * K[6] - K[0] * K[7]) / det; Wb[8] = (K[0] * K[4] - K[1] * K[3]) / det;
-        if (M->m) {
+        if (S_(M, m)) {
             for (int r = 0; r < 3; r++)
                 for (int c = r + 1; c < 3; c++) Wb[3 * r + c] = Wb[3 * c + r] = 0.5 * (Wb[3 * r + c] + Wb[3 * c + r]);
         }
@@ -173,10 +173,10 @@ static int block_inverses(const Model *M, const Implicit *p, const double *q, co
 static void k_inverse(const Model *M, const Implicit *p, const double *kinv, const double *a,
                       double *out) {
     if (!p->blocks) {
-        for (I k = 0; k < M->n; k++) out[k] = kinv[k] * a[k];
+        for (I k = 0; k < S_(M, n); k++) out[k] = kinv[k] * a[k];
         return;
     }
-    for (I b = 0; b < M->nb; b++) {
+    for (I b = 0; b < S_(M, nb); b++) {
         const double *Wb = kinv + 9 * b, *ab = a + 3 * b;
         for (int r = 0; r < 3; r++) out[3 * b + r] = Wb[3 * r] * ab[0] + Wb[3 * r + 1] * ab[1] + Wb[3 * r + 2] * ab[2];
     }
@@ -193,13 +193,13 @@ static int factor_matrix(const Model *M, const Implicit *p, Scratch *s, double *
                          double cv, double e, double h, const double *q, const double *qd,
                          const double *uf, const double *F0, double *w) {
     if (p->dense) return saddle_factor(M, p, s, kept, values, lam, c_h, cq, cv, e, h, q, qd, uf, F0, w);
-    I n = M->n, m = M->m, nb = M->nb;
-    double *kinv = kept + KEPT_HEAD, *v = kinv + 3 * n, *L = v + M->nkeep, dmin, dmax;
+    I n = S_(M, n), m = S_(M, m), nb = S_(M, nb);
+    double *kinv = kept + KEPT_HEAD, *v = kinv + 3 * n, *L = v + S_(M, nkeep), dmin, dmax;
     double *hdiag = p->blocks ? w : kinv;
     for (I k = 0; k < n; k++) hdiag[k] = p->blocks ? 0.0 : M->mass[k];
     if (c_h != 0.0) {
-        for (I k = 0; k < M->kc; k++) {
-            I i = M->c_bi[k], j = M->c_bj[k], r0 = M->c_rows[2 * k], r1 = M->c_rows[2 * k + 1];
+        for (I k = 0; k < S_(M, kc); k++) {
+            I i = S_(M, c_bi)[k], j = S_(M, c_bj)[k], r0 = S_(M, c_rows)[2 * k], r1 = S_(M, c_rows)[2 * k + 1];
             double aix, aiy, ajx, ajy;
             rotated(s->cs, s->cs + nb + 1, i, M->c_si[2 * k], M->c_si[2 * k + 1], &aix, &aiy);
             rotated(s->cs, s->cs + nb + 1, j, M->c_sj[2 * k], M->c_sj[2 * k + 1], &ajx, &ajy);
@@ -217,18 +217,18 @@ static int factor_matrix(const Model *M, const Implicit *p, Scratch *s, double *
             kinv[k] = 1.0 / kinv[k];
         }
     }
-    memcpy(v, values, (size_t)M->nkeep * sizeof(double));
-    I size = (M->kd + 1) * m;
+    memcpy(v, values, (size_t)S_(M, nkeep) * sizeof(double));
+    I size = (S_(M, kd) + 1) * m;
     memset(L, 0, (size_t)size * sizeof(double));
     if (p->blocks)
         for (I k = 0; k < p->nbp; k++)
             L[p->bp_band[k]] += v[p->bp_a[k]] * v[p->bp_b[k]] * kinv[p->bp_w[k]];
     else
-        for (I k = 0; k < M->npairs; k++)
-            L[M->band_index[k]] += v[M->pair_a[k]] * v[M->pair_b[k]] * kinv[M->cols[M->pair_a[k]]];
+        for (I k = 0; k < S_(M, npairs); k++)
+            L[S_(M, band_index)[k]] += v[S_(M, pair_a)[k]] * v[S_(M, pair_b)[k]] * kinv[S_(M, cols)[S_(M, pair_a)[k]]];
     for (I j = 0; j < m; j++) L[j] += e;
     if (!all_finite_values(L, size)) return ST_NOT_FINITE;
-    if (m && (!band_cholesky(L, m, M->kd, &dmin, &dmax) || !(dmin * dmin > p->singular_pivot * dmax * dmax)))
+    if (m && (!band_cholesky(L, m, S_(M, kd), &dmin, &dmax) || !(dmin * dmin > p->singular_pivot * dmax * dmax)))
         return ST_SINGULAR;
     return kept_valid(M, s, kept, v, h, e);
 }
@@ -238,14 +238,14 @@ static int factor_matrix(const Model *M, const Implicit *p, Scratch *s, double *
 static void kept_solve(const Model *M, const Implicit *p, const double *kept, const double *a,
                        const double *b, double *x, double *y, double *tm, double *tn) {
     if (p->dense) { saddle_solve(M, kept, a, b, x, y); return; }
-    I n = M->n, m = M->m;
-    const double *kinv = kept + KEPT_HEAD, *v = kinv + 3 * n, *L = v + M->nkeep;
+    I n = S_(M, n), m = S_(M, m);
+    const double *kinv = kept + KEPT_HEAD, *v = kinv + 3 * n, *L = v + S_(M, nkeep);
     k_inverse(M, p, kinv, a, x);
     if (m == 0) return;
     jac_mul(M, v, x, y);                     /* (J K^-1 J^T + E) y = J K^-1 a - b */
-    for (I i = 0; i < m; i++) tm[i] = y[M->perm[i]] - b[M->perm[i]];
-    band_substitute(L, m, M->kd, tm);
-    for (I i = 0; i < m; i++) y[M->perm[i]] = tm[i];
+    for (I i = 0; i < m; i++) tm[i] = y[S_(M, perm)[i]] - b[S_(M, perm)[i]];
+    band_substitute(L, m, S_(M, kd), tm);
+    for (I i = 0; i < m; i++) y[S_(M, perm)[i]] = tm[i];
     jac_t_mul(M, v, y, tn);                  /* x = K^-1 (a - J^T y) */
     for (I k = 0; k < n; k++) tn[k] = a[k] - tn[k];
     k_inverse(M, p, kinv, tn, x);
@@ -256,7 +256,7 @@ int mbd_implicit_solve(const Model *M, const Implicit *p, const double *kept,
                        const double *rhs, double *out) {
     Scratch s = scratch(M, M->work);
     if (kept[KEPT_VALID] == 0.0) return ST_SINGULAR;
-    kept_solve(M, p, kept, rhs, rhs + M->n, out, out + M->n, s.qv, s.qv + M->m);
+    kept_solve(M, p, kept, rhs, rhs + S_(M, n), out, out + S_(M, n), s.qv, s.qv + S_(M, m));
     return ST_OK;
 }
 
@@ -270,7 +270,7 @@ enum { X_DQ, X_QD, X_QDD, X_A, X_LAM };
 /* Psi, Psi_q's values and F at q = qn + dq (with q' = qd); cos and sin in s->cs. */
 static int evaluate(const Model *M, Scratch *s, const double *qn, const double *dq,
                     const double *qd, const double *motion, const double *uf, double *qc) {
-    for (I k = 0; k < M->n; k++) qc[k] = qn[k] + dq[k];
+    for (I k = 0; k < S_(M, n); k++) qc[k] = qn[k] + dq[k];
     extend(M, qc, s->qe);
     terms(M, s->qe, NULL, motion, s->psi, s->raw, NULL, s->cs);
     merged(M, s->raw, s->data, s->values);
@@ -291,7 +291,7 @@ static void rates(I n, double h, const double *c, const double *vn, const double
 /* ali3p's mass-orthogonal projections of q' and q'' at q (ali3p.py _attempt's end). */
 static int ali3p_projections(const Model *M, Scratch *s, const double *q, double *qd,
                              double *qdd, const double *motion, double *g) {
-    I m = M->m;
+    I m = S_(M, m);
     if (m == 0) return ST_OK;
     extend(M, q, s->qe);
     extend(M, qd, s->qde);
@@ -310,7 +310,7 @@ static int ali3p_projections(const Model *M, Scratch *s, const double *q, double
  * or ST_SPRING: the numpy path redoes the attempt. w: scratch of 13 n + 3 m. */
 static int attempt(const Model *M, Implicit *p, Scratch *s, double *kept, const double *y,
                    double h, const double *motion, const double *uf, double *x, double *w) {
-    I n = M->n, m = M->m;
+    I n = S_(M, n), m = S_(M, m);
     const double *qn = y, *vn = y + Y_QD * n, *qddn = y + Y_QDD * n, *an = y + Y_A * n;
     const double *lamn = y + Y_A * n + n;
     double *dq = x, *qd = x + X_QD * n, *qdd = x + X_QDD * n, *anew = x + X_A * n;
@@ -452,7 +452,7 @@ static int all_finite_n(const double *a, I k) { return all_finite_values(a, k); 
  * q (n): the unwrapped positions, for the energy check. */
 static int commit(const Model *M, Implicit *p, Scratch *s, double *y, double *x,
                   const double *motion, double *q) {
-    I n = M->n, m = M->m;
+    I n = S_(M, n), m = S_(M, m);
     double *qw = y, *turns = y + Y_TURNS * n;
     for (I k = 0; k < n; k++) q[k] = qw[k] + x[k];
     if (p->method == IMP_GENALPHA && m) {
@@ -483,7 +483,7 @@ int mbd_implicit_steps(const Model *M, Implicit *p, double *kept, double *y, dou
                        double *audit, double divergence_fraction, double roundoff, double *x,
                        I *done) {
     Scratch s = scratch(M, M->work);
-    I n = M->n, m = M->m;
+    I n = S_(M, n), m = S_(M, m);
     double *w = attempt_work(M, &s), *q = w + 14 * n + 3 * m;
     *done = 0;
     for (I k = 0; k < nsteps; k++) {

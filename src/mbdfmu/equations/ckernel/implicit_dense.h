@@ -24,12 +24,12 @@ static int kept_valid(const Model *M, Scratch *s, double *kept, const double *v,
     kept[KEPT_H] = h;
     kept[KEPT_FRESH] = 1.0;
     kept[KEPT_E] = e;
-    kept[KEPT_INDICATOR] = M->m ? indicator_of(M, s, v) : INFINITY;
+    kept[KEPT_INDICATOR] = S_(M, m) ? indicator_of(M, s, v) : INFINITY;
     return ST_OK;
 }
 
 I mbd_implicit_dense_kept_size(const Model *M) {
-    I size = M->n + M->m;
+    I size = S_(M, n) + S_(M, m);
     return mbd_implicit_kept_size(M) + size * size + size;
 }
 
@@ -46,19 +46,19 @@ static inline void k_add(double *A, I N, I n, I i, I j, double c) {
  * constraints.py hessian and _line_hessian, term for term. */
 static void add_hessian(const Model *M, Scratch *s, const double *lam, double c_h, double *A,
                         I N) {
-    I n = M->n, nb = M->nb;
+    I n = S_(M, n), nb = S_(M, nb);
     const double *cs = s->cs, *sn = s->cs + nb + 1, *qe = s->qe;
-    for (I k = 0; k < M->kc; k++) {
-        I i = M->c_bi[k], j = M->c_bj[k], r0 = M->c_rows[2 * k], r1 = M->c_rows[2 * k + 1];
+    for (I k = 0; k < S_(M, kc); k++) {
+        I i = S_(M, c_bi)[k], j = S_(M, c_bj)[k], r0 = S_(M, c_rows)[2 * k], r1 = S_(M, c_rows)[2 * k + 1];
         double aix, aiy, ajx, ajy;
         rotated(cs, sn, i, M->c_si[2 * k], M->c_si[2 * k + 1], &aix, &aiy);
         rotated(cs, sn, j, M->c_sj[2 * k], M->c_sj[2 * k + 1], &ajx, &ajy);
         k_add(A, N, n, 3 * i + 2, 3 * i + 2, -c_h * (aix * lam[r0] + aiy * lam[r1]));
         k_add(A, N, n, 3 * j + 2, 3 * j + 2, c_h * (ajx * lam[r0] + ajy * lam[r1]));
     }
-    for (I k = 0; k < M->kl; k++) {
-        I i = M->l_bi[k], j = M->l_bj[k], pi = 3 * i + 2, pj = 3 * j + 2;
-        double aix, aiy, ajx, ajy, ux, uy, m1 = c_h * lam[M->l_rows[k]] * M->l_w[k];
+    for (I k = 0; k < S_(M, kl); k++) {
+        I i = S_(M, l_bi)[k], j = S_(M, l_bj)[k], pi = 3 * i + 2, pj = 3 * j + 2;
+        double aix, aiy, ajx, ajy, ux, uy, m1 = c_h * lam[S_(M, l_rows)[k]] * M->l_w[k];
         rotated(cs, sn, i, M->l_si[2 * k], M->l_si[2 * k + 1], &aix, &aiy);
         rotated(cs, sn, j, M->l_sj[2 * k], M->l_sj[2 * k + 1], &ajx, &ajy);
         rotated(cs, sn, i, M->l_u[2 * k], M->l_u[2 * k + 1], &ux, &uy);
@@ -83,7 +83,7 @@ static void add_hessian(const Model *M, Scratch *s, const double *lam, double c_
 static int add_force_jacobians(const Model *M, const Implicit *p, const double *q,
                                const double *qd, const double *uf, const double *F0, double cq,
                                double cv, double *A, I N, double *w) {
-    I n = M->n;
+    I n = S_(M, n);
     double *xp = w, *Fp = w + n;
     for (int which = 0; which < 2; which++) {
         const double *x = which ? qd : q;
@@ -137,7 +137,7 @@ static int saddle_factor(const Model *M, const Implicit *p, Scratch *s, double *
                         const double *values, const double *lam, double c_h, double cq,
                         double cv, double e, double h, const double *q, const double *qd,
                         const double *uf, const double *F0, double *w) {
-    I n = M->n, m = M->m, N = n + m;
+    I n = S_(M, n), m = S_(M, m), N = n + m;
     double *A = dense_factors(M, kept), *piv = A + N * N, pmin, pmax;
     double *v = kept + KEPT_HEAD + 3 * n;
     memset(A, 0, (size_t)(N * N) * sizeof(double));
@@ -147,8 +147,8 @@ static int saddle_factor(const Model *M, const Implicit *p, Scratch *s, double *
         int st = add_force_jacobians(M, p, q, qd, uf, F0, cq, cv, A, N, w);
         if (st != ST_OK) return st;
     }
-    for (I k = 0; k < M->nkeep; k++) {
-        I r = n + M->rows[k], c = M->cols[k];
+    for (I k = 0; k < S_(M, nkeep); k++) {
+        I r = n + S_(M, rows)[k], c = S_(M, cols)[k];
         A[r * N + c] += values[k];
         A[c * N + r] += values[k];
     }
@@ -156,7 +156,7 @@ static int saddle_factor(const Model *M, const Implicit *p, Scratch *s, double *
     if (!all_finite_values(A, N * N)) return ST_NOT_FINITE;
     saddle_lu(A, N, piv, &pmin, &pmax);
     if (!(pmin > p->singular_pivot * pmax)) return ST_SINGULAR;
-    memcpy(v, values, (size_t)M->nkeep * sizeof(double));
+    memcpy(v, values, (size_t)S_(M, nkeep) * sizeof(double));
     return kept_valid(M, s, kept, v, h, e);
 }
 
@@ -164,10 +164,10 @@ static int saddle_factor(const Model *M, const Implicit *p, Scratch *s, double *
 #define DENSE_AT(k) (*((k) < n ? x + (k) : y + ((k) - n)))
 static void saddle_solve(const Model *M, const double *kept, const double *a, const double *b,
                         double *x, double *y) {
-    I n = M->n, N = n + M->m;
+    I n = S_(M, n), N = n + S_(M, m);
     const double *A = dense_factors(M, kept), *piv = A + N * N;
     memcpy(x, a, (size_t)n * sizeof(double));
-    memcpy(y, b, (size_t)M->m * sizeof(double));
+    memcpy(y, b, (size_t)S_(M, m) * sizeof(double));
     for (I k = 0; k < N; k++) {
         I r = (I)piv[k];
         if (r != k) { double t = DENSE_AT(k); DENSE_AT(k) = DENSE_AT(r); DENSE_AT(r) = t; }

@@ -47,7 +47,7 @@ typedef struct {
  * largest entry over what a step of hh may leave (NaN if any entry is NaN, as numpy's max). */
 static double implicit_error_ratio(const Model *M, const Implicit *p, const ImpRun *r,
                                    const double *kept, double hh) {
-    I n = M->n, m = M->m;
+    I n = S_(M, n), m = S_(M, m);
     const double *a_old = r->y + Y_A * n, *a_new = r->x + X_A * n;
     double *e = r->work, *rhs = e + n + m, *out = rhs + n + m;
     if (p->method == IMP_GENALPHA) {
@@ -82,7 +82,7 @@ static double implicit_error_ratio(const Model *M, const Implicit *p, const ImpR
  * RUN_FAILED (the step size fell below the smallest, or too many rejections in a row). */
 int mbd_implicit_run(const Model *M, Implicit *p, double *kept, ImpRun *r) {
     Scratch s = scratch(M, M->work);
-    I n = M->n, m = M->m, attempts = 0;
+    I n = S_(M, n), m = S_(M, m), attempts = 0;
     double *w = attempt_work(M, &s), *q = w + 14 * n + 3 * m;
     r->nsteps = r->nrejected = r->stepped = 0;
     while (r->t < r->t_target) {
@@ -177,7 +177,7 @@ int mbd_implicit_set(ImpFast *f, const unsigned int *vr, size_t nvr, const doubl
  * f->t_now: ST_OK, or the status of the projection or eq. (14) that failed. */
 static int imp_restart(const Model *M, ImpFast *f) {
     ImpRun *r = &f->run;
-    I n = M->n, m = M->m;
+    I n = S_(M, n), m = S_(M, m);
     double *y = r->y, *q = f->y2, *qd = f->y2 + n;
     if (r->mt.nmotion) motion_at(M, &r->mt, f->t_now, r->motion);
     unwrapped(n, y, q);
@@ -219,7 +219,7 @@ static int imp_check(const Model *M, ImpFast *f, Scratch *s, double *w, double *
                      double hh) {
     ImpRun *r = &f->run;
     Estimate *E = f->est;
-    I n = M->n, ny = 5 * n + M->m;
+    I n = S_(M, n), ny = 5 * n + S_(M, m);
     double *saved = f->check, *one = saved + ny + f->nkept, *y = r->y;
     memcpy(saved, y, (size_t)ny * sizeof(double));
     memcpy(saved + ny, f->kept, (size_t)f->nkept * sizeof(double));
@@ -257,7 +257,7 @@ static int imp_fixed(const Model *M, ImpFast *f, double end) {
     ImpRun *r = &f->run;
     Estimate *E = f->est;
     Scratch s = scratch(M, M->work);
-    I n_coord = M->n, m = M->m;
+    I n_coord = S_(M, n), m = S_(M, m);
     double *w = attempt_work(M, &s), *q = w + 14 * n_coord + 3 * m;
     double t0 = f->t_now, span = end - t0;
     double steps = ceil(span / f->h_max - f->slack);
@@ -292,7 +292,7 @@ static int imp_fixed(const Model *M, ImpFast *f, double end) {
 }
 
 static void imp_save(const Model *M, ImpFast *f, int back) {
-    I ny = 5 * M->n + M->m;
+    I ny = 5 * S_(M, n) + S_(M, m);
     double *to[3] = {f->save, f->save + ny, f->save + ny + f->nkept};
     double *from[3] = {f->run.y, f->kept, f->run.audit};
     I size[3] = {ny, f->nkept, f->naudit};
@@ -307,7 +307,7 @@ int mbd_implicit_fast_step(const Model *M, ImpFast *f, double t, double hc, doub
     if (!(fabs(t - f->t_now) <= f->time_tol * fmax(fabs(t), fabs(f->t_now)))) return ST_ERROR_NORM;
     ImpRun *r = &f->run;
     Implicit *p = f->p;
-    I n = M->n, counts[4] = {p->nnewton, p->njev, p->nlu, p->nprojections};
+    I n = S_(M, n), counts[4] = {p->nnewton, p->njev, p->nlu, p->nprojections};
     double h = r->h;
     imp_save(M, f, 0);
     int st = f->changed ? imp_restart(M, f) : ST_OK;
@@ -344,7 +344,7 @@ int mbd_implicit_fast_step(const Model *M, ImpFast *f, double t, double hc, doub
     f->restarts += f->changed;
     f->changed = 0;
     for (I k = 0; k < f->nvr; k++) f->set[k] = 0;
-    if (M->nf) memcpy(f->uf_step, r->uf, (size_t)M->nf * sizeof(double));
+    if (S_(M, nf)) memcpy(f->uf_step, r->uf, (size_t)S_(M, nf) * sizeof(double));
     f->t_now = r->t;
     f->steps += 1;
     f->nsteps += r->nsteps;

@@ -82,6 +82,19 @@ typedef struct {
     double *memo;   /* the last evaluation of eq. (14): its arguments and results (memo_size) */
 } Model;
 
+/* A scene's structure: its counts and index tables (the Model's integer fields). Built for
+ * one scene (scene_kernel.py writes the header MBD_SCENE names), they are compile-time
+ * constants, so the compiler unrolls the loops over them and folds the indexing, and S's
+ * band factor is the header's straight-line code for its pattern (solve.h); else the
+ * Model's fields. Everything else (masses, geometry, forces) is read from the Model in
+ * both: a scene's parameters stay settable. */
+#ifdef MBD_SCENE
+#include MBD_SCENE
+#define S_(M, f) ((void)(M), SC_##f)
+#else
+#define S_(M, f) ((M)->f)
+#endif
+
 /* ---- row primitives (joints.py) ------------------------------------------------------ */
 
 /* cos and sin of x: glibc's sincos returns the same two doubles as its cos and sin, in one
@@ -107,15 +120,15 @@ static inline void rotated(const double *cs, const double *sn, I b, double vx, d
  * qde is given. qe, qde: (n + 3), the ground's three zeros last. */
 static void terms(const Model *M, const double *qe, const double *qde, const double *cval,
                   double *psi, double *raw, double *gamma, double *cs) {
-    I k0 = M->nconst, kc = M->kc, kl = M->kl;
-    double *sn = cs + M->nb + 1;     /* cos and sin of every body's angle, once (planar.poses) */
-    for (I b = 0; b < M->nb; b++) cos_sin(qe[3 * b + 2], cs + b, sn + b);
-    cs[M->nb] = 1.0;                 /* the ground's angle is 0: cos and sin exact */
-    sn[M->nb] = 0.0;
+    I k0 = S_(M, nconst), kc = S_(M, kc), kl = S_(M, kl);
+    double *sn = cs + S_(M, nb) + 1;     /* cos and sin of every body's angle, once (planar.poses) */
+    for (I b = 0; b < S_(M, nb); b++) cos_sin(qe[3 * b + 2], cs + b, sn + b);
+    cs[S_(M, nb)] = 1.0;                 /* the ground's angle is 0: cos and sin exact */
+    sn[S_(M, nb)] = 0.0;
     memcpy(raw, M->constants, (size_t)k0 * sizeof(double));
-    for (I r = 0; r < M->m; r++) { psi[r] = 0.0; if (gamma) gamma[r] = 0.0; }
+    for (I r = 0; r < S_(M, m); r++) { psi[r] = 0.0; if (gamma) gamma[r] = 0.0; }
     for (I k = 0; k < kc; k++) {
-        I i = M->c_bi[k], j = M->c_bj[k], r0 = M->c_rows[2 * k], r1 = M->c_rows[2 * k + 1];
+        I i = S_(M, c_bi)[k], j = S_(M, c_bj)[k], r0 = S_(M, c_rows)[2 * k], r1 = S_(M, c_rows)[2 * k + 1];
         double aix, aiy, ajx, ajy;
         rotated(cs, sn, i, M->c_si[2 * k], M->c_si[2 * k + 1], &aix, &aiy);
         rotated(cs, sn, j, M->c_sj[2 * k], M->c_sj[2 * k + 1], &ajx, &ajy);
@@ -133,7 +146,7 @@ static void terms(const Model *M, const double *qe, const double *qde, const dou
     }
     I k1 = k0 + 4 * kc;
     for (I k = 0; k < kl; k++) {
-        I i = M->l_bi[k], j = M->l_bj[k], row = M->l_rows[k];
+        I i = S_(M, l_bi)[k], j = S_(M, l_bj)[k], row = S_(M, l_rows)[k];
         double aix, aiy, ajx, ajy, ux, uy, w = M->l_w[k];
         rotated(cs, sn, i, M->l_si[2 * k], M->l_si[2 * k + 1], &aix, &aiy);
         rotated(cs, sn, j, M->l_sj[2 * k], M->l_sj[2 * k + 1], &ajx, &ajy);
@@ -156,30 +169,30 @@ static void terms(const Model *M, const double *qe, const double *qde, const dou
             gamma[row] += w * g;
         }
     }
-    for (I k = 0; k < M->ka; k++)
-        psi[M->a_rows[k]] += M->a_w[k] * (qe[3 * M->a_bj[k] + 2] - qe[3 * M->a_bi[k] + 2]);
-    for (I r = 0; r < M->m; r++) psi[r] -= cval[r];
+    for (I k = 0; k < S_(M, ka); k++)
+        psi[S_(M, a_rows)[k]] += M->a_w[k] * (qe[3 * S_(M, a_bj)[k] + 2] - qe[3 * S_(M, a_bi)[k] + 2]);
+    for (I r = 0; r < S_(M, m); r++) psi[r] -= cval[r];
 }
 
 /* data (size): the terms merged (repeated entries summed, sparsity.JacobianPattern.merged);
  * values (nkeep): data's entries in moving bodies' columns. */
 static void merged(const Model *M, const double *raw, double *data, double *values) {
-    if (M->size == M->nraw) memcpy(data, raw, (size_t)M->nraw * sizeof(double));
+    if (S_(M, size) == S_(M, nraw)) memcpy(data, raw, (size_t)S_(M, nraw) * sizeof(double));
     else {
-        memset(data, 0, (size_t)M->size * sizeof(double));
-        for (I k = 0; k < M->nraw; k++) data[M->merge[k]] += raw[k];
+        memset(data, 0, (size_t)S_(M, size) * sizeof(double));
+        for (I k = 0; k < S_(M, nraw); k++) data[S_(M, merge)[k]] += raw[k];
     }
-    for (I k = 0; k < M->nkeep; k++) values[k] = data[M->keep[k]];
+    for (I k = 0; k < S_(M, nkeep); k++) values[k] = data[S_(M, keep)[k]];
 }
 
 static void jac_mul(const Model *M, const double *values, const double *x, double *out) {
-    memset(out, 0, (size_t)M->m * sizeof(double));
-    for (I k = 0; k < M->nkeep; k++) out[M->rows[k]] += values[k] * x[M->cols[k]];
+    memset(out, 0, (size_t)S_(M, m) * sizeof(double));
+    for (I k = 0; k < S_(M, nkeep); k++) out[S_(M, rows)[k]] += values[k] * x[S_(M, cols)[k]];
 }
 
 static void jac_t_mul(const Model *M, const double *values, const double *y, double *out) {
-    memset(out, 0, (size_t)M->n * sizeof(double));
-    for (I k = 0; k < M->nkeep; k++) out[M->cols[k]] += values[k] * y[M->rows[k]];
+    memset(out, 0, (size_t)S_(M, n) * sizeof(double));
+    for (I k = 0; k < S_(M, nkeep); k++) out[S_(M, cols)[k]] += values[k] * y[S_(M, rows)[k]];
 }
 
 static int all_finite_values(const double *x, I k) {
@@ -196,8 +209,8 @@ static int all_finite_values(const double *x, I k) {
  * computing them again (the same libm calls on the same angles: the same doubles) */
 static inline void body_point(const Model *M, const double *q, const double *cs, I b,
                               double px, double py, double *x, double *y, double *ax, double *ay) {
-    if (b >= M->nb) { *x = 0.0; *y = 0.0; *ax = px; *ay = py; return; }
-    double c = cs ? cs[b] : cos(q[3 * b + 2]), s = cs ? cs[M->nb + 1 + b] : sin(q[3 * b + 2]);
+    if (b >= S_(M, nb)) { *x = 0.0; *y = 0.0; *ax = px; *ay = py; return; }
+    double c = cs ? cs[b] : cos(q[3 * b + 2]), s = cs ? cs[S_(M, nb) + 1 + b] : sin(q[3 * b + 2]);
     *x = q[3 * b]; *y = q[3 * b + 1];
     *ax = c * px - s * py;
     *ay = s * px + c * py;
@@ -206,9 +219,9 @@ static inline void body_point(const Model *M, const double *q, const double *cs,
 /* Length, rate, unit vector and arms of spring item k (AppliedForces.spring_geometry). */
 static int spring_geometry(const Model *M, I k, const double *q, const double *qd,
                            const double *cs, double g[8]) {
-    const I *fi = M->f_int + 4 * k;
+    const I *fi = S_(M, f_int) + 4 * k;
     const double *fr = M->f_real + 8 * k;
-    I bi = fi[1], bj = fi[2], nb = M->nb;
+    I bi = fi[1], bj = fi[2], nb = S_(M, nb);
     double xi, yi, aix, aiy, xj, yj, ajx, ajy;
     body_point(M, q, cs, bi, fr[0], fr[1], &xi, &yi, &aix, &aiy);
     body_point(M, q, cs, bj, fr[2], fr[3], &xj, &yj, &ajx, &ajy);
@@ -228,17 +241,17 @@ static int spring_geometry(const Model *M, I k, const double *q, const double *q
 static double spring_tension(const Model *M, I k, double length, double rate, const double *uf) {
     const double *fr = M->f_real + 8 * k;
     double tension = fr[4] * (length - fr[6]) + fr[5] * rate;
-    if (M->f_int[4 * k + 3] >= 0) tension -= uf[M->f_int[4 * k + 3]];
+    if (S_(M, f_int)[4 * k + 3] >= 0) tension -= uf[S_(M, f_int)[4 * k + 3]];
     return tension;
 }
 
 /* F (n) at (q, qd) with the force inputs uf; cs as body_point's. */
 static int forces_cs(const Model *M, const double *q, const double *qd, const double *uf,
                      const double *cs, double *F) {
-    I nb = M->nb;
-    memcpy(F, M->f_const, (size_t)M->n * sizeof(double));
-    for (I k = 0; k < M->nforce; k++) {
-        const I *fi = M->f_int + 4 * k;
+    I nb = S_(M, nb);
+    memcpy(F, M->f_const, (size_t)S_(M, n) * sizeof(double));
+    for (I k = 0; k < S_(M, nforce); k++) {
+        const I *fi = S_(M, f_int) + 4 * k;
         const double *fr = M->f_real + 8 * k;
         if (fi[0] == F_POINT) {
             I b = fi[1];
@@ -276,8 +289,8 @@ static int forces(const Model *M, const double *q, const double *qd, const doubl
 
 /* scratch of schur_solve: two dense m x m or two bands */
 static I solve_size(const Model *M) {
-    I band = (M->kd + 1) * M->m;
-    return 2 * (M->banded ? band : (M->m * M->m > band ? M->m * M->m : band));
+    I band = (S_(M, kd) + 1) * S_(M, m);
+    return 2 * (S_(M, banded) ? band : (S_(M, m) * S_(M, m) > band ? S_(M, m) * S_(M, m) : band));
 }
 
 typedef struct {
@@ -288,13 +301,13 @@ typedef struct {
 
 static Scratch scratch(const Model *M, double *w) {
     Scratch s;
-    I n = M->n, m = M->m;
+    I n = S_(M, n), m = S_(M, m);
     s.qe = w; w += n + 3;
     s.qde = w; w += n + 3;
     s.psi = w; w += m;
-    s.raw = w; w += M->nraw;
-    s.data = w; w += M->size + 1;
-    s.values = w; w += M->nkeep;
+    s.raw = w; w += S_(M, nraw);
+    s.data = w; w += S_(M, size) + 1;
+    s.values = w; w += S_(M, nkeep);
     s.gamma = w; w += m;
     s.rhs = w; w += m;
     s.lam = w; w += m;
@@ -304,7 +317,7 @@ static Scratch scratch(const Model *M, double *w) {
     s.F = w; w += n;
     s.Fm = w; w += n;
     s.nv = w; w += n;
-    s.cs = w; w += 2 * (M->nb + 1);
+    s.cs = w; w += 2 * (S_(M, nb) + 1);
     s.svd = w; w += nullspace_size(M);
     s.qv = w;
     s.kept = 0;
@@ -313,14 +326,14 @@ static Scratch scratch(const Model *M, double *w) {
 
 /* doubles of scratch space the kernel needs, with room for the steppers' stages */
 I mbd_work_size(const Model *M, I stages) {
-    I n = M->n, m = M->m;
-    return 2 * (n + 3) + 9 * m + M->nraw + M->size + 1 + M->nkeep + solve_size(M) + 4 * n
-           + 2 * (M->nb + 1) + nullspace_size(M) + 16 + (stages + 4) * 2 * n + 14 * n + 3 * m;
+    I n = S_(M, n), m = S_(M, m);
+    return 2 * (n + 3) + 9 * m + S_(M, nraw) + S_(M, size) + 1 + S_(M, nkeep) + solve_size(M) + 4 * n
+           + 2 * (S_(M, nb) + 1) + nullspace_size(M) + 16 + (stages + 4) * 2 * n + 14 * n + 3 * m;
 }
 
 static void extend(const Model *M, const double *q, double *qe) {
-    memcpy(qe, q, (size_t)M->n * sizeof(double));
-    qe[M->n] = qe[M->n + 1] = qe[M->n + 2] = 0.0;
+    memcpy(qe, q, (size_t)S_(M, n) * sizeof(double));
+    qe[S_(M, n)] = qe[S_(M, n) + 1] = qe[S_(M, n) + 2] = 0.0;
 }
 
 /* ---- eq. (14) ------------------------------------------------------------------------------ */
@@ -333,7 +346,7 @@ static void extend(const Model *M, const double *q, double *qe) {
 static int solve_with_factor(const Model *M, Scratch *s, const double *values,
                              const double *gamma, const double *band, const double *cdd,
                              double *qdd, double *lam) {
-    I n = M->n, m = M->m;
+    I n = S_(M, n), m = S_(M, m);
     for (I k = 0; k < n; k++) s->Fm[k] = M->minv[k] * s->F[k];
     jac_mul(M, values, s->Fm, s->rhs);
     for (I r = 0; r < m; r++) s->rhs[r] -= gamma[r] + cdd[r];
@@ -346,7 +359,7 @@ static int solve_with_factor(const Model *M, Scratch *s, const double *values,
 static int accelerations_at(const Model *M, Scratch *s, const double *q, const double *qd,
                             const double *cval, const double *cdd, const double *uf,
                             double *qdd, double *lam, int again) {
-    I n = M->n, m = M->m;
+    I n = S_(M, n), m = S_(M, m);
     if (m == 0) {
         int st = forces(M, q, qd, uf, s->F);
         if (st != ST_OK) return st;
@@ -359,7 +372,7 @@ static int accelerations_at(const Model *M, Scratch *s, const double *q, const d
     merged(M, s->raw, s->data, s->values);
     int st = forces_cs(M, q, qd, uf, s->cs, s->F);      /* with the angles' trig of terms() */
     if (st != ST_OK) return st;
-    if (M->nslide) return sliding_accelerations(M, s, q, cdd, qdd, lam);
+    if (S_(M, nslide)) return sliding_accelerations(M, s, q, cdd, qdd, lam);
     if (again) return solve_with_factor(M, s, s->values, s->gamma, s->band, cdd, qdd, lam);
     return solve_eq14(M, s, s->F, cdd, qdd, lam);
 }
@@ -367,7 +380,7 @@ static int accelerations_at(const Model *M, Scratch *s, const double *q, const d
 /* Eq. (14) for the applied forces F, with s holding Psi_q's values and gamma at (q, q'). */
 static int solve_eq14(const Model *M, Scratch *s, const double *F, const double *cdd,
                       double *qdd, double *lam) {
-    I n = M->n, m = M->m;
+    I n = S_(M, n), m = S_(M, m);
     for (I k = 0; k < n; k++) s->Fm[k] = M->minv[k] * F[k];
     jac_mul(M, s->values, s->Fm, s->rhs);
     for (I r = 0; r < m; r++) s->rhs[r] -= s->gamma[r] + cdd[r];
@@ -391,17 +404,17 @@ static int accelerations(const Model *M, Scratch *s, const double *q, const doub
 
 /* ---- the last evaluation, kept: outputs read the q'' and lam of the step's end --------------- */
 
-I mbd_memo_size(const Model *M) { return 1 + 3 * M->n + 3 * M->m + M->nf + M->m; }
+I mbd_memo_size(const Model *M) { return 1 + 3 * S_(M, n) + 3 * S_(M, m) + S_(M, nf) + S_(M, m); }
 
 static void memo_store(const Model *M, const double *q, const double *qd, const double *cval,
                        const double *cdd, const double *uf, const double *qdd, const double *lam) {
-    I n = M->n, m = M->m;
+    I n = S_(M, n), m = S_(M, m);
     double *p = M->memo + 1;
     memcpy(p, q, (size_t)n * sizeof(double)); p += n;
     memcpy(p, qd, (size_t)n * sizeof(double)); p += n;
     memcpy(p, cval, (size_t)m * sizeof(double)); p += m;
     memcpy(p, cdd, (size_t)m * sizeof(double)); p += m;
-    memcpy(p, uf, (size_t)M->nf * sizeof(double)); p += M->nf;
+    memcpy(p, uf, (size_t)S_(M, nf) * sizeof(double)); p += S_(M, nf);
     memcpy(p, qdd, (size_t)n * sizeof(double)); p += n;
     memcpy(p, lam, (size_t)m * sizeof(double));
     M->memo[0] = 1.0;
@@ -410,7 +423,7 @@ static void memo_store(const Model *M, const double *q, const double *qd, const 
 /* 1 when (q, qd, c, c'', uf) are bit for bit those of the kept evaluation. */
 static int memo_hit(const Model *M, const double *q, const double *qd, const double *cval,
                     const double *cdd, const double *uf) {
-    I n = M->n, m = M->m;
+    I n = S_(M, n), m = S_(M, m);
     const double *p = M->memo + 1;
     if (M->memo[0] == 0.0) return 0;
     if (memcmp(p, q, (size_t)n * sizeof(double))) return 0;
@@ -421,15 +434,15 @@ static int memo_hit(const Model *M, const double *q, const double *qd, const dou
     p += m;
     if (memcmp(p, cdd, (size_t)m * sizeof(double))) return 0;
     p += m;
-    return memcmp(p, uf, (size_t)M->nf * sizeof(double)) == 0;
+    return memcmp(p, uf, (size_t)S_(M, nf) * sizeof(double)) == 0;
 }
 
 /* q'' (n) and lam (m) of eq. (14); the kept results when the arguments are the same. */
 int mbd_accelerations(const Model *M, const double *q, const double *qd, const double *cval,
                       const double *cdd, const double *uf, double *qdd, double *lam) {
-    I n = M->n, m = M->m;
+    I n = S_(M, n), m = S_(M, m);
     if (memo_hit(M, q, qd, cval, cdd, uf)) {
-        const double *p = M->memo + 1 + 2 * n + 2 * m + M->nf;
+        const double *p = M->memo + 1 + 2 * n + 2 * m + S_(M, nf);
         memcpy(qdd, p, (size_t)n * sizeof(double));
         memcpy(lam, p + n, (size_t)m * sizeof(double));
         return ST_OK;
@@ -459,7 +472,7 @@ void mbd_constraints(const Model *M, const double *q, const double *qd, const do
 
 static int project_positions(const Model *M, Scratch *s, double *q, const double *cval,
                              double tol, I max_iter) {
-    I n = M->n, m = M->m;
+    I n = S_(M, n), m = S_(M, m);
     double increment = INFINITY;
     for (I it = 0; it <= max_iter; it++) {
         extend(M, q, s->qe);
@@ -474,7 +487,7 @@ static int project_positions(const Model *M, Scratch *s, double *q, const double
          * configuration |Psi| <= tol alone leaves q off by up to tol / sigma; what does not
          * get there goes back to the numpy path (ST_PROJECTION). A scene with stops or
          * friction stops on Psi alone: the extra increment would move what its events hold */
-        if (err <= tol && (increment <= tol || M->psi_only)) return ST_OK;
+        if (err <= tol && (increment <= tol || S_(M, psi_only))) return ST_OK;
         if (it == max_iter) break;
         int st = schur_solve(M, s->values, s->psi, s->x, s->band, s->tmp);
         if (st != ST_OK) return st;
@@ -491,7 +504,7 @@ static int project_positions(const Model *M, Scratch *s, double *q, const double
 
 /* q' onto Psi_q q' = nu at q (whose Jacobian values are in s->values). */
 static int project_velocities(const Model *M, Scratch *s, double *qd, const double *cd) {
-    I n = M->n, m = M->m;
+    I n = S_(M, n), m = S_(M, m);
     jac_mul(M, s->values, qd, s->rhs);
     for (I r = 0; r < m; r++) s->rhs[r] -= cd[r];
     int st = schur_solve_keeping(M, s->values, s->rhs, s->x, s->band, s->tmp, &s->kept);
@@ -505,9 +518,9 @@ static int project_velocities(const Model *M, Scratch *s, double *qd, const doub
 static int project(const Model *M, Scratch *s, double *q, double *qd, const double *motion,
                    double tol, I max_iter) {
     s->kept = 0;
-    if (M->m == 0) return ST_OK;
+    if (S_(M, m) == 0) return ST_OK;
     int st = project_positions(M, s, q, motion, tol, max_iter);
-    return st != ST_OK ? st : project_velocities(M, s, qd, motion + M->m);
+    return st != ST_OK ? st : project_velocities(M, s, qd, motion + S_(M, m));
 }
 
 int mbd_project_positions(const Model *M, double *q, const double *cval, double tol, I max_iter) {
@@ -518,7 +531,7 @@ int mbd_project_positions(const Model *M, double *q, const double *cval, double 
 int mbd_project_velocities(const Model *M, const double *q, double *qd, const double *cval,
                            const double *cd) {
     Scratch s = scratch(M, M->work);
-    if (M->m == 0) return ST_OK;
+    if (S_(M, m) == 0) return ST_OK;
     extend(M, q, s.qe);
     terms(M, s.qe, NULL, cval, s.psi, s.raw, NULL, s.cs);
     merged(M, s.raw, s.data, s.values);
@@ -527,30 +540,30 @@ int mbd_project_velocities(const Model *M, const double *q, double *qd, const do
 
 /* singular.py singularity_indicator: the smallest over the largest pivot of the Cholesky
  * factor of Psi_q D Psi_q^T, D scaling Psi_q's columns to unit norm; in band storage in
- * the band's order when M->banded, else dense in the rows' order (as numpy factorises
+ * the band's order when S_(M, banded), else dense in the rows' order (as numpy factorises
  * each); 0 where the factorisation fails. */
 static double indicator_of(const Model *M, Scratch *s, const double *values) {
-    I n = M->n, m = M->m, kd = M->kd;
+    I n = S_(M, n), m = S_(M, m), kd = S_(M, kd);
     double *scale = s->nv, dmin = INFINITY, dmax = 0.0;
     for (I k = 0; k < n; k++) scale[k] = 0.0;
-    for (I k = 0; k < M->nkeep; k++) scale[M->cols[k]] += values[k] * values[k];
+    for (I k = 0; k < S_(M, nkeep); k++) scale[S_(M, cols)[k]] += values[k] * values[k];
     for (I k = 0; k < n; k++) scale[k] = 1.0 / (scale[k] > 0.0 ? scale[k] : 1.0);
     int ok = 1;
-    if (M->banded) {
+    if (S_(M, banded)) {
         I size = (kd + 1) * m;
         double *L = s->band;
         memset(L, 0, (size_t)size * sizeof(double));
-        for (I p = 0; p < M->npairs; p++)
-            L[M->band_index[p]] += values[M->pair_a[p]] * values[M->pair_b[p]]
-                                   * scale[M->cols[M->pair_a[p]]];
+        for (I p = 0; p < S_(M, npairs); p++)
+            L[S_(M, band_index)[p]] += values[S_(M, pair_a)[p]] * values[S_(M, pair_b)[p]]
+                                   * scale[S_(M, cols)[S_(M, pair_a)[p]]];
         ok = band_cholesky(L, m, kd, &dmin, &dmax);
     } else {
         double *U = s->band;
         memset(U, 0, (size_t)(m * m) * sizeof(double));
-        for (I p = 0; p < M->npairs; p++) {
-            I ra = M->rows[M->pair_a[p]], rb = M->rows[M->pair_b[p]];
-            double w = values[M->pair_a[p]] * values[M->pair_b[p]]
-                       * scale[M->cols[M->pair_a[p]]];
+        for (I p = 0; p < S_(M, npairs); p++) {
+            I ra = S_(M, rows)[S_(M, pair_a)[p]], rb = S_(M, rows)[S_(M, pair_b)[p]];
+            double w = values[S_(M, pair_a)[p]] * values[S_(M, pair_b)[p]]
+                       * scale[S_(M, cols)[S_(M, pair_a)[p]]];
             U[ra * m + rb] += w;
             if (ra != rb) U[rb * m + ra] += w;
         }
@@ -562,7 +575,7 @@ static double indicator_of(const Model *M, Scratch *s, const double *values) {
 int mbd_singularity_indicator(const Model *M, const double *q, const double *cval,
                               double *out) {
     Scratch s = scratch(M, M->work);
-    if (M->m == 0) { *out = INFINITY; return ST_OK; }
+    if (S_(M, m) == 0) { *out = INFINITY; return ST_OK; }
     extend(M, q, s.qe);
     terms(M, s.qe, NULL, cval, s.psi, s.raw, NULL, s.cs);
     merged(M, s.raw, s.data, s.values);
@@ -580,3 +593,15 @@ int mbd_singularity_indicator(const Model *M, const double *q, const double *cva
 #include "dense_run.h"
 #include "implicit.h"
 #include "implicit_run.h"
+
+/* 1 when M's structure is the one this library was built for (scene_kernel.py: the kernel
+ * of one scene; a Model of another, a contact mode's, takes the generic library), always 1
+ * for the generic library. */
+I mbd_structure_check(const Model *M) {
+#ifdef MBD_SCENE
+    return sc_structure_is(M);
+#else
+    (void)M;
+    return 1;
+#endif
+}

@@ -126,7 +126,7 @@ static void drv_coefficients(const double *d, double *c) {
 
 /* (c, c', c'') of every row at t into out (3m), as ConstraintSet.motion_values. */
 static void motion_at(const Model *M, const MotionTable *r, double t, double *out) {
-    I m = M->m;
+    I m = S_(M, m);
     memcpy(out, r->offsets, (size_t)m * sizeof(double));
     memset(out + m, 0, (size_t)(2 * m) * sizeof(double));
     for (I k = 0; k < r->nmotion; k++) {
@@ -196,5 +196,5 @@ static int drivers_apply(SampledSet *sd, MotionTable *mt, I nvr, const I *set, c
 static int drivers_project(const Model *M, Scratch *s, const SampledSet *sd, double *y,
                            const double *motion) {
     int st = project_positions(M, s, y, motion, sd->reinit_tol, sd->reinit_iter);
-    return st == ST_OK ? mbd_project_velocities(M, y, y + M->n, motion, motion + M->m) : st;
+    return st == ST_OK ? mbd_project_velocities(M, y, y + S_(M, n), motion, motion + S_(M, m)) : st;
 }

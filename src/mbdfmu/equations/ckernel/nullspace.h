@@ -8,7 +8,7 @@
  * works on A itself, never on S = A^T A, and keeps the accuracy of the small singular
  * values that forming S would square away (Demmel and Veselic, "Jacobi's method is more
  * accurate than QR", SIAM J. Matrix Anal. Appl. 13, 1992). For the dense form of S only
- * (M->banded 0); a banded scene's singular cases stay the numpy path's.
+ * (S_(M, banded) 0); a banded scene's singular cases stay the numpy path's.
  */
 
 #define NULLSPACE_RANK_TOL 1e-13      /* singular.NULLSPACE_RANK_TOLERANCE */
@@ -18,7 +18,7 @@
 
 /* doubles of scratch nullspace_accelerations needs (0 for a banded model) */
 static I nullspace_size(const Model *M) {
-    return M->banded ? 0 : M->n * M->m + M->m * M->m + M->m + 2 * M->n;
+    return S_(M, banded) ? 0 : S_(M, n) * S_(M, m) + S_(M, m) * S_(M, m) + S_(M, m) + 2 * S_(M, n);
 }
 
 /* A (n x m, column k at A + k n) -> A V (orthogonal columns: U Sigma), V (m x m, column k
@@ -63,14 +63,14 @@ static void one_sided_jacobi(double *A, I n, I m, double *V) {
  * answer (a banded model, values that are not finite: it says why). */
 static int nullspace_accelerations(const Model *M, const double *values, const double *F,
                                    const double *g, double *qdd, double *lam, double *w) {
-    I n = M->n, m = M->m;
-    if (M->banded || !all_finite_values(values, M->nkeep) || !all_finite_values(F, n) ||
+    I n = S_(M, n), m = S_(M, m);
+    if (S_(M, banded) || !all_finite_values(values, S_(M, nkeep)) || !all_finite_values(F, n) ||
             !all_finite_values(g, m))
         return ST_SINGULAR;
     double *A = w, *V = A + n * m, *sv = V + m * m, *xF = sv + m, *x = xF + n;
     for (I k = 0; k < n; k++) x[k] = sqrt(M->minv[k]);                   /* M^-1/2 */
     memset(A, 0, (size_t)(n * m) * sizeof(double));
-    for (I k = 0; k < M->nkeep; k++) A[M->rows[k] * n + M->cols[k]] += values[k] * x[M->cols[k]];
+    for (I k = 0; k < S_(M, nkeep); k++) A[S_(M, rows)[k] * n + S_(M, cols)[k]] += values[k] * x[S_(M, cols)[k]];
     for (I k = 0; k < n; k++) xF[k] = x[k] * F[k];
     one_sided_jacobi(A, n, m, V);
     double largest = 0.0;

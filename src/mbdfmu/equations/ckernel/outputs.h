@@ -8,19 +8,19 @@
  * the sliding friction forces (friction.h). */
 static void joint_values(const Model *M, const double *q, const double *lam,
                          const double *data, double *out) {
-    for (I k = 0; k < 3 * M->nj; k++) out[k] = NAN;
-    for (I k = 0; k < M->nr; k++) joint_reaction(M, q, lam, data, k, out + 3 * M->reaction_joints[k]);
-    for (I k = 0; k < M->ncoupler; k++) out[3 * M->nj + k] = -lam[M->coupler_rows[k]];
-    out[3 * M->nj + M->ncoupler] = 0.0;   /* the plan's zero: outputs no joint type computes
+    for (I k = 0; k < 3 * S_(M, nj); k++) out[k] = NAN;
+    for (I k = 0; k < S_(M, nr); k++) joint_reaction(M, q, lam, data, k, out + 3 * S_(M, reaction_joints)[k]);
+    for (I k = 0; k < S_(M, ncoupler); k++) out[3 * S_(M, nj) + k] = -lam[S_(M, coupler_rows)[k]];
+    out[3 * S_(M, nj) + S_(M, ncoupler)] = 0.0;   /* the plan's zero: outputs no joint type computes
                                           * here (a stop's force while nothing touches it) */
-    for (I k = 0; k < M->nslide; k++)     /* the sliding friction of the last evaluation */
-        out[3 * M->nj + M->ncoupler + 1 + k] = M->slide_f[k];
+    for (I k = 0; k < S_(M, nslide); k++)     /* the sliding friction of the last evaluation */
+        out[3 * S_(M, nj) + S_(M, ncoupler) + 1 + k] = M->slide_f[k];
 }
 
 /* Potential energy of gravity and springs (AppliedForces.potential_energy). */
 static double potential(const Model *M, const double *q) {
     double e = 0.0;
-    for (I k = 0; k < M->n; k++) e += M->gravity[k] * q[k];
+    for (I k = 0; k < S_(M, n); k++) e += M->gravity[k] * q[k];
     return spring_potentials(M, q, -e);
 }
 
@@ -31,7 +31,7 @@ enum { W_JOINTS, W_DRIVERS, W_SPRINGS, W_ENERGIES, W_NORMS, W_GROUPS };
 /* want[g]: 1 when one of the npub published sources (places in the nout outputs, then
  * q, q', q'') lies in group g of the output vector, else 0. */
 static void published_groups(const Model *M, I nout, I npub, const I *src, int *want) {
-    I joints = 6 * M->nb, drivers = joints + M->nplan, springs = drivers + M->ndriver;
+    I joints = 6 * S_(M, nb), drivers = joints + S_(M, nplan), springs = drivers + S_(M, ndriver);
     for (int g = 0; g < W_GROUPS; g++) want[g] = 0;
     for (I k = 0; k < npub; k++) {
         I i = src[k];
@@ -50,7 +50,7 @@ static int outputs_at(const Model *M, Scratch *sp, int fresh, const double *q,
                       const double *qd, const double *lam, const double *motion,
                       const double *uf, const int *want, double *out) {
     Scratch s = *sp;
-    I nb = M->nb, n = M->n, m = M->m, o = 0;
+    I nb = S_(M, nb), n = S_(M, n), m = S_(M, m), o = 0;
     int all = want == NULL;
     for (I b = 0; b < nb; b++) {
         for (int c = 0; c < 3; c++) out[o++] = q[3 * b + c];
@@ -64,12 +64,12 @@ static int outputs_at(const Model *M, Scratch *sp, int fresh, const double *q,
     double *joints = s.qv;
     if (all || want[W_JOINTS]) {
         joint_values(M, q, lam, s.data, joints);
-        for (I k = 0; k < M->nplan; k++) out[o++] = joints[M->joint_plan[k]];
-    } else for (I k = 0; k < M->nplan; k++) out[o++] = NAN;
-    for (I k = 0; k < M->ndriver; k++)
-        out[o++] = all || want[W_DRIVERS] ? -lam[M->driver_rows[k]] : NAN;
-    for (I k = 0; k < M->nforce; k++) {
-        if (M->f_int[4 * k] != F_SPRING) continue;
+        for (I k = 0; k < S_(M, nplan); k++) out[o++] = joints[S_(M, joint_plan)[k]];
+    } else for (I k = 0; k < S_(M, nplan); k++) out[o++] = NAN;
+    for (I k = 0; k < S_(M, ndriver); k++)
+        out[o++] = all || want[W_DRIVERS] ? -lam[S_(M, driver_rows)[k]] : NAN;
+    for (I k = 0; k < S_(M, nforce); k++) {
+        if (S_(M, f_int)[4 * k] != F_SPRING) continue;
         double g[8];
         if (!all && !want[W_SPRINGS]) {
             for (int c = 0; c < 3; c++) out[o++] = NAN;
@@ -109,7 +109,7 @@ int mbd_outputs(const Model *M, const double *q, const double *qd, const double 
  * ended here, else computed), then mbd_outputs. qdd (n), lam (m): filled. */
 int mbd_state_outputs(const Model *M, const double *q, const double *qd, const double *motion,
                       const double *uf, double *qdd, double *lam, double *out) {
-    int st = mbd_accelerations(M, q, qd, motion, motion + 2 * M->m, uf, qdd, lam);
+    int st = mbd_accelerations(M, q, qd, motion, motion + 2 * S_(M, m), uf, qdd, lam);
     return st != ST_OK ? st : mbd_outputs(M, q, qd, qdd, lam, motion, uf, out);
 }
 
@@ -121,13 +121,13 @@ int mbd_state_outputs(const Model *M, const double *q, const double *qd, const d
 static int publish_step_end(const Model *M, Scratch *s, const double *y, const double *motion,
                             const double *uf, I nout, I npub, const I *pub_src,
                             const I *pub_dst, double *V, double *values) {
-    I n = M->n;
+    I n = S_(M, n);
     double *q = V + nout, *qd = q + n, *qdd = qd + n, *lam = qdd + n;
     int want[W_GROUPS];
     memcpy(q, y, (size_t)(2 * n) * sizeof(double));
     published_groups(M, nout, npub, pub_src, want);
-    int st = mbd_accelerations(M, q, qd, motion, motion + 2 * M->m, uf, qdd, lam);
-    if (st == ST_OK) st = outputs_at(M, s, M->m > 0, q, qd, lam, motion, uf, want, V);
+    int st = mbd_accelerations(M, q, qd, motion, motion + 2 * S_(M, m), uf, qdd, lam);
+    if (st == ST_OK) st = outputs_at(M, s, S_(M, m) > 0, q, qd, lam, motion, uf, want, V);
     if (st == ST_OK)
         for (I k = 0; k < npub; k++) values[pub_dst[k]] = V[pub_src[k]];
     return st;

@@ -1,7 +1,7 @@
 /*
  * solve.h (part of kernel.c): (J M^-1 J^T) x = b as sparsity.py solves it.
  *
- * Below BANDED_MIN_ROWS rows (M->banded 0) numpy factorises S dense by Cholesky in the
+ * Below BANDED_MIN_ROWS rows (S_(M, banded) 0) numpy factorises S dense by Cholesky in the
  * rows' own order (solve_spd's potrf), above it in band storage in reverse Cuthill-McKee
  * order (JacobianPattern.schur_solve's pbtrf); either is trusted when its pivots say S is
  * well conditioned (_well_conditioned). Here the band answers first at any size (the
@@ -10,7 +10,7 @@
  * dense, the eigenvalues of S by cyclic Jacobi rotations with those at or below
  * rank_tol times the largest dropped (lstsq's cut-off on the singular values of symmetric
  * S); banded, iterated Tikhonov regularisation (JacobianPattern._min_norm). With
- * M->min_norm 0 the minimum-norm cases are handed back (ST_SINGULAR) to the numpy path.
+ * S_(M, min_norm) 0 the minimum-norm cases are handed back (ST_SINGULAR) to the numpy path.
  */
 
 #define TIKHONOV_STEPS 3
@@ -178,12 +178,12 @@ static void jacobi_min_norm(const Model *M, double *S, I m, const double *b, dou
 
 static int dense_solve(const Model *M, const double *values, const double *b, double *x,
                        double *work, I min_norm) {
-    I m = M->m;
+    I m = S_(M, m);
     double *S = work, *U = work + m * m;
     memset(S, 0, (size_t)(m * m) * sizeof(double));
-    for (I p = 0; p < M->npairs; p++) {
-        I ra = M->rows[M->pair_a[p]], rb = M->rows[M->pair_b[p]];
-        double w = values[M->pair_a[p]] * values[M->pair_b[p]] * M->pair_minv[p];
+    for (I p = 0; p < S_(M, npairs); p++) {
+        I ra = S_(M, rows)[S_(M, pair_a)[p]], rb = S_(M, rows)[S_(M, pair_b)[p]];
+        double w = values[S_(M, pair_a)[p]] * values[S_(M, pair_b)[p]] * M->pair_minv[p];
         S[ra * m + rb] += w;
         if (ra != rb) S[rb * m + ra] += w;
     }
@@ -208,18 +208,50 @@ static int dense_solve(const Model *M, const double *values, const double *b, do
     return ST_OK;
 }
 
+/* S = Psi_q M^-1 Psi_q^T in band storage (S[i, j] at L[(i - j) m + j], i >= j, in the
+ * band's order) from Psi_q's values, each entry summed over its pairs in their order. */
+static void schur_band(const Model *M, const double *values, double *L) {
+#ifdef MBD_SCENE
+    sc_assemble(values, M->pair_minv, L);
+#else
+    memset(L, 0, (size_t)((S_(M, kd) + 1) * S_(M, m)) * sizeof(double));
+    for (I p = 0; p < S_(M, npairs); p++)
+        L[S_(M, band_index)[p]] += values[S_(M, pair_a)[p]] * values[S_(M, pair_b)[p]]
+                                   * M->pair_minv[p];
+#endif
+}
+
+/* band_cholesky_inv and band_substitute_inv of S's band; for one scene the header's
+ * straight-line code, the same operations in the same order less those on entries its
+ * pattern keeps at zero (x - u 0 = x: the same doubles). */
+static int schur_factor(const Model *M, double *L, double *dmin, double *dmax) {
+#ifdef MBD_SCENE
+    (void)M;
+    return sc_factor(L, dmin, dmax);
+#else
+    return band_cholesky_inv(L, S_(M, m), S_(M, kd), dmin, dmax);
+#endif
+}
+
+static void schur_substitute(const Model *M, const double *L, double *y) {
+#ifdef MBD_SCENE
+    (void)M;
+    sc_substitute(L, y);
+#else
+    band_substitute_inv(L, S_(M, m), S_(M, kd), y);
+#endif
+}
+
 static int banded_solve(const Model *M, const double *values, const double *b, double *x,
                         double *work, double *tmp, int *kept, I min_norm) {
-    I m = M->m, kd = M->kd, size = (kd + 1) * m;
+    I m = S_(M, m), kd = S_(M, kd), size = (kd + 1) * m;
     double *band = work, *L = work + size, dmin, dmax;
-    memset(band, 0, (size_t)size * sizeof(double));
-    for (I p = 0; p < M->npairs; p++)
-        band[M->band_index[p]] += values[M->pair_a[p]] * values[M->pair_b[p]] * M->pair_minv[p];
+    schur_band(M, values, band);
     memcpy(L, band, (size_t)size * sizeof(double));
-    if (band_cholesky_inv(L, m, kd, &dmin, &dmax) && dmin > sqrt(M->rank_tol) * dmax) {
-        for (I i = 0; i < m; i++) tmp[i] = b[M->perm[i]];
-        band_substitute_inv(L, m, kd, tmp);
-        for (I i = 0; i < m; i++) x[M->perm[i]] = tmp[i];
+    if (schur_factor(M, L, &dmin, &dmax) && dmin > sqrt(M->rank_tol) * dmax) {
+        for (I i = 0; i < m; i++) tmp[i] = b[S_(M, perm)[i]];
+        schur_substitute(M, L, tmp);
+        for (I i = 0; i < m; i++) x[S_(M, perm)[i]] = tmp[i];
         *kept = 1;
         return ST_OK;
     }
@@ -233,7 +265,7 @@ static int banded_solve(const Model *M, const double *values, const double *b, d
     double *xp = tmp + m, *r = tmp + 2 * m;
     for (I i = 0; i < m; i++) xp[i] = 0.0;
     for (int it = 0; it < TIKHONOV_STEPS; it++) {
-        for (I i = 0; i < m; i++) r[i] = b[M->perm[i]];
+        for (I i = 0; i < m; i++) r[i] = b[S_(M, perm)[i]];
         for (I j = 0; j < m; j++) {                 /* r -= S xp (band storage) */
             r[j] -= band[j] * xp[j];
             for (I d = 1; d <= kd && j + d < m; d++) {
@@ -244,7 +276,7 @@ static int banded_solve(const Model *M, const double *values, const double *b, d
         band_substitute(L, m, kd, r);
         for (I i = 0; i < m; i++) xp[i] += r[i];
     }
-    for (I i = 0; i < m; i++) x[M->perm[i]] = xp[i];
+    for (I i = 0; i < m; i++) x[S_(M, perm)[i]] = xp[i];
     return ST_OK;
 }
 
@@ -254,27 +286,25 @@ static int banded_solve(const Model *M, const double *values, const double *b, d
 static int schur_solve_mode(const Model *M, const double *values, const double *b, double *x,
                             double *work, double *tmp, int *kept, I min_norm) {
     *kept = 0;
-    if (M->banded) return banded_solve(M, values, b, x, work, tmp, kept, min_norm);
-    I m = M->m, kd = M->kd, size = (kd + 1) * m;
+    if (S_(M, banded)) return banded_solve(M, values, b, x, work, tmp, kept, min_norm);
+    I m = S_(M, m);
     double *L = work, dmin, dmax;
-    memset(L, 0, (size_t)size * sizeof(double));
-    for (I p = 0; p < M->npairs; p++)
-        L[M->band_index[p]] += values[M->pair_a[p]] * values[M->pair_b[p]] * M->pair_minv[p];
-    if (band_cholesky_inv(L, m, kd, &dmin, &dmax) && dmin > sqrt(M->rank_tol) * dmax) {
-        for (I i = 0; i < m; i++) tmp[i] = b[M->perm[i]];
-        band_substitute_inv(L, m, kd, tmp);
-        for (I i = 0; i < m; i++) x[M->perm[i]] = tmp[i];
+    schur_band(M, values, L);
+    if (schur_factor(M, L, &dmin, &dmax) && dmin > sqrt(M->rank_tol) * dmax) {
+        for (I i = 0; i < m; i++) tmp[i] = b[S_(M, perm)[i]];
+        schur_substitute(M, L, tmp);
+        for (I i = 0; i < m; i++) x[S_(M, perm)[i]] = tmp[i];
         *kept = 1;
         return ST_OK;
     }
     return dense_solve(M, values, b, x, work, min_norm);
 }
 
-/* schur_solve_mode with the minimum-norm cases as M->min_norm says (eq. (14) asks for none:
+/* schur_solve_mode with the minimum-norm cases as S_(M, min_norm) says (eq. (14) asks for none:
  * it takes the null-space form instead, nullspace.h). */
 static int schur_solve_keeping(const Model *M, const double *values, const double *b, double *x,
                                double *work, double *tmp, int *kept) {
-    return schur_solve_mode(M, values, b, x, work, tmp, kept, M->min_norm);
+    return schur_solve_mode(M, values, b, x, work, tmp, kept, S_(M, min_norm));
 }
 
 static int schur_solve(const Model *M, const double *values, const double *b, double *x,
@@ -287,9 +317,9 @@ static int schur_solve(const Model *M, const double *values, const double *b, do
  * (it said *kept): the same J, so the same factor, without factorising again. */
 static void schur_again(const Model *M, const double *b, double *x, const double *work,
                         double *tmp) {
-    I m = M->m, kd = M->kd;
-    const double *L = M->banded ? work + (kd + 1) * m : work;
-    for (I i = 0; i < m; i++) tmp[i] = b[M->perm[i]];
-    band_substitute_inv(L, m, kd, tmp);
-    for (I i = 0; i < m; i++) x[M->perm[i]] = tmp[i];
+    I m = S_(M, m), kd = S_(M, kd);
+    const double *L = S_(M, banded) ? work + (kd + 1) * m : work;
+    for (I i = 0; i < m; i++) tmp[i] = b[S_(M, perm)[i]];
+    schur_substitute(M, L, tmp);
+    for (I i = 0; i < m; i++) x[S_(M, perm)[i]] = tmp[i];
 }

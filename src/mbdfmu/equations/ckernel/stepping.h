@@ -9,7 +9,7 @@
 /* y' = (q', q'') at y with the inputs of one instant. */
 static int rhs(const Model *M, Scratch *s, const double *y, const double *motion,
                const double *uf, double *f, double *lam) {
-    I n = M->n, m = M->m;
+    I n = S_(M, n), m = S_(M, m);
     memcpy(f, y + n, (size_t)n * sizeof(double));
     return accelerations(M, s, y, y + n, motion, motion + 2 * m, uf, f + n, lam);
 }
@@ -18,7 +18,7 @@ static int rhs(const Model *M, Scratch *s, const double *y, const double *motion
  * projection, not computed again). */
 static int rhs_projected(const Model *M, Scratch *s, const double *y, const double *motion,
                          const double *uf, double *f, double *lam) {
-    I n = M->n, m = M->m;
+    I n = S_(M, n), m = S_(M, m);
     memcpy(f, y + n, (size_t)n * sizeof(double));
     return accelerations_at(M, s, y, y + n, motion, motion + 2 * m, uf, f + n, lam, s->kept);
 }
@@ -57,7 +57,7 @@ static int rk4p_step(const Model *M, Scratch *s, double *y, double *f, double h,
     static const double A[4][3] = {{0, 0, 0}, {0.5, 0, 0}, {0.0, 0.5, 0}, {0.0, 0.0, 1.0}};
     static const double B[4] = {1.0 / 6.0, 2.0 / 6.0, 2.0 / 6.0, 1.0 / 6.0};
     static const int ROW[4] = {0, 1, 1, 2};
-    I n2 = 2 * M->n, m = M->m, nf = M->nf;
+    I n2 = 2 * S_(M, n), m = S_(M, m), nf = S_(M, nf);
     memcpy(K, f, (size_t)n2 * sizeof(double));
     for (int st = 1; st < 4; st++) {
         combine(y, h, K, n2, A[st], st, ys);
@@ -66,12 +66,12 @@ static int rk4p_step(const Model *M, Scratch *s, double *y, double *f, double h,
     }
     combine(y, h, K, n2, B, 4, ys);
     if (!all_finite(ys, n2)) return ST_NOT_FINITE;
-    int r = project(M, s, ys, ys + M->n, motions + 6 * m, tol, max_iter);
+    int r = project(M, s, ys, ys + S_(M, n), motions + 6 * m, tol, max_iter);
     if (r != ST_OK) return r;
     r = rhs_projected(M, s, ys, motions + 6 * m, ufs + 2 * nf, K, s->lam);
     if (r != ST_OK) return r;
-    if (!all_finite(K + M->n, M->n)) return ST_NOT_FINITE;
-    memo_store(M, ys, ys + M->n, motions + 6 * m, motions + 8 * m, ufs + 2 * nf, K + M->n, s->lam);
+    if (!all_finite(K + S_(M, n), S_(M, n))) return ST_NOT_FINITE;
+    memo_store(M, ys, ys + S_(M, n), motions + 6 * m, motions + 8 * m, ufs + 2 * nf, K + S_(M, n), s->lam);
     memcpy(y, ys, (size_t)n2 * sizeof(double));
     memcpy(f, K, (size_t)n2 * sizeof(double));
     return ST_OK;
@@ -81,8 +81,8 @@ static int rk4p_step(const Model *M, Scratch *s, double *y, double *f, double h,
  * 1/2 k (phi_j - phi_i - phi0)^2, added one by one (AppliedForces.potential_energy's, a
  * length by hypot as there). */
 static double spring_potentials(const Model *M, const double *q, double e) {
-    for (I k = 0; k < M->nforce; k++) {
-        const I *fi = M->f_int + 4 * k;
+    for (I k = 0; k < S_(M, nforce); k++) {
+        const I *fi = S_(M, f_int) + 4 * k;
         const double *fr = M->f_real + 8 * k;
         if (fi[0] == F_SPRING) {
             double xi, yi, aix, aiy, xj, yj, ajx, ajy;
@@ -91,8 +91,8 @@ static double spring_potentials(const Model *M, const double *q, double e) {
             double stretch = hypot(xj + ajx - xi - aix, yj + ajy - yi - aiy) - fr[6];
             e += 0.5 * fr[4] * stretch * stretch;
         } else if (fi[0] == F_TORSION) {
-            double pi = fi[1] < M->nb ? q[3 * fi[1] + 2] : 0.0;
-            double pj = fi[2] < M->nb ? q[3 * fi[2] + 2] : 0.0;
+            double pi = fi[1] < S_(M, nb) ? q[3 * fi[1] + 2] : 0.0;
+            double pj = fi[2] < S_(M, nb) ? q[3 * fi[2] + 2] : 0.0;
             double d = pj - pi - fr[2];
             e += 0.5 * fr[0] * d * d;
         }
@@ -107,13 +107,13 @@ static double spring_potentials(const Model *M, const double *q, double e) {
  * constant forces only: 1/2 q'M q' - F.q, rk4p_compiled._energy_check's arithmetic. */
 static double total_energy(const Model *M, const double *q, const double *qd, double *kinetic) {
     double kin = 0.0, fq = 0.0;
-    for (I k = 0; k < M->n; k++) { kin += M->mass[k] * qd[k] * qd[k]; fq += M->f_const[k] * q[k]; }
+    for (I k = 0; k < S_(M, n); k++) { kin += M->mass[k] * qd[k] * qd[k]; fq += M->f_const[k] * q[k]; }
     kin *= 0.5;
     *kinetic = kin;
-    if (!M->nforce) return kin - fq;
+    if (!S_(M, nforce)) return kin - fq;
     double energy = spring_potentials(M, q, kin - fq);
-    for (I k = 0; k < M->nforce; k++) {
-        const I *fi = M->f_int + 4 * k;
+    for (I k = 0; k < S_(M, nforce); k++) {
+        const I *fi = S_(M, f_int) + 4 * k;
         const double *fr = M->f_real + 8 * k;
         if (fi[0] == F_POINT && fi[3] < 0) {
             double x, y, ax, ay;
@@ -129,10 +129,10 @@ static double total_energy(const Model *M, const double *q, const double *qd, do
  * scene has no inputs). */
 static double audit_joules(const Model *M, const double *q, const double *qd, double rtol,
                            double atol) {
-    I n = M->n;
-    double F[M->nforce ? n : 1], none[1] = {0.0}, joules = 0.0;
+    I n = S_(M, n);
+    double F[S_(M, nforce) ? n : 1], none[1] = {0.0}, joules = 0.0;
     const double *f = M->f_const;
-    if (M->nforce && forces(M, q, qd, none, F) == ST_OK) f = F;
+    if (S_(M, nforce) && forces(M, q, qd, none, F) == ST_OK) f = F;
     for (I k = 0; k < n; k++)
         joules += fabs(f[k]) * (atol + rtol * fabs(q[k]))
                   + fabs(M->mass[k] * qd[k]) * (atol + rtol * fabs(qd[k]));
@@ -171,7 +171,7 @@ int mbd_rk4p_steps(const Model *M, double *y, double *f, double h, I nsteps,
                    double tol, I max_iter, double *audit, double divergence_fraction,
                    double roundoff, I *done) {
     Scratch s = scratch(M, M->work);
-    I n2 = 2 * M->n;
+    I n2 = 2 * S_(M, n);
     double *K = s.qv, *ys = K + 4 * n2;
     *done = 0;
     for (I k = 0; k < nsteps; k++) {
@@ -179,7 +179,7 @@ int mbd_rk4p_steps(const Model *M, double *y, double *f, double h, I nsteps,
                           tol, max_iter, K, ys);
         if (r != ST_OK) return r;   /* the caller redoes step *done on the numpy path */
         *done = k + 1;
-        if (audit[A_ACTIVE] != 0.0 && !energy_check(M, y, y + M->n, audit, divergence_fraction, roundoff))
+        if (audit[A_ACTIVE] != 0.0 && !energy_check(M, y, y + S_(M, n), audit, divergence_fraction, roundoff))
             return ST_ENERGY;
     }
     return ST_OK;
@@ -189,7 +189,7 @@ int mbd_rk4p_steps(const Model *M, double *y, double *f, double h, I nsteps,
  * metric, v - M^-1 J^T (J M^-1 J^T)^-1 J v (ProjectedRK._tangent), J's values in s->values;
  * `fresh`: S is factorised here, else its factor is kept from the last call. */
 static int tangent_part(const Model *M, Scratch *s, double *v, int fresh) {
-    I n = M->n;
+    I n = S_(M, n);
     for (int half = 0; half < 2; half++) {
         double *w = v + half * n;
         jac_mul(M, s->values, w, s->rhs);
@@ -210,7 +210,7 @@ static int tangent_part(const Model *M, Scratch *s, double *v, int fresh) {
 static int error_norm(const Model *M, Scratch *s, I ns, const double *E, const double *E3,
                       double h, const double *y, const double *y_new, const double *K,
                       double rtol, double atol, int tangent, double *ev, double *err) {
-    I n2 = 2 * M->n;
+    I n2 = 2 * S_(M, n);
     double *e5 = ev, *e3 = ev + n2, s5 = 0.0, s3 = 0.0;
     weighted_sum(K, n2, E, ns + 1, e5);
     if (E3) weighted_sum(K, n2, E3, ns + 1, e3);
@@ -250,7 +250,7 @@ static int prk_trial(const Model *M, I ns, const double *A, const double *B, con
                      double tol, I max_iter, double *y_new, double *f_new, double *err,
                      double *K, double c0, double *c1, int *kept) {
     Scratch s = scratch(M, M->work);
-    I n = M->n, n2 = 2 * n, m = M->m, nf = M->nf;
+    I n = S_(M, n), n2 = 2 * n, m = S_(M, m), nf = S_(M, nf);
     double *ys = s.qv;
     memcpy(K, f0, (size_t)n2 * sizeof(double));
     for (I st = 1; st < ns; st++) {
@@ -311,7 +311,7 @@ int mbd_mc_trial(const Model *M, const Model *P, I ns, const double *A, const do
                  double atol, double tol, I max_iter, double *y_new, double *f_new,
                  double *err, double *K) {
     Scratch s = scratch(M, M->work);
-    I n = M->n, n2 = 2 * n, m = M->m, nf = M->nf;
+    I n = S_(M, n), n2 = 2 * n, m = S_(M, m), nf = S_(M, nf);
     double *ys = s.qv;
     memcpy(K, f0, (size_t)n2 * sizeof(double));
     for (I st = 1; st <= ns; st++) {

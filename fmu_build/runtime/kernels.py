@@ -1,0 +1,45 @@
+"""Which kernel a scene's FMU runs: ``$MBDFMU_KERNEL`` if set, else the C kernels shipped
+in its resources (compiled at ``mbdfmu build``: nothing compiles at load), else numpy;
+every fallback is logged (docs/performance.md, "The FMU's compiled step")."""
+
+from __future__ import annotations
+
+import os
+
+# The kernel built for the FMU's scene (ckernel/scene_kernel.py), beside the generic one.
+SCENE_KERNEL_FILE = "mbdfmu_scene_kernel.so"
+
+
+def load_kernel(resources, kernel_file: str, ckernel, log) -> str:
+    """The kernel name for ``Simulation``: "c" with the shipped libraries in use (the
+    scene's own offered to every Kernel of its structure), else what is set or numpy."""
+    if os.environ.get("MBDFMU_KERNEL"):
+        return os.environ["MBDFMU_KERNEL"]
+    path = resources / kernel_file
+    if not path.is_file():
+        log("no compiled C kernel in this FMU (no C compiler at build): the numpy kernel "
+            "runs, about 30 times slower")
+        return "numpy"
+    try:
+        ckernel.use_library(path)
+        ckernel.library()
+    except OSError as exc:
+        log(f"the FMU's C kernel cannot be loaded here ({exc}): the numpy kernel runs")
+        return "numpy"
+    scene = resources / SCENE_KERNEL_FILE
+    if scene.is_file():
+        try:
+            ckernel.use_scene_library(scene)
+        except (OSError, AttributeError) as exc:
+            log(f"the FMU's kernel built for its scene cannot be loaded here ({exc}): the "
+                "generic C kernel runs")
+    return "c"
+
+
+def log_scene_kernel(sim, resources, log) -> None:
+    """Say when the FMU carries a kernel built for its scene that its equations do not
+    take (their structure is not the one it was built for): the generic kernel runs."""
+    kernel = getattr(sim.stepped_equations, "ckernel", None)
+    if kernel is not None and (resources / SCENE_KERNEL_FILE).is_file() and not kernel.scene_built:
+        log("the FMU's kernel built for its scene does not fit its equations: the generic C "
+            "kernel runs")

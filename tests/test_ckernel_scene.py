@@ -1,0 +1,252 @@
+"""The C kernel built for one scene (ckernel/scene_kernel.py): the generic kernel's
+doubles, bit for bit, from its constant structure and its straight-line band factor; taken
+only by equations of the structure it was built for; shipped in the scene's FMU and run
+there, with the generic FMU's values at every step."""
+
+from __future__ import annotations
+
+import functools
+import math
+import re
+import sys
+import tomllib
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import mbdfmu  # noqa: E402
+from mbdfmu.equations import Equations, ckernel  # noqa: E402
+from mbdfmu.equations.ckernel import scene_kernel  # noqa: E402
+from mbdfmu.equations.ckernel.model import model_arrays  # noqa: E402
+from mbdfmu.equations.projection import assemble  # noqa: E402
+from mbdfmu.fmu_build import BuildError  # noqa: E402
+from mbdfmu.fmu_build.scene_fmu import SCENE_KERNEL_ENV, build_fmu  # noqa: E402
+from mbdfmu.fmu_build.runtime.kernels import SCENE_KERNEL_FILE  # noqa: E402
+from mbdfmu.model import scene_from_dict  # noqa: E402
+from mbdfmu.scenes.generate_n_four_bar import scene_text  # noqa: E402
+from fmu_models import hosts  # noqa: E402
+from fmu_models.harness import OK  # noqa: E402
+from fmu_models.scenes import scene_host  # noqa: E402,F401
+
+pytestmark = pytest.mark.skipif(not ckernel.available(), reason="no C compiler for the kernel")
+ROOT = Path(__file__).resolve().parents[1]
+CRANE = ROOT / "scenarios" / "hydraulic_crane" / "crane.toml"
+# A ring of four bars, one pinned to the ground: the rows of its four hinges couple in a
+# cycle, so S's factor fills in entries S keeps at zero (no shipped scene does).
+RING = """
+name = "Ring"
+[[body]]
+name = "a"
+mass = 1.0
+inertia = 0.1
+position = [0.5, 0.0]
+angle = 0.0
+[[body]]
+name = "b"
+mass = 1.0
+inertia = 0.1
+position = [1.0, 0.5]
+angle = 1.5707963267948966
+[[body]]
+name = "c"
+mass = 2.0
+inertia = 0.2
+position = [0.5, 1.0]
+angle = 3.141592653589793
+[[body]]
+name = "d"
+mass = 1.0
+inertia = 0.1
+position = [0.0, 0.5]
+angle = -1.5707963267948966
+""" + "".join(f"""
+[[joint]]
+name = "{i}{j}"
+type = "revolute"
+body_i = "{i}"
+point_i = [{pi}, 0.0]
+body_j = "{j}"
+point_j = [-0.5, 0.0]
+""" for i, j, pi in (("ground", "a", 0.0), ("a", "b", 0.5), ("b", "c", 0.5), ("c", "d", 0.5),
+                     ("d", "a", 0.5)))
+# a spring with an actuator input (S dense-sized), a slider's line rows and a driver, a
+# chain long enough for S in band storage (60 rows and more), and the ring's fill-in
+SCENES = {"crane": CRANE, "slider_crank": ROOT / "scenes" / "slider_crank.toml",
+          "n_four_bar_10": scene_text(10), "ring": RING}
+
+
+def load(name):
+    source = SCENES[name]
+    if isinstance(source, str):
+        return scene_from_dict(tomllib.loads(source), source=name)
+    return mbdfmu.model.reader.load_scene(source)
+
+
+def test_the_ring_fills_in():
+    """S's zero entries the factor fills (what the ring is here for)."""
+    a = model_arrays(Equations(load("ring"), kernel="numpy"))
+    m, kd = int(a["m"]), int(a["kd"])
+    code = "\n".join(scene_kernel._band_code(m, kd, a["band_index"], a["pair_a"], a["pair_b"]))
+    written = {int(x) for x in re.findall(r"L\[(\d+)\] -= u", code)}
+    assert written - {int(e) for e in a["band_index"]}
+
+
+@pytest.fixture
+def scene_libraries(monkeypatch):
+    """The scene kernels offered in this test only (the registry is the process's)."""
+    monkeypatch.setattr(ckernel, "_scene_libraries", [])
+
+
+@functools.lru_cache(maxsize=None)
+def generic_and_scene(name):
+    """(Equations on the generic kernel, Equations on the scene's own) of one scene."""
+    saved, ckernel._scene_libraries = ckernel._scene_libraries, []
+    try:
+        generic = Equations(load(name), kernel="c")
+        assert ckernel.specialize(generic) is not None
+        built = Equations(load(name), kernel="c")
+    finally:
+        ckernel._scene_libraries = saved
+    assert built.ckernel.scene_built and not generic.ckernel.scene_built
+    return generic, built
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2**31))
+def test_the_scene_kernel_gives_the_generic_kernels_doubles(name, seed):
+    generic, built = generic_and_scene(name)
+    rng = np.random.default_rng(seed)
+    q0, _ = assemble(generic)
+    q = q0 + rng.normal(scale=0.01, size=q0.size)
+    qd = rng.normal(scale=2.0, size=q0.size)
+    u = generic.no_inputs
+    u = type(u)(u.motions, rng.normal(scale=100.0, size=u.forces.shape))
+    (qdd, lam), (qdd_b, lam_b) = (e.accelerations(0.3, q, qd, u) for e in (generic, built))
+    assert np.array_equal(qdd, qdd_b) and np.array_equal(lam, lam_b)
+    assert np.array_equal(generic.output_values(0.3, q, qd, qdd, lam, u),
+                          built.output_values(0.3, q, qd, qdd, lam, u))
+
+
+@pytest.mark.parametrize("method", ["dop853p", "rk4p", "genalpha"])
+@pytest.mark.parametrize("name", list(SCENES))
+def test_a_run_on_the_scene_kernel_is_the_generic_run(name, method, scene_libraries):
+    runs = []
+    for specialized in (False, True):
+        if specialized:
+            ckernel.specialize(Equations(load(name), kernel="c"))
+        sim = mbdfmu.Simulation(load(name), kernel="c", method=method)
+        assert sim.stepped_equations.ckernel.scene_built == specialized
+        sim.advance(0.3)
+        runs.append((sim.output_vector(), vars(sim.integrator.stats).copy()))
+    assert np.array_equal(runs[0][0], runs[1][0]) and runs[0][1] == runs[1][1]
+
+
+def test_equations_of_another_structure_take_the_generic_kernel(scene_libraries):
+    """A scene kernel offered for the crane is refused by a slider-crank and by the crane
+    hanging from a second pivot (the same counts, another pattern)."""
+    ckernel.specialize(Equations(load("crane"), kernel="c"))
+    assert Equations(load("crane"), kernel="c").ckernel.scene_built
+    assert not Equations(load("slider_crank"), kernel="c").ckernel.scene_built
+    text = CRANE.read_text().replace('body_i = "boom"\npoint_i = [1.0, 0.0]',
+                                     'body_i = "ground"\npoint_i = [1.96, 0.4]')
+    assert text != CRANE.read_text()
+    other = scene_from_dict(tomllib.loads(text), source="moved_hook")
+    assert not Equations(other, kernel="c").ckernel.scene_built
+
+
+def test_a_stop_scene_runs_its_modes_on_both_kernels_as_on_the_generic(scene_libraries):
+    """crane_stop's free mode on its scene kernel, its held mode (other rows) on the generic
+    one: the run is the generic run, bounce for bounce, to the rest on the stop."""
+    path = ROOT / "scenes" / "crane_stop.toml"
+    runs = []
+    for specialized in (False, True):
+        if specialized:
+            ckernel.specialize(Equations(mbdfmu.model.reader.load_scene(path), kernel="c"))
+        sim = mbdfmu.Simulation(path, kernel="c", method="dop853p")
+        assert sim.stepped_equations.ckernel.scene_built == specialized
+        values = []
+        for t in np.arange(1, 41) * 0.025:
+            sim.advance(t)
+            values.append(sim.output_vector())
+        assert not sim.stepped_equations.ckernel.scene_built      # resting: the held mode
+        runs.append((np.array(values), vars(sim.integrator.stats).copy()))
+    assert np.array_equal(runs[0][0], runs[1][0]) and runs[0][1] == runs[1][1]
+
+
+def test_a_large_mechanism_keeps_the_generic_kernel():
+    eq = Equations(scene_from_dict(tomllib.loads(scene_text(40)), source="n40"), kernel="numpy")
+    assert scene_kernel.scene_header(eq) is None
+    assert scene_kernel.scene_header(Equations(load("crane"), kernel="numpy")).count(
+        "sc_factor") == 1
+
+
+# ------------------------------------------------------------------------------ the FMU
+
+@pytest.fixture(scope="module")
+def crane_fmus(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("scene_kernel")
+    return (build_fmu(CRANE, folder / "scene.fmu", scene_kernel=True),
+            build_fmu(CRANE, folder / "generic.fmu", scene_kernel=False))
+
+
+def lockstep(fmus, scene_host, steps, h, force=None):
+    """The FMUs stepped side by side at ``h`` (``force``: the input set before every step,
+    (name, value of step k)); their outputs equal at every step, to the bit."""
+    hosts_ = [scene_host(fmu, fmu.stem).init() for fmu in fmus]
+    for k in range(steps):
+        values = []
+        for h_ in hosts_:
+            if force is not None:
+                assert h_.set_real([h_.vr[force[0]]], [force[1](k)]) == OK
+            assert h_.step(h) == OK, h_.messages[-3:]
+            values.append(h_.real(*h_.outputs))
+        assert values[0] == values[1], k
+    return hosts_
+
+
+def test_the_crane_fmu_ships_and_runs_its_scene_kernel_with_the_generic_values(
+        crane_fmus, scene_host):
+    """Both FMUs stepped at 1 ms with the cylinder's force set before every step (the
+    wrapper's own steps): the same doubles at every step; only one carries the kernel."""
+    names = {}
+    for fmu in crane_fmus:
+        with zipfile.ZipFile(fmu) as z:
+            names[fmu.stem] = f"resources/{SCENE_KERNEL_FILE}" in z.namelist()
+    assert names == {"scene": True, "generic": False}
+    force = ("cylinder.actuator", lambda k: 8420.0 * (1 + 0.05 * math.sin(0.02 * k)))
+    built = lockstep(crane_fmus, scene_host, 300, 1e-3, force)[0]
+    assert not any("does not fit" in m or "cannot be loaded" in m for _, _, m in built.messages)
+
+
+def test_a_stop_scenes_fmu_on_its_scene_kernel_steps_as_the_generic_one(tmp_path, scene_host):
+    """crane_stop through its bounces to rest at 1 ms: dense runs, closing in on the stop
+    and its held mode (the generic kernel's) in the wrapper and in Python."""
+    path = ROOT / "scenes" / "crane_stop.toml"
+    fmus = [build_fmu(path, tmp_path / f"{k}.fmu", scene_kernel=k == "scene")
+            for k in ("scene", "generic")]
+    lockstep(fmus, scene_host, 800, 1e-3)
+
+
+@pytest.mark.skipif(not hosts.CHECKER.is_file(), reason=hosts.CHECKER_MISSING)
+def test_the_compliance_checker_runs_the_crane_on_its_scene_kernel(crane_fmus, tmp_path):
+    run = hosts.run_checker(crane_fmus[0], tmp_path, stop=0.2, h=1e-3)
+    report = run.stdout + run.stderr
+    assert run.returncode == 0 and "0 Error(s)" in report, report[-3000:]
+    data = np.genfromtxt(tmp_path / "out.csv", delimiter=",", names=True, deletechars="")
+    expected = mbdfmu.simulate(CRANE, t_end=0.2, output_interval=1e-3, kernel="numpy")
+    assert len(data) == len(expected.time)
+    for name in ("boom.phi", "load.x", "cylinder.length"):     # the actuator held at 0 N
+        np.testing.assert_allclose(data[name], expected[name], rtol=0, atol=1e-9)
+
+
+def test_the_scene_kernel_setting_is_checked(tmp_path, monkeypatch):
+    monkeypatch.setenv(SCENE_KERNEL_ENV, "yes")
+    with pytest.raises(BuildError, match=f"{SCENE_KERNEL_ENV}='yes'"):
+        build_fmu(CRANE, tmp_path / "x.fmu")
