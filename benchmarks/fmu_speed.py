@@ -5,7 +5,8 @@ called directly and Exudyn's generalized-alpha on the same mechanism.
 Cases: the slider-crank (P4), P2 N = 2 (scenes/n_four_bar_2.toml), the hydraulic crane's
 mechanism (scenarios/hydraulic_crane/crane.toml, its actuator force set by the master at
 every step as a connected input would: a hold force plus a swing), the same with ``auto``
-and with rk4p in place of its scene's dop853p (``VARIANTS``), and P1 (the pendulum).
+and with rk4p in place of its scene's dop853p (``VARIANTS``), and P1 (the pendulum). Each
+FMU is built as ``mbdfmu build`` builds it: with the C kernel built for its scene.
 
 - cold: a fresh Python process extracts the FMU to a new folder (not timed), then
   ``FMU2Slave`` (the binary loaded), instantiate, setup, initialization and the first
