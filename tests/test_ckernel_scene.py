@@ -39,33 +39,16 @@ ROOT = Path(__file__).resolve().parents[1]
 CRANE = ROOT / "scenarios" / "hydraulic_crane" / "crane.toml"
 # A ring of four bars, one pinned to the ground: the rows of its four hinges couple in a
 # cycle, so S's factor fills in entries S keeps at zero (no shipped scene does).
-RING = """
-name = "Ring"
+RING = 'name = "Ring"\n' + "".join(f"""
 [[body]]
-name = "a"
-mass = 1.0
-inertia = 0.1
-position = [0.5, 0.0]
-angle = 0.0
-[[body]]
-name = "b"
-mass = 1.0
-inertia = 0.1
-position = [1.0, 0.5]
-angle = 1.5707963267948966
-[[body]]
-name = "c"
-mass = 2.0
-inertia = 0.2
-position = [0.5, 1.0]
-angle = 3.141592653589793
-[[body]]
-name = "d"
-mass = 1.0
-inertia = 0.1
-position = [0.0, 0.5]
-angle = -1.5707963267948966
-""" + "".join(f"""
+name = "{name}"
+mass = {mass}
+inertia = {0.1 * mass}
+position = [{x}, {y}]
+angle = {angle!r}
+""" for name, mass, x, y, angle in (("a", 1.0, 0.5, 0.0, 0.0), ("b", 1.0, 1.0, 0.5, math.pi / 2),
+                                    ("c", 2.0, 0.5, 1.0, math.pi), ("d", 1.0, 0.0, 0.5, -math.pi / 2))
+) + "".join(f"""
 [[joint]]
 name = "{i}{j}"
 type = "revolute"
