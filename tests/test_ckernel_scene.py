@@ -144,6 +144,16 @@ def test_equations_of_another_structure_take_the_generic_kernel(scene_libraries)
     assert not Equations(other, kernel="c").ckernel.scene_built
 
 
+def test_a_kernel_offered_again_is_kept_once(scene_libraries, tmp_path):
+    """Each instance of an FMU offers its extracted copy: one library per content."""
+    path = ckernel.specialize(Equations(load("crane"), kernel="c"))
+    copy = tmp_path / "copy.so"
+    copy.write_bytes(path.read_bytes())
+    ckernel.use_scene_library(copy)
+    ckernel.use_scene_library(path)
+    assert len(ckernel._scene_libraries) == 1
+
+
 def test_a_stop_scene_runs_its_modes_on_both_kernels_as_on_the_generic(scene_libraries):
     """crane_stop's free mode on its scene kernel, its held mode (other rows) on the generic
     one: the run is the generic run, bounce for bounce, to the rest on the stop."""

@@ -13,6 +13,7 @@ to the numpy kernel (tests/test_ckernel.py).
 from __future__ import annotations
 
 import ctypes
+import hashlib
 import itertools
 import os
 from pathlib import Path
@@ -67,9 +68,14 @@ _scene_libraries: list = []
 
 def use_scene_library(path) -> None:
     """Offer this kernel built for one scene (an FMU's shipped copy, or
-    ``specialize``'s) to every ``Kernel`` of its structure made from now on."""
+    ``specialize``'s) to every ``Kernel`` of its structure made from now on (once per
+    content: each instance of an FMU offers its extracted copy again)."""
+    digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    if any(lib.digest == digest for lib in _scene_libraries):
+        return
     lib = ctypes.CDLL(str(Path(path)))
     _prepare(lib)
+    lib.digest = digest
     _scene_libraries.insert(0, lib)
 
 
