@@ -39,6 +39,7 @@ from ..model.scene import Body, SpringDamper
 from ..model.toml_table import load_toml, tomllib
 from ..model.variables import (GLOBAL_OUTPUTS, TABLES, input_layout, inputs, outputs,
                                parameters, selected_outputs)
+from ..simulation import Simulation
 from . import osp
 from .common import BuildError, digest, fill_template, write_checked
 from .model_description import Capabilities, DefaultExperiment, ModelInfo
@@ -231,14 +232,16 @@ def wants_scene_kernel(scene_kernel: bool | None) -> bool:
 def shipped_kernel(scene, scene_kernel: bool) -> dict[str, bytes]:
     """The compiled C kernel as a resource (compiled once per content into the cache), with
     the kernel built for ``scene`` (ckernel/scene_kernel.py) when ``scene_kernel`` and the
-    scene is not too large for it; nothing when no kernel can be compiled here: the FMU
-    then runs the numpy kernel and logs so."""
+    scene is not too large for it: for the equations it starts on (with end stops or
+    friction, those of its first contact mode); nothing when no kernel can be compiled
+    here: the FMU then runs the numpy kernel and logs so."""
     try:
         files = {KERNEL_FILE: compile_kernel().read_bytes()}
     except KernelBuildError:
         return {}
     try:
-        path = compile_scene_kernel(Equations(scene, kernel="numpy")) if scene_kernel else None
+        path = compile_scene_kernel(
+            Simulation(scene, kernel="numpy").stepped_equations) if scene_kernel else None
     except KernelBuildError:
         path = None             # the generic kernel runs, as fast as before
     return files if path is None else {**files, SCENE_KERNEL_FILE: path.read_bytes()}
