@@ -31,7 +31,7 @@ from ..equations import Equations
 from ..equations.ckernel.build import KernelBuildError, compile_kernel
 from ..equations.ckernel.scene_kernel import compile_scene_kernel
 from ..equations.projection import assemble
-from ..errors import SceneError
+from ..errors import MbdfmuError, SceneError
 from ..integrators import METHOD_NAMES
 from ..integrators.settings import settings_from_scene
 from ..model.reader import resolve_scene_path, scene_from_dict
@@ -240,11 +240,20 @@ def shipped_kernel(scene, scene_kernel: bool) -> dict[str, bytes]:
     except KernelBuildError:
         return {}
     try:
-        path = compile_scene_kernel(
-            Simulation(scene, kernel="numpy").stepped_equations) if scene_kernel else None
+        path = compile_scene_kernel(starting_equations(scene)) if scene_kernel else None
     except KernelBuildError:
         path = None             # the generic kernel runs, as fast as before
     return files if path is None else {**files, SCENE_KERNEL_FILE: path.read_bytes()}
+
+
+def starting_equations(scene) -> Equations:
+    """The equations a simulation of ``scene`` starts on: with end stops or friction, its
+    first contact mode's; the scene's own where its settings do not start (a method the
+    master must change first: the FMU is built all the same)."""
+    try:
+        return Simulation(scene, kernel="numpy").stepped_equations
+    except MbdfmuError:
+        return Equations(scene, kernel="numpy")
 
 
 def _load(scene_path, values: dict[str, float] | None):

@@ -231,6 +231,16 @@ def test_an_event_scenes_fmu_on_its_scene_kernel_steps_as_the_generic_one(stem, 
     assert not any("does not fit" in m for _, _, m in built.messages)
 
 
+def test_a_scene_whose_method_cannot_start_still_builds_with_its_kernel(tmp_path):
+    """crane_stop under genalpha (which does not locate events: the master sets
+    solver.method before it starts) builds as it did without the scene's kernel."""
+    path = tmp_path / "stop_genalpha.toml"
+    text = (ROOT / "scenes" / "crane_stop.toml").read_text()
+    path.write_text(text.replace("[simulation]\n", '[simulation]\nmethod = "genalpha"\n', 1))
+    with zipfile.ZipFile(build_fmu(path, tmp_path / "x.fmu", scene_kernel=True)) as z:
+        assert f"resources/{SCENE_KERNEL_FILE}" in z.namelist()
+
+
 @pytest.mark.skipif(not hosts.CHECKER.is_file(), reason=hosts.CHECKER_MISSING)
 def test_the_compliance_checker_runs_the_crane_on_its_scene_kernel(crane_fmus, tmp_path):
     run = hosts.run_checker(crane_fmus[0], tmp_path, stop=0.2, h=1e-3)
