@@ -31,15 +31,15 @@ DRIVEN = ROOT / "scenarios" / "prescribed_motion" / "slider_crank.toml"
 
 @pytest.fixture(scope="module")
 def fmu3(tmp_path_factory):
-    """The FMI 3.0 FMU of a shipped scene (or of the crane, with the C kernel built for
-    its scene: the FMI 3.0 wrapper's steps on it), built once."""
+    """The FMI 3.0 FMU of a shipped scene, or of the crane or the driven slider-crank with
+    the C kernel built for its scene (the FMI 3.0 wrapper's steps on it), built once."""
     root, built = tmp_path_factory.mktemp("fmi3_fast"), {}
 
     def get(stem: str) -> Path:
         if stem not in built:
             scene = {"crane": CRANE, "driven": DRIVEN}.get(stem, ROOT / "scenes" / f"{stem}.toml")
             built[stem] = build_fmu(scene, root / f"{stem}.fmu", fmi_version=3,
-                                    scene_kernel=stem == "crane")
+                                    scene_kernel=stem in ("crane", "driven"))
         return built[stem]
     return get
 
