@@ -39,6 +39,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from mbdfmu.scenes import variants  # noqa: E402
 from fmpy import extract, read_model_description  # noqa: E402
 from fmpy.fmi1 import FMICallException  # noqa: E402
 from fmpy.fmi2 import FMU2Slave  # noqa: E402
@@ -94,35 +95,13 @@ DRIVER_CASES = {"prescribed slider-crank, position set": (
 # doStep, and hung from a second body pinned off its centre (constraints, a force Jacobian
 # coupling two bodies)
 STIFF_SCENE = ROOT / "scenes" / "stiff_spring.toml"
-STIFF_PUSH = """
-[[force]]
-name = "push"
-type = "force"
-body = "bob"
-point = [0.0, 0.0]
-input = true
-"""
-STIFF_HOOK = """
-[[body]]
-name = "hook"
-mass = 1.0
-inertia = 1.0
-position = [-0.1, 0.0]
-[[joint]]
-name = "pin"
-type = "revolute"
-body_i = "ground"
-point_i = [0.0, 0.0]
-body_j = "hook"
-point_j = [0.1, 0.0]
-"""
 STIFF_CASES = {
     "stiff spring, auto": (STIFF_SCENE, "", None, None),
-    "stiff spring, push set": (STIFF_SCENE, STIFF_PUSH, "push.fy",
+    "stiff spring, push set": (STIFF_SCENE, variants.PUSH, "push.fy",
                                lambda t: -2.0 + math.sin(2.0 * math.pi * t)),
-    "stiff spring on a pinned hook, push set": (None, STIFF_SCENE.read_text().replace(
-        'body_i = "ground"\npoint_i = [0.0, 0.0]', 'body_i = "hook"\npoint_i = [0.1, 0.0]')
-        + STIFF_HOOK + STIFF_PUSH, "push.fy", lambda t: -2.0 + math.sin(2.0 * math.pi * t))}
+    "stiff spring on a pinned hook, push set": (None, variants.hooked(STIFF_SCENE.read_text()),
+                                                "push.fy",
+                                                lambda t: -2.0 + math.sin(2.0 * math.pi * t))}
 SETS = {"targets": (CASES, "fmu_step_times"), "events": (EVENT_CASES, "fmu_step_times_events"),
         "drivers": (DRIVER_CASES, "fmu_step_times_drivers"),
         "stiff": (STIFF_CASES, "fmu_step_times_stiff")}

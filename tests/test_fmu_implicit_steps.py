@@ -20,6 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mbdfmu.bench import closed_forms  # noqa: E402
 from mbdfmu.equations import ckernel  # noqa: E402
 from mbdfmu.fmu_build.scene_fmu import build_fmu  # noqa: E402
+from mbdfmu.scenes import variants  # noqa: E402
 from fmu_models.harness import OK, get_state, serialize  # noqa: E402
 from fmu_models.scenes import scene_host  # noqa: E402,F401
 from test_fmu_dense_run import lockstep, taken_by_wrapper  # noqa: E402
@@ -34,38 +35,11 @@ SPRING = (SCENES / "stiff_spring.toml").read_text().replace(
     "gravity = [0.0, -9.81]", 'gravity = [0.0, -9.81]\noutputs = ["bob.*", "rod.*"]').replace(
     "angular_velocity = 0.0", "angular_velocity = 50.0")
 assert "angular_velocity = 50.0" in SPRING and "outputs = " in SPRING
-# the spring hung from a second body pinned to the ground off its centre (a revolute whose
-# rows depend on the hook's angle, and a force Jacobian that couples two bodies, so the
-# kernel's dense LU), the spring's end at the pin
-HOOK = """
-[[body]]
-name = "hook"
-mass = 1.0
-inertia = 1.0
-position = [-0.1, 0.0]
-[[joint]]
-name = "pin"
-type = "revolute"
-body_i = "ground"
-point_i = [0.0, 0.0]
-body_j = "hook"
-point_j = [0.1, 0.0]
-"""
 # the spring stretched by 0.1 mm at the start and damped (test_auto_watch.py's): auto
 # starts with dop853p, which resolves the ringing, then switches to genalpha at its fixed
 # step once stability holds dop853p's steps
 STRETCHED = SPRING.replace("position = [1.0, 0.0]", "position = [1.0001, 0.0]").replace(
     "damping = 0.0", "damping = 1000.0")
-PUSH = """
-[[force]]
-name = "push"
-type = "force"
-body = "bob"
-point = [0.0, 0.0]
-input = true
-"""
-
-
 def adaptive(stem: str, method: str) -> str:
     """A shipped scene with ``method`` under step control."""
     text = (SCENES / f"{stem}.toml").read_text()
@@ -84,10 +58,8 @@ def fixed(stem: str, method: str, step: float) -> str:
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory):
     folder = tmp_path_factory.mktemp("implicit_fmus")
-    hooked = SPRING.replace('body_i = "ground"\npoint_i = [0.0, 0.0]',
-                            'body_i = "hook"\npoint_i = [0.1, 0.0]') + HOOK + PUSH
-    assert 'body_i = "hook"' in hooked
-    sources = {"spring": SPRING, "pushed": SPRING + PUSH, "hooked": hooked,
+    hooked = variants.hooked(SPRING)     # its spring between the hook's pin and the bob
+    sources = {"spring": SPRING, "pushed": variants.pushed(SPRING), "hooked": hooked,
                "stretched": STRETCHED,
                "crank_genalpha": adaptive("slider_crank", "genalpha"),
                "crank_ali3p": adaptive("slider_crank", "ali3p"),
