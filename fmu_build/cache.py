@@ -7,6 +7,7 @@ import hashlib
 from pathlib import Path
 
 from . import build
+from .scene_fmu import wants_scene_kernel
 
 HERE = Path(__file__).resolve().parent
 
@@ -44,8 +45,10 @@ def build_fmus(sources: dict[str, Path], folder: str | Path,
         kind = src.suffix
         if kind not in tools:
             tools[kind] = _tools_digest(kind)
-        digest = hashlib.sha256(tools[kind] + src.read_bytes()
-                                + str(fmi_version).encode()).hexdigest()
+        # a scene's FMU with or without the kernel built for it ($MBDFMU_SCENE_KERNEL)
+        kernel = str(wants_scene_kernel(None)).encode() if kind == ".toml" else b""
+        digest = hashlib.sha256(tools[kind] + src.read_bytes() + str(fmi_version).encode()
+                                + kernel).hexdigest()
         fmu = folder / f"{src.stem}{'.fmi3' if fmi_version == 3 else ''}.fmu"
         stamp = fmu.with_name(fmu.name + ".sha256")
         if not (fmu.is_file() and stamp.is_file() and stamp.read_text().strip() == digest):

@@ -26,6 +26,7 @@ from mbdfmu.equations.ckernel import scene_kernel  # noqa: E402
 from mbdfmu.equations.ckernel.model import model_arrays  # noqa: E402
 from mbdfmu.equations.projection import assemble  # noqa: E402
 from mbdfmu.fmu_build import BuildError  # noqa: E402
+from mbdfmu.fmu_build.cache import build_fmus  # noqa: E402
 from mbdfmu.fmu_build.scene_fmu import SCENE_KERNEL_ENV, build_fmu  # noqa: E402
 from mbdfmu.fmu_build.runtime.kernels import SCENE_KERNEL_FILE  # noqa: E402
 from mbdfmu.model import scene_from_dict  # noqa: E402
@@ -251,6 +252,17 @@ def test_the_compliance_checker_runs_the_crane_on_its_scene_kernel(crane_fmus, t
     assert len(data) == len(expected.time)
     for name in ("boom.phi", "load.x", "cylinder.length"):     # the actuator held at 0 N
         np.testing.assert_allclose(data[name], expected[name], rtol=0, atol=1e-9)
+
+
+def test_fmus_built_once_are_built_again_for_the_other_kernel_setting(tmp_path, monkeypatch):
+    """cache.build_fmus (a scenario's FMUs, reused while their sources are unchanged) keys
+    them on $MBDFMU_SCENE_KERNEL too."""
+    shipped = []
+    for setting in ("0", "1", "0"):
+        monkeypatch.setenv(SCENE_KERNEL_ENV, setting)
+        with zipfile.ZipFile(build_fmus({"crane": CRANE}, tmp_path)["crane"]) as z:
+            shipped.append(f"resources/{SCENE_KERNEL_FILE}" in z.namelist())
+    assert shipped == [False, True, False]
 
 
 def test_the_scene_kernel_setting_is_checked(tmp_path, monkeypatch):
