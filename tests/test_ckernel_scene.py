@@ -38,6 +38,7 @@ from fmu_models.scenes import scene_host  # noqa: E402,F401
 pytestmark = pytest.mark.skipif(not ckernel.available(), reason="no C compiler for the kernel")
 ROOT = Path(__file__).resolve().parents[1]
 CRANE = ROOT / "scenarios" / "hydraulic_crane" / "crane.toml"
+CKERNEL = ROOT / "src" / "mbdfmu" / "equations" / "ckernel"
 # A ring of four bars, one pinned to the ground: the rows of its four hinges couple in a
 # cycle, so S's factor fills in entries S keeps at zero (no shipped scene does).
 RING = 'name = "Ring"\n' + "".join(f"""
@@ -172,6 +173,24 @@ def test_a_stop_scene_runs_its_modes_on_both_kernels_as_on_the_generic(scene_lib
         assert not sim.stepped_equations.ckernel.scene_built      # resting: the held mode
         runs.append((np.array(values), vars(sim.integrator.stats).copy()))
     assert np.array_equal(runs[0][0], runs[1][0]) and runs[0][1] == runs[1][1]
+
+
+def test_every_structure_field_the_c_reads_is_in_every_shipped_scenes_header():
+    """What the C sources read through S_() is what scene_kernel.py defines (a missing one
+    would fail the scene build, and the FMU would quietly ship the generic kernel only),
+    and its index tables are the Model's `const I *` fields."""
+    sources = "".join(p.read_text() for p in CKERNEL.glob("*.[ch]"))
+    model = sources[sources.index("typedef struct {\n    I nb, n, m, nf;"):]
+    model = model[:model.index("} Model;")]
+    tables = set(re.findall(r"\*(\w+)", " ".join(re.findall(r"const I ([^;]*);", model))))
+    assert tables == set(scene_kernel.INDEX_TABLES)
+    uses = "\n".join(line for line in sources.splitlines() if "#define S_" not in line)
+    read = set(re.findall(r"S_\(M, (\w+)\)", uses))
+    for path in sorted((ROOT / "scenes").glob("*.toml")):
+        header = scene_kernel.scene_header(
+            Equations(mbdfmu.model.reader.load_scene(path), kernel="numpy"))
+        if header is not None:
+            assert read <= set(re.findall(r"SC_(\w+)\b", header)), path.name
 
 
 def test_a_large_mechanism_keeps_the_generic_kernel():

@@ -33,18 +33,22 @@ from .model import _FIELDS, model_arrays
 MAX_STATEMENTS = 3000
 
 
+# The Model's index tables (kernel.c: its `const I *` fields), empty ones included.
+INDEX_TABLES = ("c_rows c_bi c_bj l_rows l_bi l_bj a_rows a_bi a_bj merge keep rows cols "
+                "pair_a pair_b band_index perm f_int joint_rows reaction_entries joint_bj "
+                "frame_body reaction_joints joint_plan coupler_rows driver_rows s_int").split()
+
+
 def structure(arrays: dict) -> list[tuple[str, object]]:
-    """The Model's integer fields in its order: (name, count) and (name, int64 array)."""
+    """The Model's integer fields in its order (``model_arrays``' values): (name, count)
+    and (name, int64 array)."""
     fields = []
     for field in _FIELDS:
         name = field.strip("*%")
-        if field[0] == "%" or name not in arrays:
-            continue
-        value = arrays[name]
-        if field[0] != "*":
-            fields.append((name, int(value)))
-        elif np.asarray(value).dtype.kind in "iu":
-            fields.append((name, np.asarray(value, dtype=np.int64).ravel()))
+        if field[0] not in "*%" and name in arrays:
+            fields.append((name, int(arrays[name])))
+        elif name in INDEX_TABLES:
+            fields.append((name, np.asarray(arrays[name], dtype=np.int64).ravel()))
     return fields
 
 
