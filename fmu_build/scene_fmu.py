@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from pathlib import Path
 
 from .. import __file__ as core_init
@@ -241,8 +242,10 @@ def shipped_kernel(scene, scene_kernel: bool) -> dict[str, bytes]:
         return {}
     try:
         path = compile_scene_kernel(starting_equations(scene)) if scene_kernel else None
-    except KernelBuildError:
-        path = None             # the generic kernel runs, as fast as before
+    except KernelBuildError as exc:     # the generic kernel runs, as fast as before
+        warnings.warn(f"{scene.name}: the C kernel built for the scene was not compiled "
+                      f"({exc}): the FMU ships the generic C kernel only", stacklevel=3)
+        path = None
     return files if path is None else {**files, SCENE_KERNEL_FILE: path.read_bytes()}
 
 

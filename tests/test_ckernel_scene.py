@@ -21,12 +21,15 @@ from hypothesis import strategies as st
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import mbdfmu  # noqa: E402
+from mbdfmu import cli  # noqa: E402
 from mbdfmu.equations import Equations, ckernel  # noqa: E402
 from mbdfmu.equations.ckernel import scene_kernel  # noqa: E402
 from mbdfmu.equations.ckernel.model import model_arrays  # noqa: E402
 from mbdfmu.equations.projection import assemble  # noqa: E402
 from mbdfmu.fmu_build import BuildError  # noqa: E402
 from mbdfmu.fmu_build.cache import build_fmus  # noqa: E402
+from mbdfmu.equations.ckernel.build import KernelBuildError  # noqa: E402
+from mbdfmu.fmu_build import scene_fmu  # noqa: E402
 from mbdfmu.fmu_build.scene_fmu import SCENE_KERNEL_ENV, build_fmu  # noqa: E402
 from mbdfmu.fmu_build.runtime.kernels import SCENE_KERNEL_FILE  # noqa: E402
 from mbdfmu.model import scene_from_dict  # noqa: E402
@@ -282,6 +285,25 @@ def test_fmus_built_once_are_built_again_for_the_other_kernel_setting(tmp_path, 
         with zipfile.ZipFile(build_fmus({"crane": CRANE}, tmp_path)["crane"]) as z:
             shipped.append(f"resources/{SCENE_KERNEL_FILE}" in z.namelist())
     assert shipped == [False, True, False]
+
+
+def test_a_scene_kernel_that_does_not_compile_leaves_the_generic_one_and_says_so(
+        tmp_path, monkeypatch, capsys):
+    def failing(eq):
+        raise KernelBuildError("compiling the C kernel failed: (a compiler error)")
+    monkeypatch.setattr(scene_fmu, "compile_scene_kernel", failing)
+    with pytest.warns(UserWarning, match="Crane: the C kernel built for the scene was not "
+                                         r"compiled \(compiling .*generic C kernel only"):
+        fmu = build_fmu(CRANE, tmp_path / "x.fmu", scene_kernel=True)
+    with zipfile.ZipFile(fmu) as z:
+        names = z.namelist()
+    assert f"resources/{SCENE_KERNEL_FILE}" not in names and "resources/mbdfmu_kernel.so" in names
+    monkeypatch.delenv(SCENE_KERNEL_ENV)          # the command line's default: with it
+    assert cli.main(["build", str(CRANE), "-o", str(tmp_path / "y.fmu")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["mbdfmu build: warning: Crane: the C kernel built for the scene was not "
+                   "compiled (compiling the C kernel failed: (a compiler error)): the FMU "
+                   "ships the generic C kernel only"], err
 
 
 def test_the_scene_kernel_setting_is_checked(tmp_path, monkeypatch):

@@ -3,20 +3,24 @@ into an FMI 2.0 or 3.0 FMU) and ``mbdfmu cosim`` (a co-simulation scenario in on
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
-from .cli_options import Ticker, add_progress_option, add_set_option, parse_assignments
+from .cli_options import (Ticker, add_progress_option, add_set_option, parse_assignments,
+                          print_warnings)
 
 
 def cmd_build(args) -> int:
     from .fmu_build import build  # a scene (.toml) or a companion source (.py)
     from .fmu_build.osp import write_beside
 
-    with Ticker(args, "build"):
+    with Ticker(args, "build"), warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always", UserWarning)
         path = build(args.scene, output=args.output,
                      parameters=parse_assignments(args.set) or None,
                      fmi_version=args.fmi_version,
                      scene_kernel=False if args.generic_kernel else None)
+    print_warnings("build", [str(w.message) for w in said])  # e.g. the scene's kernel
     write_beside(Path(path))      # <name>_OspModelDescription.xml: where OSP's tools look
     print(path)
     return 0
