@@ -101,8 +101,8 @@ def library_for(address: int):
 
 def _prepare(lib) -> None:
     """Declare the argument and return types of a loaded library's entry points."""
-    for name, restype in (("mbd_work_size", _I), ("mbd_memo_size", _I)):
-        getattr(lib, name).restype, getattr(lib, name).argtypes = restype, [_P, _I][:1 + (name == "mbd_work_size")]
+    lib.mbd_work_size.restype, lib.mbd_work_size.argtypes = _I, [_P, _I]
+    lib.mbd_memo_size.restype, lib.mbd_memo_size.argtypes = _I, [_P]
     lib.mbd_structure_check.restype, lib.mbd_structure_check.argtypes = _I, [_P]
     _declare(lib, _SIGNATURES, ctypes.c_int)     # once per library, not per Kernel
     _declare(lib, {"mbd_constraints": [_P] * 7}, None)

@@ -138,7 +138,8 @@ int mbd_fixed_set(FixedRun *r, const unsigned int *vr, size_t nvr, const double 
  * last step's end, Psi_q's values (nkeep) and gamma (m) there, the band factor of S
  * (2 (kd + 1) m). */
 I mbd_fixed_kept_size(const Model *M) {
-    return 1 + 2 * S_(M, n) + 3 * S_(M, m) + S_(M, nkeep) + S_(M, m) + 2 * (S_(M, kd) + 1) * S_(M, m);
+    return 1 + 2 * S_(M, n) + 3 * S_(M, m) + S_(M, nkeep) + S_(M, m)
+           + 2 * (S_(M, kd) + 1) * S_(M, m);
 }
 
 /* After a step to y at motion (c, c', c'') whose q'' was solved by the band factor its

@@ -199,7 +199,8 @@ static int factor_matrix(const Model *M, const Implicit *p, Scratch *s, double *
     for (I k = 0; k < n; k++) hdiag[k] = p->blocks ? 0.0 : M->mass[k];
     if (c_h != 0.0) {
         for (I k = 0; k < S_(M, kc); k++) {
-            I i = S_(M, c_bi)[k], j = S_(M, c_bj)[k], r0 = S_(M, c_rows)[2 * k], r1 = S_(M, c_rows)[2 * k + 1];
+            I i = S_(M, c_bi)[k], j = S_(M, c_bj)[k];
+            I r0 = S_(M, c_rows)[2 * k], r1 = S_(M, c_rows)[2 * k + 1];
             double aix, aiy, ajx, ajy;
             rotated(s->cs, s->cs + nb + 1, i, M->c_si[2 * k], M->c_si[2 * k + 1], &aix, &aiy);
             rotated(s->cs, s->cs + nb + 1, j, M->c_sj[2 * k], M->c_sj[2 * k + 1], &ajx, &ajy);
@@ -225,10 +226,12 @@ static int factor_matrix(const Model *M, const Implicit *p, Scratch *s, double *
             L[p->bp_band[k]] += v[p->bp_a[k]] * v[p->bp_b[k]] * kinv[p->bp_w[k]];
     else
         for (I k = 0; k < S_(M, npairs); k++)
-            L[S_(M, band_index)[k]] += v[S_(M, pair_a)[k]] * v[S_(M, pair_b)[k]] * kinv[S_(M, cols)[S_(M, pair_a)[k]]];
+            L[S_(M, band_index)[k]] += v[S_(M, pair_a)[k]] * v[S_(M, pair_b)[k]]
+                                       * kinv[S_(M, cols)[S_(M, pair_a)[k]]];
     for (I j = 0; j < m; j++) L[j] += e;
     if (!all_finite_values(L, size)) return ST_NOT_FINITE;
-    if (m && (!band_cholesky(L, m, S_(M, kd), &dmin, &dmax) || !(dmin * dmin > p->singular_pivot * dmax * dmax)))
+    if (m && (!band_cholesky(L, m, S_(M, kd), &dmin, &dmax)
+              || !(dmin * dmin > p->singular_pivot * dmax * dmax)))
         return ST_SINGULAR;
     return kept_valid(M, s, kept, v, h, e);
 }

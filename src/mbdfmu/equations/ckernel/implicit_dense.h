@@ -49,7 +49,8 @@ static void add_hessian(const Model *M, Scratch *s, const double *lam, double c_
     I n = S_(M, n), nb = S_(M, nb);
     const double *cs = s->cs, *sn = s->cs + nb + 1, *qe = s->qe;
     for (I k = 0; k < S_(M, kc); k++) {
-        I i = S_(M, c_bi)[k], j = S_(M, c_bj)[k], r0 = S_(M, c_rows)[2 * k], r1 = S_(M, c_rows)[2 * k + 1];
+        I i = S_(M, c_bi)[k], j = S_(M, c_bj)[k];
+        I r0 = S_(M, c_rows)[2 * k], r1 = S_(M, c_rows)[2 * k + 1];
         double aix, aiy, ajx, ajy;
         rotated(cs, sn, i, M->c_si[2 * k], M->c_si[2 * k + 1], &aix, &aiy);
         rotated(cs, sn, j, M->c_sj[2 * k], M->c_sj[2 * k + 1], &ajx, &ajy);

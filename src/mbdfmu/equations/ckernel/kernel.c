@@ -121,14 +121,15 @@ static inline void rotated(const double *cs, const double *sn, I b, double vx, d
 static void terms(const Model *M, const double *qe, const double *qde, const double *cval,
                   double *psi, double *raw, double *gamma, double *cs) {
     I k0 = S_(M, nconst), kc = S_(M, kc), kl = S_(M, kl);
-    double *sn = cs + S_(M, nb) + 1;     /* cos and sin of every body's angle, once (planar.poses) */
+    double *sn = cs + S_(M, nb) + 1;  /* cos and sin of every body's angle, once (planar.poses) */
     for (I b = 0; b < S_(M, nb); b++) cos_sin(qe[3 * b + 2], cs + b, sn + b);
     cs[S_(M, nb)] = 1.0;                 /* the ground's angle is 0: cos and sin exact */
     sn[S_(M, nb)] = 0.0;
     memcpy(raw, M->constants, (size_t)k0 * sizeof(double));
     for (I r = 0; r < S_(M, m); r++) { psi[r] = 0.0; if (gamma) gamma[r] = 0.0; }
     for (I k = 0; k < kc; k++) {
-        I i = S_(M, c_bi)[k], j = S_(M, c_bj)[k], r0 = S_(M, c_rows)[2 * k], r1 = S_(M, c_rows)[2 * k + 1];
+        I i = S_(M, c_bi)[k], j = S_(M, c_bj)[k];
+        I r0 = S_(M, c_rows)[2 * k], r1 = S_(M, c_rows)[2 * k + 1];
         double aix, aiy, ajx, ajy;
         rotated(cs, sn, i, M->c_si[2 * k], M->c_si[2 * k + 1], &aix, &aiy);
         rotated(cs, sn, j, M->c_sj[2 * k], M->c_sj[2 * k + 1], &ajx, &ajy);
@@ -170,7 +171,8 @@ static void terms(const Model *M, const double *qe, const double *qde, const dou
         }
     }
     for (I k = 0; k < S_(M, ka); k++)
-        psi[S_(M, a_rows)[k]] += M->a_w[k] * (qe[3 * S_(M, a_bj)[k] + 2] - qe[3 * S_(M, a_bi)[k] + 2]);
+        psi[S_(M, a_rows)[k]] += M->a_w[k] * (qe[3 * S_(M, a_bj)[k] + 2]
+                                              - qe[3 * S_(M, a_bi)[k] + 2]);
     for (I r = 0; r < S_(M, m); r++) psi[r] -= cval[r];
 }
 
@@ -327,7 +329,8 @@ static Scratch scratch(const Model *M, double *w) {
 /* doubles of scratch space the kernel needs, with room for the steppers' stages */
 I mbd_work_size(const Model *M, I stages) {
     I n = S_(M, n), m = S_(M, m);
-    return 2 * (n + 3) + 9 * m + S_(M, nraw) + S_(M, size) + 1 + S_(M, nkeep) + solve_size(M) + 4 * n
+    return 2 * (n + 3) + 9 * m + S_(M, nraw) + S_(M, size) + 1 + S_(M, nkeep) + solve_size(M)
+           + 4 * n
            + 2 * (S_(M, nb) + 1) + nullspace_size(M) + 16 + (stages + 4) * 2 * n + 14 * n + 3 * m;
 }
 

@@ -70,7 +70,8 @@ static int nullspace_accelerations(const Model *M, const double *values, const d
     double *A = w, *V = A + n * m, *sv = V + m * m, *xF = sv + m, *x = xF + n;
     for (I k = 0; k < n; k++) x[k] = sqrt(M->minv[k]);                   /* M^-1/2 */
     memset(A, 0, (size_t)(n * m) * sizeof(double));
-    for (I k = 0; k < S_(M, nkeep); k++) A[S_(M, rows)[k] * n + S_(M, cols)[k]] += values[k] * x[S_(M, cols)[k]];
+    for (I k = 0; k < S_(M, nkeep); k++)
+        A[S_(M, rows)[k] * n + S_(M, cols)[k]] += values[k] * x[S_(M, cols)[k]];
     for (I k = 0; k < n; k++) xF[k] = x[k] * F[k];
     one_sided_jacobi(A, n, m, V);
     double largest = 0.0;

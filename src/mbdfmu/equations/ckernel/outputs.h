@@ -9,7 +9,8 @@
 static void joint_values(const Model *M, const double *q, const double *lam,
                          const double *data, double *out) {
     for (I k = 0; k < 3 * S_(M, nj); k++) out[k] = NAN;
-    for (I k = 0; k < S_(M, nr); k++) joint_reaction(M, q, lam, data, k, out + 3 * S_(M, reaction_joints)[k]);
+    for (I k = 0; k < S_(M, nr); k++)
+        joint_reaction(M, q, lam, data, k, out + 3 * S_(M, reaction_joints)[k]);
     for (I k = 0; k < S_(M, ncoupler); k++) out[3 * S_(M, nj) + k] = -lam[S_(M, coupler_rows)[k]];
     out[3 * S_(M, nj) + S_(M, ncoupler)] = 0.0;   /* the plan's zero: outputs no joint type computes
                                           * here (a stop's force while nothing touches it) */

@@ -52,7 +52,8 @@ static int band_cholesky(double *L, I m, I kd, double *dmin, double *dmax) {
  * where the dot-product form of a Cholesky factor waits on a square root, a division and a
  * chain of kd products for every entry (the same sums in another order). A kernel built
  * for one scene runs its header's straight-line form instead (schur_factor). */
-__attribute__((unused)) static int band_cholesky_inv(double *L, I m, I kd, double *dmin, double *dmax) {
+__attribute__((unused))
+static int band_cholesky_inv(double *L, I m, I kd, double *dmin, double *dmax) {
     double lo = INFINITY, hi = 0.0;
     for (I j = 0; j < m; j++) {
         double d = L[j];
@@ -75,7 +76,8 @@ __attribute__((unused)) static int band_cholesky_inv(double *L, I m, I kd, doubl
 /* S x = y in place by band_cholesky_inv's factor: z = D^-1 L^-1 y forward, then
  * x = z - D^-1 W^T x backward (L^T = D^-1 W^T), each entry, once final, updating the
  * entries after it (a chain of one product per row, not of kd). */
-__attribute__((unused)) static void band_substitute_inv(const double *L, I m, I kd, double *y) {
+__attribute__((unused))
+static void band_substitute_inv(const double *L, I m, I kd, double *y) {
     for (I i = 0; i < m; i++) {
         double z = y[i] * L[i];
         y[i] = z;

@@ -71,7 +71,8 @@ static int rk4p_step(const Model *M, Scratch *s, double *y, double *f, double h,
     r = rhs_projected(M, s, ys, motions + 6 * m, ufs + 2 * nf, K, s->lam);
     if (r != ST_OK) return r;
     if (!all_finite(K + S_(M, n), S_(M, n))) return ST_NOT_FINITE;
-    memo_store(M, ys, ys + S_(M, n), motions + 6 * m, motions + 8 * m, ufs + 2 * nf, K + S_(M, n), s->lam);
+    memo_store(M, ys, ys + S_(M, n), motions + 6 * m, motions + 8 * m, ufs + 2 * nf, K + S_(M, n),
+               s->lam);
     memcpy(y, ys, (size_t)n2 * sizeof(double));
     memcpy(f, K, (size_t)n2 * sizeof(double));
     return ST_OK;
@@ -107,7 +108,10 @@ static double spring_potentials(const Model *M, const double *q, double e) {
  * constant forces only: 1/2 q'M q' - F.q, rk4p_compiled._energy_check's arithmetic. */
 static double total_energy(const Model *M, const double *q, const double *qd, double *kinetic) {
     double kin = 0.0, fq = 0.0;
-    for (I k = 0; k < S_(M, n); k++) { kin += M->mass[k] * qd[k] * qd[k]; fq += M->f_const[k] * q[k]; }
+    for (I k = 0; k < S_(M, n); k++) {
+        kin += M->mass[k] * qd[k] * qd[k];
+        fq += M->f_const[k] * q[k];
+    }
     kin *= 0.5;
     *kinetic = kin;
     if (!S_(M, nforce)) return kin - fq;
@@ -179,7 +183,8 @@ int mbd_rk4p_steps(const Model *M, double *y, double *f, double h, I nsteps,
                           tol, max_iter, K, ys);
         if (r != ST_OK) return r;   /* the caller redoes step *done on the numpy path */
         *done = k + 1;
-        if (audit[A_ACTIVE] != 0.0 && !energy_check(M, y, y + S_(M, n), audit, divergence_fraction, roundoff))
+        if (audit[A_ACTIVE] != 0.0
+                && !energy_check(M, y, y + S_(M, n), audit, divergence_fraction, roundoff))
             return ST_ENERGY;
     }
     return ST_OK;
