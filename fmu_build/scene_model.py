@@ -95,8 +95,8 @@ class Model(Slave):
         self.scene = self.core.model.scene_from_dict(data, source=SCENE_FILE)
         self.parameter_names = [p.name for p in self.core.model.variables.parameters(self.scene)]
         self.input_names = frozenset(v.name for v in self.core.model.variables.inputs(self.scene))
-        self.kernel = load_kernel(self.resources, KERNEL_FILE, self.core.equations.ckernel,
-                                  self.log)
+        self.kernel, self.scene_kernel = load_kernel(
+            self.resources, KERNEL_FILE, self.core.equations.ckernel, self.log)
         self.limit = None            # ((max steps, max cpu), the WorkLimit of those)
         self.sim = self.built = None
         self.slots = None
@@ -137,7 +137,8 @@ class Model(Slave):
         # the C kernel shipped in the FMU unless asked otherwise (numba would compile anew
         # in every fresh extraction of the FMU), see docs/performance.md
         sim = core.Simulation(scene, kernel=self.kernel, settings=settings, t0=build["t0"])
-        log_scene_kernel(sim, self.resources, self.log)
+        if self.scene_kernel:
+            log_scene_kernel(sim, self.log)
         self.slots = np.array([sim.output_names.index(n) for n in OUTPUTS], dtype=np.intp)
         self.fast_inputs = self.core.fast_steps.settable_inputs(sim, self.variables)
         self.published_from = published_sources(self, sim)

@@ -241,6 +241,21 @@ def test_the_crane_fmu_ships_and_runs_its_scene_kernel_with_the_generic_values(
     assert not any("does not fit" in m or "cannot be loaded" in m for _, _, m in built.messages)
 
 
+def test_a_scene_kernel_that_cannot_be_loaded_leaves_the_generic_one_and_says_so(
+        crane_fmus, scene_host, tmp_path):
+    """The crane's FMU with its scene kernel's file spoilt (another architecture's, say):
+    one log line saying so, and the generic build's values at every step."""
+    broken = tmp_path / "broken.fmu"
+    with zipfile.ZipFile(crane_fmus[0]) as src, zipfile.ZipFile(broken, "w") as dst:
+        for item in src.infolist():
+            spoilt = item.filename == f"resources/{SCENE_KERNEL_FILE}"
+            dst.writestr(item, b"not a library" if spoilt else src.read(item.filename))
+    force = ("cylinder.actuator", lambda k: 8420.0 * (1 + 0.05 * math.sin(0.02 * k)))
+    host = lockstep([broken, crane_fmus[1]], scene_host, 50, 1e-3, force)[0]
+    said = [m for _, _, m in host.messages if "kernel" in m]
+    assert len(said) == 1 and "built for its scene cannot be loaded here" in said[0], said
+
+
 @pytest.mark.parametrize("stem", ["crane_stop", "incline_stick"])
 def test_an_event_scenes_fmu_on_its_scene_kernel_steps_as_the_generic_one(stem, tmp_path,
                                                                          scene_host):
