@@ -321,6 +321,17 @@ def test_a_scene_kernel_that_does_not_compile_leaves_the_generic_one_and_says_so
                    "ships the generic C kernel only"], err
 
 
+def test_the_command_lines_generic_kernel_leaves_the_scene_kernel_out(tmp_path, monkeypatch):
+    monkeypatch.delenv(SCENE_KERNEL_ENV)          # the command line's default: with it
+    shipped = []
+    for extra in ([], ["--generic-kernel"]):
+        fmu = tmp_path / f"crane{len(extra)}.fmu"
+        assert cli.main(["build", str(CRANE), "-o", str(fmu), *extra]) == 0
+        with zipfile.ZipFile(fmu) as z:
+            shipped.append(f"resources/{SCENE_KERNEL_FILE}" in z.namelist())
+    assert shipped == [True, False]
+
+
 def test_the_scene_kernel_setting_is_checked(tmp_path, monkeypatch):
     monkeypatch.setenv(SCENE_KERNEL_ENV, "yes")
     with pytest.raises(BuildError, match=f"{SCENE_KERNEL_ENV}='yes'"):
