@@ -248,12 +248,40 @@ def test_c_kernel_runs_replay_bit_for_bit_from_a_saved_state():
 def test_minimum_norm_solves_are_the_numpy_kernels():
     """Redundant rows (the parallelogram) and singular crossings (P2 N = 2's cranks pass
     the horizontal near t = 0.79 s) take eq. 14's minimum-norm multipliers: the C kernel's
-    (Jacobi eigenvalues with lstsq's cut-off) are the numpy kernel's to round-off."""
+    (pivoted Cholesky with lstsq's cut-off) are the numpy kernel's to round-off."""
     for name, method, t_end in (("parallelogram", "rk4p", 0.05), ("n_four_bar_2", "rk4p", 1.0)):
         plain, fast = (mbdfmu.simulate(scene(name), t_end=t_end, method=method, kernel=k,
                                        output_interval=1e-2) for k in ("numpy", "c"))
         for a, b in ((plain.q, fast.q), (plain.qd, fast.qd), (plain.lam, fast.lam)):
             np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-9 * max(1.0, np.abs(a).max()))
+
+
+@pytest.mark.parametrize("kappa", [1.0, 1e3, 1e6])
+def test_the_dense_minimum_norm_solve_is_the_pseudo_inverse(kappa):
+    """The projections' solve where S is singular (pivoted_min_norm in solve.h, through
+    its test entry ``mbd_min_norm_solve``) against the pseudo-inverse built from S's own
+    eigenvectors: S = Q diag(ev) Q^T of rank r with its nonzero eigenvalues spread over
+    kappa, plus eigenvalues at 1e-14 of the largest, which the cut-off (1e-10) drops as
+    lstsq does; right-hand sides in S's range (a projection's) and not. The error stays
+    within the problem's conditioning: 100 kappa times eps, plus the dropped eigenvalues'
+    1e-14 where there are some (they perturb S by that much)."""
+    import ctypes
+    solve = ckernel.library().mbd_min_norm_solve
+    solve.argtypes = [ctypes.c_long] + [ctypes.c_void_p] * 3 + [ctypes.c_double]
+    rng = np.random.default_rng(7)
+    for _ in range(100):
+        m = int(rng.integers(2, 40))
+        r = int(rng.integers(1, m + 1))
+        tiny = int(rng.integers(0, m - r + 1))
+        Q, _ = np.linalg.qr(rng.standard_normal((m, m)))
+        ev = np.geomspace(1.0, 1.0 / kappa, r) * 10.0 ** rng.uniform(-3, 3)
+        S = (Q[:, :r + tiny] * np.r_[ev, np.full(tiny, 1e-14 * ev[0])]) @ Q[:, :r + tiny].T
+        for b in (rng.standard_normal(m), S @ rng.standard_normal(m)):
+            x = np.zeros(m)
+            assert solve(m, S.ctypes.data, b.ctypes.data, x.ctypes.data, 1e-10) == 1
+            exact = (Q[:, :r] / ev) @ (Q[:, :r].T @ b)
+            level = 2.2e-16 + (1e-14 if tiny else 0.0)
+            assert np.linalg.norm(x - exact) <= 100 * kappa * level * np.linalg.norm(exact)
 
 
 def test_singular_accelerations_are_solved_in_c_as_numpy_solves_them(monkeypatch):

@@ -586,6 +586,16 @@ int mbd_singularity_indicator(const Model *M, const double *q, const double *cva
     return ST_OK;
 }
 
+/* The dense minimum-norm solve (pivoted_min_norm) of S x = b on its own, S (m x m,
+ * 0 < m < BANDED_MIN_ROWS) copied: the tests hold it to LAPACK's pseudo-inverse on
+ * matrices of chosen rank and conditioning. 0 for a size out of range or a failed solve. */
+int mbd_min_norm_solve(I m, const double *S, const double *b, double *x, double rank_tol) {
+    if (m <= 0 || m >= 60) return 0;
+    double A[m * m], T[m * m];
+    memcpy(A, S, (size_t)(m * m) * sizeof(double));
+    return pivoted_min_norm(rank_tol, A, m, b, x, T);
+}
+
 #include "stepping.h"
 #include "outputs.h"
 #include "motions.h"
