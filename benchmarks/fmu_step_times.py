@@ -9,14 +9,16 @@ this shared machine does not count. ``--python`` builds the FMUs with another ch
 interpreter too (label=path), for a before/after in one run: each build's rows are
 measured alternately, ``--repeat`` rounds, and the round with the lowest mean kept.
 
-    python benchmarks/fmu_step_times.py [--set targets|events|drivers|stiff] [--method rk4p]
+    python benchmarks/fmu_step_times.py [--set targets|events|drivers|stiff|shipped]
+        [--method rk4p]
         [--t-end 10] [--repeat 3] [--python base=/path/python]
 
 ``--set events`` times the shipped scenes with end stops and friction instead (and
 crane_stop with its cylinder's force set before every doStep); ``--set drivers`` the
 prescribed-motion slider-crank with its crank angle set before every doStep; ``--set
 stiff`` a 1e10 N/m spring under auto (genalpha's controlled steps), alone, with a push set
-before every doStep, and hung from a pinned body; ``--method``
+before every doStep, and hung from a pinned body; ``--set shipped`` every other shipped
+scene (those without end stops or friction) with its inputs held; ``--method``
 sets every FMU's ``solver.method`` (its scene's by default). Writes ``fmu_step_times.md``
 (``fmu_step_times_events.md``; with ``--method M``, ``..._M.md``), ``.csv`` and ``.png``
 into ``-o`` (default docs/figures/performance).
@@ -102,9 +104,14 @@ STIFF_CASES = {
     "stiff spring on a pinned hook, push set": (None, variants.hooked(STIFF_SCENE.read_text()),
                                                 "push.fy",
                                                 lambda t: -2.0 + math.sin(2.0 * math.pi * t))}
+# --set shipped: every other shipped scene (none with end stops or friction), inputs held
+SHIPPED_CASES = {path.stem: (path, "", None, None)
+                 for path in sorted((ROOT / "scenes").glob("*.toml"))
+                 if path.stem not in EVENT_CASES}
 SETS = {"targets": (CASES, "fmu_step_times"), "events": (EVENT_CASES, "fmu_step_times_events"),
         "drivers": (DRIVER_CASES, "fmu_step_times_drivers"),
-        "stiff": (STIFF_CASES, "fmu_step_times_stiff")}
+        "stiff": (STIFF_CASES, "fmu_step_times_stiff"),
+        "shipped": (SHIPPED_CASES, "fmu_step_times_shipped")}
 
 
 def build(python: str, scene: Path, target: Path) -> Path:
@@ -194,7 +201,7 @@ def main(argv=None) -> int:
                         help="targets: issue 13's three mechanisms; events: the scenes with "
                              "end stops and friction (writes fmu_step_times_events.*); "
                              "drivers: a crank angle set by the master; stiff: a 1e10 N/m "
-                             "spring under auto")
+                             "spring under auto; shipped: every other shipped scene")
     parser.add_argument("--method", default=None,
                         help="every FMU's solver.method (default: its scene's)")
     parser.add_argument("--python", action="append", default=[], metavar="LABEL=PATH",
