@@ -318,9 +318,10 @@ def p2_state(system, theta: float, rate: float):
 @pytest.mark.parametrize("theta", [0.0, 1e-9, 1e-7, 1e-5])
 def test_c_null_space_solve_at_p2s_crossing_is_lapacks_svd(theta):
     """P2 N = 2 at and next to its singular crossing (the cranks horizontal, Psi_q losing
-    rank 2), where S's Cholesky is refused: C's one-sided Jacobi SVD gives singular.py's
-    (LAPACK) q'' and lam within the problem's conditioning, eps / theta (exactly singular:
-    to round-off), and q'' meets the acceleration constraints Psi_q q'' = gamma."""
+    rank 2), where S's Cholesky is refused: C's complete orthogonal decomposition (pivoted
+    QR, then RZ) gives singular.py's (LAPACK's SVD) q'' and lam within the problem's
+    conditioning, eps / theta (exactly singular: to round-off), and q'' meets the
+    acceleration constraints Psi_q q'' = gamma."""
     system = Equations(n_four_bar(2), kernel="c")
     q, qd = p2_state(system, theta, -2.0)
     _, J, _, gamma = system.constraints(0.0, q, qd)
