@@ -21,6 +21,7 @@ no second list of names.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import warnings
@@ -30,11 +31,12 @@ from .. import __file__ as core_init
 from .. import __version__
 from ..equations import Equations
 from ..equations.ckernel.build import KernelBuildError, compile_kernel
-from ..equations.ckernel.scene_kernel import compile_scene_kernel
+from ..equations.ckernel.scene_kernel import compile_scene_kernel, scene_header
 from ..equations.projection import assemble
 from ..errors import MbdfmuError, SceneError
 from ..integrators import METHOD_NAMES
 from ..integrators.settings import settings_from_scene
+from ..model.limits import every_mode
 from ..model.reader import resolve_scene_path, scene_from_dict
 from ..model.scene import Body, SpringDamper
 from ..model.toml_table import load_toml, tomllib
@@ -44,7 +46,7 @@ from ..simulation import Simulation
 from . import osp
 from .common import BuildError, digest, fill_template, write_checked
 from .model_description import Capabilities, DefaultExperiment, ModelInfo
-from .runtime.kernels import SCENE_KERNEL_FILE
+from .runtime.kernels import MODE_KERNEL_FILE, SCENE_KERNEL_FILE
 from .runtime.variables import Variable
 
 HERE = Path(__file__).resolve().parent
@@ -65,6 +67,12 @@ KERNEL_FILE = "mbdfmu_kernel.so"
 # Whether a build ships the kernel built for its scene too (SCENE_KERNEL_FILE) when the
 # caller does not say: "1" (the default) or "0" (a build some seconds shorter).
 SCENE_KERNEL_ENV = "MBDFMU_SCENE_KERNEL"
+# Kernels a build compiles for a scene with end stops or friction: its contact modes of
+# distinct structures, fewest joints changed from the start first, this many at most
+# (each is seconds of gcc at a build; a mode beyond them runs the generic kernel).
+MAX_SCENE_KERNELS = 4
+# Contact modes looked at for them (every combination of the event joints' states).
+MAX_MODES_LOOKED_AT = 729
 
 
 def select_outputs(scene) -> list:
@@ -232,31 +240,54 @@ def wants_scene_kernel(scene_kernel: bool | None) -> bool:
 
 def shipped_kernel(scene, scene_kernel: bool) -> dict[str, bytes]:
     """The compiled C kernel as a resource (compiled once per content into the cache), with
-    the kernel built for ``scene`` (ckernel/scene_kernel.py) when ``scene_kernel`` and the
-    scene is not too large for it: for the equations it starts on (with end stops or
-    friction, those of its first contact mode); nothing when no kernel can be compiled
-    here: the FMU then runs the numpy kernel and logs so."""
+    the kernels built for ``scene`` (ckernel/scene_kernel.py) when ``scene_kernel`` and the
+    scene is not too large for them: for the equations it starts on (SCENE_KERNEL_FILE)
+    and, with end stops or friction, for its other contact modes (``kernel_equations``;
+    MODE_KERNEL_FILE); nothing when no kernel can be compiled here: the FMU then runs the
+    numpy kernel and logs so."""
     try:
         files = {KERNEL_FILE: compile_kernel().read_bytes()}
     except KernelBuildError:
         return {}
     try:
-        path = compile_scene_kernel(starting_equations(scene)) if scene_kernel else None
+        paths = [compile_scene_kernel(eq) for eq in kernel_equations(scene)] \
+            if scene_kernel else []
     except KernelBuildError as exc:     # the generic kernel runs, as fast as before
         warnings.warn(f"{scene.name}: the C kernel built for the scene was not compiled "
                       f"({exc}): the FMU ships the generic C kernel only", stacklevel=3)
-        path = None
-    return files if path is None else {**files, SCENE_KERNEL_FILE: path.read_bytes()}
+        paths = []
+    names = [SCENE_KERNEL_FILE] + [MODE_KERNEL_FILE.format(k) for k in range(1, len(paths))]
+    return {**files, **{name: path.read_bytes() for name, path in zip(names, paths)
+                        if path is not None}}
 
 
-def starting_equations(scene) -> Equations:
-    """The equations a simulation of ``scene`` starts on: with end stops or friction, its
-    first contact mode's; the scene's own where its settings do not start (a method the
-    master must change first: the FMU is built all the same)."""
+def kernel_equations(scene) -> list[Equations]:
+    """The equations the FMU's scene kernels are built for: those a simulation of
+    ``scene`` starts on (with end stops or friction, its first contact mode's; the scene's
+    own where its settings do not start: a method the master must change first), then
+    those of its other contact modes, one per structure (a stop held low or high is one),
+    fewest joints changed from the start first, MAX_SCENE_KERNELS in all at most; a
+    structure too large for a scene kernel (``scene_header`` None) is left out."""
     try:
-        return Simulation(scene, kernel="numpy").stepped_equations
+        sim = Simulation(scene, kernel="numpy")
     except MbdfmuError:
-        return Equations(scene, kernel="numpy")
+        return [Equations(scene, kernel="numpy")]
+    first = sim.stepped_equations
+    if sim.events is None:
+        return [first]
+    start = {k: m.state for k, m in sim.events.mode.items()}
+    modes = sorted(itertools.islice(every_mode(scene), MAX_MODES_LOOKED_AT),
+                   key=lambda mode: sum(m.state != start[k] for k, m in mode.items()))
+    found, seen = [first], {scene_header(first)}
+    for mode in modes:
+        if len(found) == MAX_SCENE_KERNELS:
+            break
+        eq = sim.events.mode_equations(mode)
+        header = scene_header(eq)
+        if header is not None and header not in seen:
+            seen.add(header)
+            found.append(eq)
+    return found
 
 
 def _load(scene_path, values: dict[str, float] | None):

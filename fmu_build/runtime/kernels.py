@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import os
 
-# The kernel built for the FMU's scene (ckernel/scene_kernel.py), beside the generic one.
+# The kernel built for the FMU's scene (ckernel/scene_kernel.py), beside the generic one:
+# for the equations it starts on, and for its other contact modes' (1, 2, ...).
 SCENE_KERNEL_FILE = "mbdfmu_scene_kernel.so"
+MODE_KERNEL_FILE = "mbdfmu_scene_kernel_mode{}.so"
 
 
 def load_kernel(resources, kernel_file: str, ckernel, log) -> tuple[str, bool]:
@@ -36,6 +38,12 @@ def load_kernel(resources, kernel_file: str, ckernel, log) -> tuple[str, bool]:
         log(f"the FMU's kernel built for its scene cannot be loaded here ({exc}): the "
             "generic C kernel runs")
         return "c", False
+    for path in sorted(resources.glob(MODE_KERNEL_FILE.format("*"))):
+        try:
+            ckernel.use_scene_library(path)
+        except (OSError, AttributeError) as exc:
+            log(f"the FMU's kernel built for one of its contact modes ({path.name}) cannot "
+                f"be loaded here ({exc}): that mode runs the generic C kernel")
     return "c", True
 
 

@@ -4,6 +4,7 @@ the harness's ``Host`` (fmpy's FMU2Slave, logging on), and compared with mbdfmu 
 from __future__ import annotations
 
 import ctypes
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -71,3 +72,48 @@ def max_error(got: dict[str, np.ndarray], expected, names) -> float:
     """Largest difference, each variable relative to its magnitude (at least 1)."""
     return max(float(np.max(np.abs(np.asarray(got[n]) - expected[n]))
                      / max(1.0, float(np.max(np.abs(expected[n]))))) for n in names)
+
+
+def offered_kernels() -> list | None:
+    """The scene kernels offered in the FMUs' core (``ckernel._scene_libraries``). Two FMUs
+    built from one checkout import one copy of mbdfmu (``_mbdfmu_<hash>``), so a kernel
+    one FMU offers, the other's Kernels would take too. None before an FMU is loaded."""
+    found = [m._scene_libraries for name, m in sys.modules.items()
+             if name.startswith("_mbdfmu_") and name.endswith(".equations.ckernel")]
+    assert len(found) <= 1, "one core copy expected"
+    return found[0] if found else None
+
+
+def generic(call):
+    """``call()`` with no scene kernel offered: the Kernels it makes take the generic
+    library (those of the contact modes a step reaches too)."""
+    offered = offered_kernels()
+    saved = list(offered or ())
+    if offered is not None:
+        offered.clear()
+    try:
+        return call()
+    finally:
+        after = offered_kernels()
+        if after is not None:
+            after[:] = saved
+
+
+def lockstep(fmus, scene_host, steps, h, force=None):
+    """The FMUs (one with its scene kernels, then one without) stepped side by side at
+    ``h`` (``force``: the input set before every step, (name, value of step k)); their
+    outputs equal at every step, to the bit. The second is made and stepped with no scene
+    kernel offered (``generic``), so that it runs the generic library throughout."""
+    hosts_ = [scene_host(fmus[0], fmus[0].stem).init(),
+              generic(lambda: scene_host(fmus[1], fmus[1].stem).init())]
+    for k in range(steps):
+        values = []
+        for i, h_ in enumerate(hosts_):
+            def step(h_=h_):
+                if force is not None:
+                    assert h_.set_real([h_.vr[force[0]]], [force[1](k)]) == OK
+                assert h_.step(h) == OK, h_.messages[-3:]
+                return h_.real(*h_.outputs)
+            values.append(generic(step) if i else step())
+        assert values[0] == values[1], k
+    return hosts_

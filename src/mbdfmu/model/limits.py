@@ -10,7 +10,8 @@ generalized force of the stop or of static friction (formulation.md eq. 29).
 from __future__ import annotations
 
 import dataclasses
-from typing import NamedTuple
+import itertools
+from typing import Iterator, NamedTuple
 
 from .motion import ConstantMotion
 from .scene import Driver, LimitedJoint, Scene
@@ -31,6 +32,25 @@ def event_joints(scene: Scene) -> list[int]:
     """Indices of the joints with end stops or friction, in scene order."""
     return [k for k, j in enumerate(scene.joints)
             if isinstance(j, LimitedJoint) and (j.limits is not None or j.friction is not None)]
+
+
+def joint_states(joint: LimitedJoint) -> tuple[str, ...]:
+    """The states an event joint can be in: free, or with friction sticking or sliding
+    either way; with limits, resting on either stop too."""
+    moving = (FREE,) if joint.friction is None else (STICK, SLIDE_UP, SLIDE_DOWN)
+    return moving + ((LOWER, UPPER) if joint.limits is not None else ())
+
+
+def every_mode(scene: Scene) -> Iterator[dict[int, JointMode]]:
+    """Every combination of the event joints' states, each a contact mode (a resting
+    joint held at its stop, a sticking one at 0: where it sticks changes no structure)."""
+    joints = event_joints(scene)
+    for states in itertools.product(*(joint_states(scene.joints[k]) for k in joints)):
+        yield {k: JointMode(s, _held_at(scene.joints[k], s)) for k, s in zip(joints, states)}
+
+
+def _held_at(joint: LimitedJoint, state: str) -> float:
+    return joint.limits[0] if state == LOWER else joint.limits[1] if state == UPPER else 0.0
 
 
 def hold_driver_name(joint_name: str) -> str:
