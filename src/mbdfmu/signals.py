@@ -22,6 +22,8 @@ reported only above the round-off that differencing the samples leaves in it
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .errors import InputError
@@ -55,6 +57,10 @@ class Held(Plain):
 
     def __call__(self, t):
         return self.value
+
+    def at_times(self, times: np.ndarray) -> np.ndarray:
+        """The value at each of ``times``: (len(times), components)."""
+        return np.broadcast_to(self.value, (len(times), self.value.size))
 
 
 class LinearTable(Plain):
@@ -219,6 +225,25 @@ class TaylorInput(Plain):
         tau, term, total = t - self.t0, 1.0, np.zeros(self.coefficients.shape[1])
         for k, c in enumerate(self.coefficients):
             total = total + c * term
+            term = term * tau / (k + 1)
+        return total
+
+    def rebased(self, t: float) -> "TaylorInput":
+        """The same polynomials from t: each component's value and derivatives at t."""
+        tau, orders = t - self.t0, len(self.coefficients)
+        at_t = TaylorInput(t, np.zeros(self.coefficients.shape[1]))
+        at_t.coefficients = np.array([sum(self.coefficients[j] * tau ** (j - k)
+                                          / math.factorial(j - k) for j in range(k, orders))
+                                      for k in range(orders)])
+        return at_t
+
+    def at_times(self, times: np.ndarray) -> np.ndarray:
+        """``self(t)`` at each of ``times`` at once, (len(times), components): the same
+        operations on each element, so the same doubles."""
+        tau, term = times - self.t0, np.ones(len(times))
+        total = np.zeros((len(times), self.coefficients.shape[1]))
+        for k, c in enumerate(self.coefficients):
+            total = total + c[None, :] * term[:, None]
             term = term * tau / (k + 1)
         return total
 

@@ -31,7 +31,7 @@ from .model.variables import inputs, outputs
 from .plain import decode, encode
 from .result import Result
 from .signals import Held, SampledDriver, apply_input_table, large_error_warnings
-from .simulation_inputs import SimulationInputs
+from .simulation_inputs import InputsAt, SimulationInputs
 
 # After an input jump the state is re-projected to this many times the assembly tolerance.
 REINITIALIZE_TOL_FACTOR = 100
@@ -78,7 +78,7 @@ class Simulation(SimulationInputs):
             q0, qd0 = self.events.q, self.events.qd
         self.integrator = make_integrator(      # auto watches runs without events
             None, self.events.equations if self.events else self.equations, t0, q0, qd0,
-            self.settings, inputs=self.inputs_at, watch=self.events is None,
+            self.settings, inputs=InputsAt(self), watch=self.events is None,
             output_interval=self.settings.output_interval_for(scene.simulation.t_end))
         if self.equations.has_events:       # check_method's condition, known already
             check_method(self.integrator, scene)

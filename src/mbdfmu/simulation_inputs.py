@@ -20,6 +20,22 @@ from .model.variables import InputValues
 from .signals import Held, SampledDriver, TaylorInput, known_ahead
 
 
+class InputsAt:
+    """A simulation's ``inputs_at``, as its integrator calls it (``inputs(t)``), with
+    ``forces_at(times)`` beside it (``SimulationInputs.forces_at``)."""
+
+    __slots__ = ("sim",)
+
+    def __init__(self, sim: "SimulationInputs"):
+        self.sim = sim
+
+    def __call__(self, t: float) -> InputValues:
+        return self.sim.inputs_at(t)
+
+    def forces_at(self, times) -> np.ndarray | None:
+        return self.sim.forces_at(times)
+
+
 class SimulationInputs:
     """Setting and reading a simulation's inputs (see the module docstring)."""
 
@@ -38,6 +54,18 @@ class SimulationInputs:
         if not self._drivers and all(type(f) is Held for f in self._forces.values()):
             self._held = values
         return values
+
+    def forces_at(self, times) -> np.ndarray | None:
+        """The force inputs at each of ``times`` in one evaluation, (len(times), nf): the
+        doubles of ``inputs_at(t).forces`` at each (a step's stage times, for the C
+        kernel). None where a driver takes its motion from the inputs or a force input is
+        neither held nor a Taylor polynomial: ``inputs_at`` at each time then."""
+        signals = [self._forces[n] for n in self.equations.layout.forces]
+        if self._drivers or not all(type(f) in (Held, TaylorInput) for f in signals):
+            return None
+        times = np.asarray(times, dtype=float)
+        return np.hstack([f.at_times(times) for f in signals]) if signals else \
+            np.zeros((len(times), 0))
 
     def _split(self, name: str) -> tuple[str, str]:
         if name not in self.input_names:
@@ -60,12 +88,26 @@ class SimulationInputs:
             driver.set(self.t, **{field: value})
             self._motion_changed = True
         else:
-            fields = self.equations.layout.fields[item]
-            values = np.array(self._forces[item](self.t), dtype=float)
-            values[fields.index(field)] = value
-            self._forces[item] = Held(values)
+            self._forces[item] = self._force_set(item, field, value)
         self._inputs_changed = True
         self._cache = self._held = None
+
+    def _force_set(self, item: str, field: str, value: float):
+        """The signal of force ``item`` once ``field`` is set to ``value`` now: held, but for
+        the components that follow their Taylor polynomial (derivatives set and not yet
+        replaced: a master may set a component's value and derivatives, then the next's)."""
+        index = self.equations.layout.fields[item].index(field)
+        signal = self._forces[item]
+        if isinstance(signal, TaylorInput):
+            signal = signal.rebased(self.t)
+            signal.coefficients[:, index] = 0.0
+            signal.coefficients[0, index] = value
+            if signal.coefficients[1:].any():
+                return signal
+            return Held(signal.coefficients[0])
+        values = np.array(signal(self.t), dtype=float)
+        values[index] = value
+        return Held(values)
 
     def set_input_derivative(self, name: str, order: int, value: float) -> None:
         """The ``order``-th time derivative (1 or more) of an input at the current time: the
@@ -92,7 +134,9 @@ class SimulationInputs:
         else:
             signal = self._forces[item]
             if not (isinstance(signal, TaylorInput) and signal.t0 == self.t):
-                signal = self._forces[item] = TaylorInput(self.t, signal(self.t))
+                # the components not set again follow their polynomials on
+                signal = self._forces[item] = signal.rebased(self.t) if isinstance(
+                    signal, TaylorInput) else TaylorInput(self.t, signal(self.t))
             signal.set_derivative(self.equations.layout.fields[item].index(field), order, value)
         self._inputs_changed = True
         self._cache = self._held = None

@@ -50,8 +50,12 @@ def stage_inputs(integrator, times, kernel=None) -> None:
             # the same object at both ends is the held inputs' cache (Simulation.inputs_at
             # returns it at every t or at none): one value for the whole step
             first, last = integrator.inputs(times[0]), integrator.inputs(times[-1])
+            many = getattr(integrator.inputs, "forces_at", lambda times: None)
+            block = None if first is last else many(times)     # Taylor inputs: at once
             if first is last:
                 forces[:k] = first.forces
+            elif block is not None:
+                forces[:k] = block
             else:
                 forces[:k] = [integrator.inputs(t).forces for t in times]
         return
