@@ -111,3 +111,30 @@ def test_the_wrappers_restart_after_a_force_set_is_pythons_whole_evaluation():
     assert vars(a.stats) == vars(b.stats)
     numpy_indicator = singular.singularity_indicator(b.constraints(b.t, b.q, sparse=True)[1])
     assert a.zone.indicator == pytest.approx(numpy_indicator, rel=1e-12)
+
+
+def test_held_force_inputs_take_runs_of_c_steps_with_the_python_loops_values(monkeypatch):
+    """The crane's cylinder force held at PUSH, dop853p over 2 s in Python's advance: the
+    steps run as one C call (c_steps.prk_run, its force inputs held over the run) and give
+    the doubles, counters and outputs of the Python loop of C trials, step for step; a
+    force set between advances restarts as before."""
+    from mbdfmu.integrators import c_steps
+    runs = []
+    real = c_steps.prk_run
+    monkeypatch.setattr(c_steps, "prk_run", lambda *a, **k: runs.append(1) or real(*a, **k))
+
+    def drive(in_runs: bool):
+        monkeypatch.setattr(c_steps, "PRK_RUNS", in_runs)
+        sim = mbdfmu.Simulation(CRANE, method="dop853p", kernel="c")
+        rows = []
+        for k in range(1, 21):
+            sim.set_input("cylinder.actuator", force(k))
+            sim.advance(0.1 * k)
+            rows.append(sim.output_vector())
+        return np.array(rows), vars(sim.integrator.stats)
+    fast, fast_stats = drive(True)
+    assert runs
+    runs.clear()
+    plain, plain_stats = drive(False)
+    assert not runs and fast_stats == plain_stats
+    assert np.array_equal(fast, plain)

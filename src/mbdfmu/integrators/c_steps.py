@@ -311,13 +311,23 @@ PRK_RUN_LENGTH_FREE = 4096
 PRK_RUNS = True
 
 
+def held_forces(rk) -> np.ndarray | None:
+    """The force inputs when they hold over rk's coming steps (the same held values at any
+    time: ``Simulation.inputs_at``'s cache), else None."""
+    first = rk.inputs(rk.t)
+    return first.forces if first is rk.inputs(rk.t + 1.0) else None
+
+
 def prk_runs(rk) -> bool:
     """Whether ``prk_run`` can take rk's coming steps (the caller checks that rk steps as
-    ``ProjectedRK`` does): an embedded pair on a scene without inputs whose drivers' motions
-    the kernel evaluates (``motion_table``), no watch after each step (events, auto's)."""
+    ``ProjectedRK`` does): an embedded pair on a scene whose force inputs, if any, hold
+    (``held_forces``), no driver taking its motion from the inputs, its drivers' motions
+    ones the kernel evaluates (``motion_table``), no watch after each step (events,
+    auto's)."""
     eq = rk.equations
     return (PRK_RUNS and rk.name in ("rk45p", "dop853p") and eq.ckernel is not None and
-            eq.m > 0 and rk.watch is None and eq.ckernel.nf == 0 and not eq.layout.drivers
+            eq.m > 0 and rk.watch is None and not eq.layout.drivers
+            and (eq.ckernel.nf == 0 or held_forces(rk) is not None)
             and (not eq.scene.drivers or eq.ckernel.motion_table(eq.constraint_set) is not None))
 
 
@@ -362,8 +372,9 @@ def prk_run(rk, t_target: float, dense: bool, rejections: int, factors: tuple,
     gaps = singular_zone.gaps(rk.C[:rk.n_stages])
     motions = (eq.ckernel.motion_table(eq.constraint_set), eq.constraint_set.offsets,
                table[-1]) if eq.scene.drivers else None
+    forces = held_forces(rk) if eq.ckernel.nf else None
     status, p, b = ckernel_prk_run(eq.ckernel, table[:-1], gaps, settings, np.concatenate(
-        (rk.q, rk.qd)), rk.f, motion, audit, motions)
+        (rk.q, rk.qd)), rk.f, motion, audit, motions, forces)
     r = p.r
     for name in ("nsteps", "nrejected", "naccel", "nprojections"):
         setattr(rk.stats, name, getattr(rk.stats, name) + int(getattr(r, name)))

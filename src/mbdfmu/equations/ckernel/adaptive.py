@@ -188,14 +188,16 @@ def point_run(p: PrkPy, b: PrkRunBuffers, tableau, gaps) -> None:
     p.ngaps, p.gap_mid, p.gap_width = b.gaps[0].size, *(a.ctypes.data for a in b.gaps)
 
 
-def prk_run(kernel, tableau, gaps, settings: dict, y, f, motion, audit, motions=None):
+def prk_run(kernel, tableau, gaps, settings: dict, y, f, motion, audit, motions=None,
+            forces=None):
     """Steps of an embedded pair in one call of ``mbd_prk_run`` (adaptive.h) from (y, f) at
     ``settings["t"]``: PrkPy's scalar fields (and PrkRun's, ``settings["run"]``), the
     middles and widths of the gaps between the tableau's nodes (``singular_zone.gaps``), the
     stage inputs ``motion`` ((c, c', c'')), constant unless ``motions`` (the drivers'
     motion table, ``fixed.motion_table``; the constraints' offsets; the stages' time
     fractions with 1 appended) evaluates them at every stage's time, the energy audit's
-    state (13 values, updated in place) or None. Returns (status, the PrkPy, its buffers):
+    state (13 values, updated in place) or None, and the force inputs, held over the run
+    (``forces``, nf values; None without). Returns (status, the PrkPy, its buffers):
     the state in buffers.y / .f, the last accepted step in .y_old, .y_end, .K_old."""
     key = tableau[0]
     cache = kernel.__dict__.setdefault("_prk_run", {})
@@ -208,6 +210,7 @@ def prk_run(kernel, tableau, gaps, settings: dict, y, f, motion, audit, motions=
         cache[key] = (p, b, function)
     p, b, function = cache[key]
     b.y[:], b.f[:], b.motions[:] = y, f, motion
+    b.ufs[:] = 0.0 if forces is None else forces       # every stage's row: held
     for name, value in settings.pop("run").items():
         setattr(p.r, name, value)
     for name, value in settings.items():
