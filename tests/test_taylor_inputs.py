@@ -103,19 +103,10 @@ def test_an_fmu_stepped_by_a_master_that_sets_input_by_input(tmp_path):
     derivatives, input by input (fmi2SetReal fx, fmi2SetRealInputDerivatives fx, then
     fmi2SetReal fy): one 0.1 s step lands x on fx's closed form, as when every value is set
     before every derivative."""
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
-
     from mbdfmu.fmu_build.scene_fmu import build_fmu
-    path = build_fmu("slider_force", tmp_path / "S.fmu")
-    md = read_model_description(str(path))
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)), instanceName="s",
-                    modelIdentifier=md.coSimulation.modelIdentifier)
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    fmu.exitInitializationMode()
+    from test_cosim_coupling import _slave
+
+    fmu, vr, _ = _slave(build_fmu("slider_force", tmp_path / "S.fmu"))
     fmu.setReal([vr["push.fx"]], [1.0])
     fmu.setRealInputDerivatives([vr["push.fx"]] * 2, [1, 2], [20.0, 200.0])
     fmu.setReal([vr["push.fy"]], [5.0])
