@@ -53,19 +53,7 @@ HOLD, SWING = 8420.0, 0.05     # the crane's cylinder force (N) as fmu_speed.py 
 # crane_stop with an actuator force between its cylinder's barrel and rod (a hydraulic
 # cylinder with end stops), swinging about the 2309 N that hold the boom on its lower stop:
 # it leaves the stop, rests on the upper one, falls back onto the lower one, bounces, rests
-CYLINDER = """
-[[force]]
-name = "cylinder"
-type = "spring_damper"
-body_i = "barrel"
-point_i = [0.0, 0.0]
-body_j = "rod"
-point_j = [0.0, 0.0]
-stiffness = 0.0
-damping = 0.0
-rest_length = 0.0
-actuator_input = true
-"""
+CYLINDER = variants.CYLINDER
 
 
 def crane_force(t: float) -> float:

@@ -1,6 +1,7 @@
 """Variants of the shipped scenes that tests and benchmarks share, as TOML text, so that
 each is written once: the stiff spring (stiff_spring.toml) pushed across by a force the
-master sets, and hung from a second body pinned off its centre."""
+master sets, and hung from a second body pinned off its centre; crane_stop with an
+actuator force in its cylinder."""
 
 from __future__ import annotations
 
@@ -43,3 +44,20 @@ def hooked(text: str) -> str:
     if GROUND_END not in text:
         raise ValueError("the stiff spring's text has no spring end at the ground's origin")
     return text.replace(GROUND_END, 'body_i = "hook"\npoint_i = [0.1, 0.0]') + HOOK + PUSH
+
+
+# crane_stop.toml with an actuator force between its cylinder's barrel and rod, along the
+# stroke (N, positive pushing them apart, as a hydraulic cylinder's): "cylinder.actuator"
+CYLINDER = """
+[[force]]
+name = "cylinder"
+type = "spring_damper"
+body_i = "barrel"
+point_i = [0.0, 0.0]
+body_j = "rod"
+point_j = [0.0, 0.0]
+stiffness = 0.0
+damping = 0.0
+rest_length = 0.0
+actuator_input = true
+"""

@@ -15,6 +15,8 @@ import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
+from mbdfmu.scenes import variants
+
 G = 9.81
 POSITION_TOL, FORCE_RTOL = 1e-8, 1e-6
 SQ3 = math.sqrt(3.0)
@@ -193,19 +195,7 @@ def crane_stop(t, res):
 # force and the actuator's add up to the one that holds the boom, so the stop's force is
 # CRANE_HOLD - u, and the boom leaves the stop at the first input above CRANE_HOLD
 CRANE_HOLD = CRANE_GRAVITY_LOAD * math.cos(CRANE[2]) / crane_length_rate(CRANE[2])
-CRANE_ACTUATOR = '''
-[[force]]
-name = "cylinder"
-type = "spring_damper"
-body_i = "barrel"
-point_i = [0.0, 0.0]
-body_j = "rod"
-point_j = [0.0, 0.0]
-stiffness = 0.0
-damping = 0.0
-rest_length = 0.0
-actuator_input = true
-'''
+CRANE_ACTUATOR = variants.CYLINDER
 
 
 def crane_actuator(k: int, h: float = 1e-3) -> float:

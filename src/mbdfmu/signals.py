@@ -222,6 +222,7 @@ class TaylorInput(Plain):
         self.coefficients[order, index] = float(value)
 
     def __call__(self, t):
+        # at_times' operations on scalars: at one time, half its cost
         tau, term, total = t - self.t0, 1.0, np.zeros(self.coefficients.shape[1])
         for k, c in enumerate(self.coefficients):
             total = total + c * term

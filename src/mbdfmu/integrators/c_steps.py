@@ -50,14 +50,12 @@ def stage_inputs(integrator, times, kernel=None) -> None:
             # the same object at both ends is the held inputs' cache (Simulation.inputs_at
             # returns it at every t or at none): one value for the whole step
             first, last = integrator.inputs(times[0]), integrator.inputs(times[-1])
-            many = getattr(integrator.inputs, "forces_at", lambda times: None)
-            block = None if first is last else many(times)     # Taylor inputs: at once
             if first is last:
                 forces[:k] = first.forces
-            elif block is not None:
-                forces[:k] = block
-            else:
-                forces[:k] = [integrator.inputs(t).forces for t in times]
+            else:       # Taylor polynomials at every time at once where the inputs can
+                at = getattr(integrator.inputs, "forces_at", lambda times: None)(times)
+                forces[:k] = at if at is not None else [integrator.inputs(t).forces
+                                                        for t in times]
         return
     inputs = [integrator.inputs(t) for t in times] if eq.layout.drivers or kernel.nf else None
     motions[:k] = eq.constraint_set.motion_block(times, inputs).reshape(k, -1)
