@@ -65,7 +65,10 @@ point_j = [-0.5, 0.0]
 # a spring with an actuator input (S dense-sized), a slider's line rows and a driver, a
 # chain long enough for S in band storage (60 rows and more), and the ring's fill-in
 SCENES = {"crane": CRANE, "slider_crank": ROOT / "scenes" / "slider_crank.toml",
-          "n_four_bar_10": scene_text(10), "ring": RING}
+          "n_four_bar_10": scene_text(10), "ring": RING,
+          # Jacobian terms summed into one entry (the merge's sums, not a copy)
+          "gear_pair": ROOT / "scenes" / "gear_pair.toml",
+          "rolling_disc": ROOT / "scenes" / "rolling_disc.toml"}
 
 
 def load(name):

@@ -178,23 +178,41 @@ static void terms(const Model *M, const double *qe, const double *qde, const dou
 
 /* data (size): the terms merged (repeated entries summed, sparsity.JacobianPattern.merged);
  * values (nkeep): data's entries in moving bodies' columns. */
+/* For one scene these three are the header's straight-line code (scene_kernel.py): the same
+ * sums in the same order, each result summed in a register, not stored and read back per
+ * term through the index tables. */
 static void merged(const Model *M, const double *raw, double *data, double *values) {
+#ifdef MBD_SCENE
+    (void)M;
+    sc_merged(raw, data, values);
+#else
     if (S_(M, size) == S_(M, nraw)) memcpy(data, raw, (size_t)S_(M, nraw) * sizeof(double));
     else {
         memset(data, 0, (size_t)S_(M, size) * sizeof(double));
         for (I k = 0; k < S_(M, nraw); k++) data[S_(M, merge)[k]] += raw[k];
     }
     for (I k = 0; k < S_(M, nkeep); k++) values[k] = data[S_(M, keep)[k]];
+#endif
 }
 
 static void jac_mul(const Model *M, const double *values, const double *x, double *out) {
+#ifdef MBD_SCENE
+    (void)M;
+    sc_jac_mul(values, x, out);
+#else
     memset(out, 0, (size_t)S_(M, m) * sizeof(double));
     for (I k = 0; k < S_(M, nkeep); k++) out[S_(M, rows)[k]] += values[k] * x[S_(M, cols)[k]];
+#endif
 }
 
 static void jac_t_mul(const Model *M, const double *values, const double *y, double *out) {
+#ifdef MBD_SCENE
+    (void)M;
+    sc_jac_t_mul(values, y, out);
+#else
     memset(out, 0, (size_t)S_(M, n) * sizeof(double));
     for (I k = 0; k < S_(M, nkeep); k++) out[S_(M, cols)[k]] += values[k] * y[S_(M, rows)[k]];
+#endif
 }
 
 static int all_finite_values(const double *x, I k) {

@@ -1,13 +1,15 @@
 """The C kernel built for one scene: its structure (the ``Model``'s counts and index
-tables) as compile-time constants, and the band factor of S = Psi_q M^-1 Psi_q^T as
-straight-line code for its sparsity pattern (docs/performance.md, "The kernel built for
+tables) as compile-time constants, and as straight-line code for its sparsity pattern the
+band factor of S = Psi_q M^-1 Psi_q^T, the products with Psi_q and Psi_q^T and the
+merge of the Jacobian's terms into its entries (docs/performance.md, "The kernel built for
 one scene").
 
 The same ``kernel.c`` compiled with ``-DMBD_SCENE``: every loop over the scene's bodies,
 rows and Jacobian entries has a constant trip count and constant indices, which the
 compiler unrolls and folds. The factor and its substitutions do the generic loops'
 operations in their order, less those on entries the pattern keeps at zero (x - u 0 = x),
-so a specialised kernel returns the generic kernel's doubles, bit for bit
+and each product or merged entry sums its terms in the loop's order from +0, so a
+specialised kernel returns the generic kernel's doubles, bit for bit
 (tests/test_ckernel_scene.py). Masses, geometry and forces stay the Model's values: a
 scene's parameters remain settable.
 
@@ -114,6 +116,41 @@ def _band_code(m: int, kd: int, band_index, pair_a, pair_b) -> list[str] | None:
             "    double z;", *substitute, "}"]
 
 
+def _product_code(n: int, m: int, rows, cols) -> list[str]:
+    """sc_jac_mul and sc_jac_t_mul (kernel.c's jac_mul, jac_t_mul): Psi_q x and Psi_q^T y
+    on this pattern as one sum per result, its terms in the loop's order from +0 (the same
+    doubles), each result kept in a register instead of stored and read back per entry."""
+    by_row: dict[int, list[str]] = {}
+    by_col: dict[int, list[str]] = {}
+    for k, (r, c) in enumerate(zip(rows, cols)):
+        by_row.setdefault(int(r), []).append(f"v[{k}] * x[{c}]")
+        by_col.setdefault(int(c), []).append(f"v[{k}] * y[{r}]")
+    mul = [f"    out[{r}] = " + " + ".join(["0.0"] + by_row.get(r, [])) + ";" for r in range(m)]
+    t_mul = [f"    out[{c}] = " + " + ".join(["0.0"] + by_col.get(c, [])) + ";"
+             for c in range(n)]
+    return ["static inline void sc_jac_mul(const double *v, const double *x, double *out) {",
+            *mul, "}", "",
+            "static inline void sc_jac_t_mul(const double *v, const double *y, double *out) {",
+            *t_mul, "}"]
+
+
+def _merge_code(size: int, merge, keep) -> list[str]:
+    """sc_merged (kernel.c's merged): the raw Jacobian terms summed into Psi_q's entries
+    (the loop's order from +0; a copy where no two terms share an entry) and its kept
+    values gathered, as straight-line code."""
+    if merge.size == size:
+        data = [f"    data[{i}] = raw[{i}];" for i in range(size)]
+    else:
+        parts: dict[int, list[str]] = {}
+        for k, e in enumerate(merge):
+            parts.setdefault(int(e), []).append(f"raw[{k}]")
+        data = [f"    data[{i}] = " + " + ".join(["0.0"] + parts.get(i, [])) + ";"
+                for i in range(size)]
+    gather = [f"    values[{k}] = data[{int(e)}];" for k, e in enumerate(keep)]
+    return ["static inline void sc_merged(const double *raw, double *data, double *values) {",
+            *data, *gather, "}"]
+
+
 def scene_header(eq) -> str | None:
     """The header of the kernel built for ``eq``'s structure (``Equations``), or None when
     its straight-line code would pass MAX_STATEMENTS."""
@@ -123,6 +160,10 @@ def scene_header(eq) -> str | None:
         np.asarray(arrays[k], dtype=np.int64) for k in ("band_index", "pair_a", "pair_b")))
     if code is None:
         return None
+    code += ["", *_product_code(int(arrays["n"]), int(arrays["m"]), *(
+        np.asarray(arrays[k], dtype=np.int64) for k in ("rows", "cols")))]
+    code += ["", *_merge_code(int(arrays["size"]), *(
+        np.asarray(arrays[k], dtype=np.int64) for k in ("merge", "keep")))]
     title = f"/* The kernel built for scene {eq.scene.name!r} (scene_kernel.py writes it). */"
     return "\n".join([title, *_constants(fields), "", *code, ""])
 
