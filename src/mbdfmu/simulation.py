@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .equations import Equations
+from .equations.dynamics import for_another_run
 from .equations.projection import (ASSEMBLY_TOL, PROJECTION_MAX_ITER, assemble,
                                    assembly_changes, initial_estimates, project_positions,
                                    project_velocities)
@@ -45,19 +46,21 @@ class Simulation(SimulationInputs):
     Inputs are set by name (``<driver>.position`` / ``.velocity`` / ``.acceleration``,
     ``<force>.fx`` / ``.fy`` / ``.torque`` / ``.actuator``) and hold until set again, or
     given as functions of time with ``set_input_signal``. Settings: a ``SolverSettings``
-    (default: the scene's), updated by the keyword values given. ``scene``: a ``Scene``, or
-    a scene file's path or a shipped scene's name (loaded, as ``simulate`` and the CLI do).
+    (default: the scene's), updated by the keyword values given. ``scene``: a ``Scene``, a
+    scene file's path or a shipped scene's name (loaded, as ``simulate`` and the CLI do), or
+    another Simulation's ``equations``, their structure reused (``for_another_run``).
     """
 
-    def __init__(self, scene: Scene | str | Path, method=None, step=None, rtol=None, atol=None,
-                 t0: float = 0.0, method_options: dict | None = None,
+    def __init__(self, scene: Scene | str | Path | Equations, method=None, step=None,
+                 rtol=None, atol=None, t0: float = 0.0, method_options: dict | None = None,
                  kernel: str | None = None, *, settings: SolverSettings | None = None,
                  output_interval: float | None = None):
-        self.scene = scene = as_scene(scene)
+        self.equations = (for_another_run(scene, kernel) if isinstance(scene, Equations)
+                          else Equations(as_scene(scene), kernel=kernel))
+        self.scene = scene = self.equations.scene
         self.settings = (settings or settings_from_scene(scene)).updated(
             method=method, step=step, rtol=rtol, atol=atol, options=method_options,
             output_interval=output_interval)
-        self.equations = Equations(scene, kernel=kernel)
         layout = self.equations.layout
         self.input_names = [v.name for v in inputs(scene)]
         self._output_table = None        # (names, units): built when first asked for
@@ -73,7 +76,7 @@ class Simulation(SimulationInputs):
         self.warnings = assembly_changes(self.equations, estimates, (q0, qd0))
         self.events = None                          # stops and friction: their contact mode
         if self.equations.has_events:
-            self.events = EventRunner(scene, kernel, t0, q0, qd0, self.inputs_at,
+            self.events = EventRunner(scene, self.equations.kernel, t0, q0, qd0, self.inputs_at,
                                       base=self.equations)
             q0, qd0 = self.events.q, self.events.qd
         self.integrator = make_integrator(      # auto watches runs without events
@@ -392,7 +395,6 @@ def simulate(scene: Scene | str | Path, t_end: float | None = None, method=None,
     return Result(time=times, names=list(sim.output_names), values=np.array(rows),
                   q=np.array(qs), qd=np.array(qds), qdd=np.array(qdds), lam=np.array(lams),
                   units=dict(sim.units), method=sim.method_name, method_reason=sim.method_reason,
-                  stats=vars(sim.integrator.stats).copy(),
-                  warnings=list(sim.warnings),
+                  stats=vars(sim.integrator.stats).copy(), warnings=list(sim.warnings),
                   events=list(sim.events.log) if sim.events is not None else [],
                   switches=switches_of(sim.integrator))

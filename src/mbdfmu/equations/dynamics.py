@@ -9,8 +9,11 @@ the centre of mass and angle of each body (formulation.md, eq. 1).
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
+from ..errors import InputError, SettingError
 from ..model.scene import RotationalSpringDamper, Scene, has_events
 from ..model.variables import TABLES, InputValues, input_layout
 from . import ckernel
@@ -269,6 +272,24 @@ class Equations:
                  [self.kinetic_energy(qd), self.potential_energy(q),
                   float(np.linalg.norm(Psi)), float(np.linalg.norm(J @ qd - nu))]]
         return np.concatenate([np.asarray(p, dtype=float) for p in parts])
+
+
+def for_another_run(eq: Equations, kernel: str | None = None) -> Equations:
+    """eq for another run of its scene: the structure (constraints, sparsity, forces, the C
+    kernel's tables) shared, read-only; the C kernel's state (its work space, kept
+    evaluation and dense reads) the copy's own. ``kernel``: eq's, or None. What makes the
+    runs after the first of one scene cheaper (``Simulation(equations)``)."""
+    if type(eq) is not Equations:           # a contact mode's (limits.ModeEquations)
+        raise InputError("scene: a contact mode's equations cannot start a run; give the "
+                         "equations of a Simulation (Simulation.equations) or the scene")
+    if kernel is not None and kernel != eq.kernel:
+        raise SettingError("kernel", f"kernel: {kernel!r} differs from the {eq.kernel!r} kernel of the "
+                           "equations given; leave it out, or give the scene")
+    copied = copy.copy(eq)
+    copied.__dict__.pop("published_places", None)     # an FMU's, of its own kernel
+    if eq.ckernel is not None:
+        copied.ckernel = ckernel.Kernel(copied)
+    return copied
 
 
 def _joint_output_plan(scene: Scene, c, sliding: list[int]) -> np.ndarray:

@@ -123,6 +123,11 @@ def assemble(system: Equations, t: float = 0.0, u: InputValues | None = None, *,
     scene = system.scene
     q, qd = initial_estimates(system) if estimates is None else estimates
     tol = ASSEMBLY_TOL * system.length_scale
+    kernel = getattr(system, "ckernel", None)
+    if kernel is not None:      # the same Newton iteration in C; None: the numpy path's case
+        done = kernel.project(q, qd, system.motion_values(t, u), tol, ASSEMBLY_MAX_ITER)
+        if done is not None:
+            return done
     try:
         q, _ = project_positions(system, t, q, tol=tol, max_iter=ASSEMBLY_MAX_ITER, u=u)
     except SolverError:

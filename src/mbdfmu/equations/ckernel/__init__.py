@@ -20,15 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ...model.scene import SpringDamper
-from ..sparsity import RANK_TOLERANCE
 from .dense import DENSE_KINDS, DenseReads  # noqa: F401 (DENSE_KINDS: public here)
 from .adaptive import PrkSteps
 from .dense_run import DenseRun, DenseRuns
 from .fixed import FixedSteps
 from .implicit import ImplicitCalls, declare_implicit
 from .model import (SLIDE_COULOMB, SLIDE_DIRECTION, SLIDE_REALS, Model, _I, _P,  # noqa: F401
-                    _packed, model_arrays)
+                    model_arrays, shared_model)  # (model_arrays: public here)
 
 # Return codes of kernel.c (ST_*).
 OK, SINGULAR, PROJECTION, NOT_FINITE, SPRING, ENERGY, ERROR_NORM, NEWTON = range(8)
@@ -170,14 +168,12 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
     def __init__(self, eq):
         self.n, self.m, self.nf = eq.n, eq.m, eq.layout.size
         self._size = eq.pattern.size
-        arrays = model_arrays(eq)
-        self._weights = (np.asarray(eq.minv, dtype=float), np.asarray(arrays["cols"])[
-            np.asarray(arrays["pair_a"])])
+        shared = shared_model(eq)
+        self._weights = (np.asarray(eq.minv, dtype=float), shared.pair_cols)
         self._partition: tuple | None = None
-        springs = sum(isinstance(f, SpringDamper) for f in eq.scene.forces)
-        self.nout = 6 * eq.nb + arrays["nplan"] + arrays["ndriver"] + 3 * springs + 4
-        values, self._arrays = _packed(arrays)
-        model = Model(rank_tol=RANK_TOLERANCE, **values)
+        self.nout = shared.nout
+        self._arrays = list(shared.blocks)      # and the tableaus', added per Kernel
+        model = Model.from_buffer_copy(shared.template)
         self.model, self.address = model, ctypes.addressof(model)
         lib = library_for(self.address)
         self.scene_built = lib in _scene_libraries    # the kernel built for this structure
@@ -186,7 +182,7 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
         self.dense, self._dense_arrays, self._publish = self.run.d, (), None
         # the work space, the kept evaluation, the dense reads' scratch and the sliding
         # friction's (friction.h: its last forces first): one allocation
-        ns = arrays["nslide"]
+        ns = shared.nslide
         sizes = (lib.mbd_work_size(self.address, MAX_STAGES), lib.mbd_memo_size(self.address),
                  self.nout + 3 * self.n + max(self.m, 1), 3 * ns + self.n + ns * self.n)
         block, ends = np.zeros(sum(sizes)), tuple(itertools.accumulate(sizes, initial=0))
@@ -199,7 +195,7 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
         # ModeEquations starts from: -direction x coulomb
         self.sliding_forces = slide[:ns]
         if ns:
-            reals = np.asarray(arrays["s_real"]).reshape(ns, SLIDE_REALS)
+            reals = np.asarray(shared.s_real).reshape(ns, SLIDE_REALS)
             self.sliding_forces[:] = -reals[:, SLIDE_DIRECTION] * reals[:, SLIDE_COULOMB]
         self.buf = Buffers(self.n, self.m, self.nf, self.nout)
         self._tableaus: dict = {}

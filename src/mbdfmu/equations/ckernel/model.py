@@ -6,10 +6,12 @@ from __future__ import annotations
 
 import ctypes
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from ...model.scene import PointForce, RevoluteJoint, RotationalSpringDamper, SpringDamper, Torque
+from ..sparsity import RANK_TOLERANCE
 
 FORCE_CODES = {PointForce: 0, Torque: 1, SpringDamper: 2, RotationalSpringDamper: 3}
 # Per sliding joint (friction.h's SL_*): revolute or not, body_i, body_j (-1: the ground),
@@ -192,3 +194,32 @@ def _packed(arrays: dict) -> tuple[dict, list]:
             address += 8 * a.size
         blocks.append(block)
     return values, blocks
+
+
+class SharedModel(NamedTuple):
+    """What every Kernel of one structure reads and none writes: the ``Model`` filled in
+    (but for its work space), the blocks its pointers point into, and the counts Kernel
+    sizes its buffers by."""
+
+    template: Model
+    blocks: tuple
+    pair_cols: np.ndarray       # each pair's column (the weights of ``partition``)
+    nout: int
+    nslide: int
+    s_real: np.ndarray
+
+
+def shared_model(eq) -> SharedModel:
+    """``SharedModel`` of the ``Equations`` eq: laid out once, kept on eq, and shared by its
+    copies (``Equations.copy``), whose structure it is."""
+    shared = eq.__dict__.get("_shared_model")
+    if shared is None:
+        arrays = model_arrays(eq)
+        values, blocks = _packed(arrays)
+        springs = sum(isinstance(f, SpringDamper) for f in eq.scene.forces)
+        shared = eq._shared_model = SharedModel(
+            Model(rank_tol=RANK_TOLERANCE, **values), tuple(blocks),
+            np.asarray(arrays["cols"])[np.asarray(arrays["pair_a"])],
+            6 * eq.nb + arrays["nplan"] + arrays["ndriver"] + 3 * springs + 4,
+            arrays["nslide"], arrays["s_real"])
+    return shared
