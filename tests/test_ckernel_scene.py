@@ -122,6 +122,10 @@ def test_the_scene_kernel_gives_the_generic_kernels_doubles(name, seed):
     assert np.array_equal(qdd, qdd_b) and np.array_equal(lam, lam_b)
     assert np.array_equal(generic.output_values(0.3, q, qd, qdd, lam, u),
                           built.output_values(0.3, q, qd, qdd, lam, u))
+    # the singularity indicator (a factor of Psi_q D Psi_q^T of its own)
+    motion = generic.motion_values(0.3, u)
+    assert generic.ckernel.singularity_indicator(q, motion) == \
+        built.ckernel.singularity_indicator(q, motion)
 
 
 @pytest.mark.parametrize("method", ["dop853p", "rk4p", "genalpha"])

@@ -363,8 +363,8 @@ class DOP853P(ProjectedRK):
         if kernel is not None:      # the wrapper's dense runs build it by the same function
             times = step.t_old + tableaux.DOP853_C_EXTRA * step.h
             us = [self.inputs(t) for t in times]
-            motions = [np.concatenate(self.equations.motion_values(t, u))
-                       for t, u in zip(times, us)]
+            motions = self.equations.constraint_set.motion_block(times, us).reshape(
+                len(times), -1)     # each row (c, c', c'') at its time: motion_values
             F = kernel.dop853_dense(step.K, step.y_old, step.y_new, step.h,
                                     tableaux.DOP853_A_EXTRA, tableaux.DOP853_D, motions,
                                     [u.forces if len(u.forces) else [0.0] for u in us])

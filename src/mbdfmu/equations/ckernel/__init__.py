@@ -51,6 +51,9 @@ _SIGNATURES = {
 
 _library_path: str | None = None
 _library = None
+# Embedded pairs' tableaus as the kernel reads them, by key (Kernel.tableau): the arrays and
+# their addresses, alive as long as the process
+_TABLEAUS: dict = {}
 
 
 def use_library(path) -> None:
@@ -103,7 +106,10 @@ def _prepare(lib) -> None:
     lib.mbd_memo_size.restype, lib.mbd_memo_size.argtypes = _I, [_P]
     lib.mbd_structure_check.restype, lib.mbd_structure_check.argtypes = _I, [_P]
     _declare(lib, _SIGNATURES, ctypes.c_int)     # once per library, not per Kernel
-    _declare(lib, {"mbd_constraints": [_P] * 7}, None)
+    _declare(lib, {"mbd_constraints": [_P] * 7,
+                   "mbd_rk45_dense": [_I, _I, _I, _P, _P, _P]}, None)
+    _declare(lib, {"mbd_dop853_dense": [_P] * 4 + [_D] + [_P] * 7,
+                   "mbd_prk_run": [_P, _P]}, ctypes.c_int)
     declare_implicit(lib)
 
 
@@ -172,7 +178,7 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
         self._weights = (np.asarray(eq.minv, dtype=float), shared.pair_cols)
         self._partition: tuple | None = None
         self.nout = shared.nout
-        self._arrays = list(shared.blocks)      # and the tableaus', added per Kernel
+        self._arrays = list(shared.blocks)      # what the Model points into, and more
         model = Model.from_buffer_copy(shared.template)
         self.model, self.address = model, ctypes.addressof(model)
         lib = library_for(self.address)
@@ -198,7 +204,6 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
             reals = np.asarray(shared.s_real).reshape(ns, SLIDE_REALS)
             self.sliding_forces[:] = -reals[:, SLIDE_DIRECTION] * reals[:, SLIDE_COULOMB]
         self.buf = Buffers(self.n, self.m, self.nf, self.nout)
-        self._tableaus: dict = {}
         self.static_rows = 0          # rows of buf.motions holding a driverless scene's block
         self.library = lib
         self._bind(lib)
@@ -307,14 +312,14 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
         return b.y[:n].copy(), b.y[n:].copy(), b.f[n:].copy(), int(b.done[0]), status
 
     def tableau(self, key, A, B, E, E3) -> tuple:
-        """An embedded pair's arrays, kept with their addresses (once per ``key``)."""
-        if key not in self._tableaus:
+        """An embedded pair's (stages, addresses of A, B, E, E3): the arrays laid out once
+        per ``key`` in the process, for every Kernel (they are read only)."""
+        if key not in _TABLEAUS:
             arrays = [None if x is None else np.ascontiguousarray(x, dtype=float)
                       for x in (A, B, E, E3)]
-            self._arrays += [x for x in arrays if x is not None]
-            self._tableaus[key] = (arrays[1].size, *(None if x is None else x.ctypes.data
-                                                     for x in arrays))
-        return self._tableaus[key]
+            _TABLEAUS[key] = (arrays, (arrays[1].size, *(None if x is None else x.ctypes.data
+                                                         for x in arrays)))
+        return _TABLEAUS[key][1]
 
     def prk_trial_near(self, tableau, h, q, qd, f0, rtol, atol, tol, max_iter, c0):
         """``prk_trial`` that also returns the singularity indicator at the step's end

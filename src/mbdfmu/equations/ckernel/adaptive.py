@@ -12,6 +12,7 @@ the other fast steps: one kind is armed at a time).
 from __future__ import annotations
 
 import ctypes
+import math
 
 import numpy as np
 
@@ -166,11 +167,17 @@ class PrkRunBuffers:
 
     def __init__(self, n: int, m: int, nf: int, ns: int):
         n2 = 2 * n
-        self.y, self.f, self.y_new, self.f_new = (np.zeros(n2) for _ in range(4))
-        self.y_old, self.y_end = np.zeros(n2), np.zeros(n2)
-        self.K, self.K_old = np.zeros((ns + 1, n2)), np.zeros((ns + 1, n2))
-        self.motions, self.ufs = np.zeros((ns + 1, 3 * m)), np.zeros((ns + 1, max(nf, 1)))
-        self.audit = np.zeros(AUDIT_SIZE)
+        shapes = dict(y=n2, f=n2, y_new=n2, f_new=n2, y_old=n2, y_end=n2, K=(ns + 1, n2),
+                      K_old=(ns + 1, n2), motions=(ns + 1, 3 * m), ufs=(ns + 1, max(nf, 1)),
+                      audit=AUDIT_SIZE)
+        sizes = [math.prod(shape) if isinstance(shape, tuple) else shape
+                 for shape in shapes.values()]
+        self.block = np.zeros(sum(sizes))               # one allocation, parts by name
+        base, start, self.address = self.block.ctypes.data, 0, {}
+        for (name, shape), size in zip(shapes.items(), sizes):
+            setattr(self, name, self.block[start:start + size].reshape(shape))
+            self.address[name] = base + 8 * start
+            start += size
         self.driven: tuple | None = None
 
 
@@ -180,10 +187,10 @@ def point_run(p: PrkPy, b: PrkRunBuffers, tableau, gaps) -> None:
     r = p.r
     r.ns, r.A, r.B, r.E, r.E3 = tableau[0], *(x or 0 for x in tableau[1:5])
     for name in ("y", "f", "K", "y_new", "f_new", "motions", "ufs"):
-        setattr(r, name, getattr(b, name).ctypes.data)
-    r.motion = b.motions.ctypes.data
+        setattr(r, name, b.address[name])
+    r.motion = b.address["motions"]
     for name in ("y_old", "y_end", "K_old"):
-        setattr(p, name, getattr(b, name).ctypes.data)
+        setattr(p, name, b.address[name])
     b.gaps = [np.ascontiguousarray(a, dtype=float) for a in gaps]
     p.ngaps, p.gap_mid, p.gap_width = b.gaps[0].size, *(a.ctypes.data for a in b.gaps)
 
@@ -205,9 +212,7 @@ def prk_run(kernel, tableau, gaps, settings: dict, y, f, motion, audit, motions=
         p = PrkPy()
         b = PrkRunBuffers(kernel.n, kernel.m, kernel.nf, key)
         point_run(p, b, tableau, gaps)
-        function = kernel.library.mbd_prk_run
-        function.argtypes, function.restype = [_P, _P], ctypes.c_int
-        cache[key] = (p, b, function)
+        cache[key] = (p, b, kernel.library.mbd_prk_run)     # types: declared at loading
     p, b, function = cache[key]
     b.y[:], b.f[:], b.motions[:] = y, f, motion
     b.ufs[:] = 0.0 if forces is None else forces       # every stage's row: held
@@ -227,6 +232,6 @@ def prk_run(kernel, tableau, gaps, settings: dict, y, f, motion, audit, motions=
         p.audit = None
     else:
         b.audit[:] = audit
-        p.audit = b.audit.ctypes.data
+        p.audit = b.address["audit"]
     status = function(kernel.address, ctypes.addressof(p))
     return status, p, b

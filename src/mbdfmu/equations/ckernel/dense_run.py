@@ -65,16 +65,16 @@ class DenseRuns:
         inputs at the three extra nodes (motions: 3 rows of (c, c', c''); ufs: 3 rows of
         force inputs); None where an evaluation fails (the numpy path then says why)."""
         n2 = 2 * self.n
-        F, Kx, ys = np.zeros((DENSE_ROWS, n2)), np.zeros((DENSE_STAGES, n2)), np.zeros(n2)
+        # F, then the extra stages and a stage's state (scratch): one allocation
+        block = np.empty((DENSE_ROWS + DENSE_STAGES + 1) * n2)
+        base = block.ctypes.data
         arrays = [np.ascontiguousarray(a, dtype=float) for a in
                   (K, y_old, y_end, a_extra, D, motions, ufs)]
-        function = self.library.mbd_dop853_dense
-        function.argtypes = [_P] * 4 + [ctypes.c_double] + [_P] * 7
-        function.restype = ctypes.c_int
-        status = function(self.address, *(a.ctypes.data for a in arrays[:3]), h,
-                          *(a.ctypes.data for a in arrays[3:]), F.ctypes.data,
-                          Kx.ctypes.data, ys.ctypes.data)
-        return F if status == ST_OK else None
+        status = self.library.mbd_dop853_dense(  # its argument types: declared at loading
+            self.address, *(a.ctypes.data for a in arrays[:3]), h,
+            *(a.ctypes.data for a in arrays[3:]), base, base + 8 * DENSE_ROWS * n2,
+            base + 8 * (DENSE_ROWS + DENSE_STAGES) * n2)
+        return block[:DENSE_ROWS * n2].reshape(DENSE_ROWS, n2) if status == ST_OK else None
 
     def rk45_dense(self, K, P):
         """Q (2n, 4) of Dormand-Prince 5(4)'s interpolant from a step's stages K (7 rows,
@@ -83,9 +83,8 @@ class DenseRuns:
         K, P = (np.ascontiguousarray(a, dtype=float) for a in (K, P))
         n2, rows = K.shape[1], P.shape[1]
         Q = np.zeros((n2, rows))
-        function = self.library.mbd_rk45_dense
-        function.argtypes, function.restype = [_I, _I, _I, _P, _P, _P], None
-        function(n2, K.shape[0], rows, K.ctypes.data, P.ctypes.data, Q.ctypes.data)
+        self.library.mbd_rk45_dense(n2, K.shape[0], rows, K.ctypes.data, P.ctypes.data,
+                                    Q.ctypes.data)
         return Q
 
     def arm_dense_run(self, settings: dict, tableau, gaps, y, f, motion, uf, audit,
