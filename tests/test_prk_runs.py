@@ -163,3 +163,51 @@ def test_runs_in_c_stop_where_the_python_loop_stops(monkeypatch):
         ran = _failure(scene, monkeypatch, True, prepare, **advance)
         assert ran == looped
         assert "t = " in ran[0]
+
+
+def _landing_runs(name, method, kernel, times):
+    sim = mbdfmu.Simulation(resolve_scene_path(name), method=method, kernel=kernel, rtol=1e-6)
+    for t in times:
+        sim.advance(t, dense=False)
+    return sim
+
+
+@pytest.mark.parametrize("kernel", ["c", "numpy"])
+@pytest.mark.parametrize("name", ["n_four_bar_2", "four_bar", "parallelogram"])
+def test_a_landing_dop853p_run_leaves_out_the_unread_end_evaluation(name, kernel, monkeypatch):
+    # DOP853's error weights at the unprojected end are 0 (Hairer's estimate): an advance
+    # that lands on its target, without dense output or a watch, does not evaluate y' there.
+    # Against the same run made to evaluate it: the same doubles and steps, one evaluation
+    # fewer per attempt, in the C runs and in the Python loop alike
+    from mbdfmu.integrators.projected_rk import DOP853P
+    times = np.linspace(0.1, 3.0, 7)
+    skipped = _landing_runs(name, "dop853p", kernel, times)
+    monkeypatch.setattr(c_steps, "PRK_RUNS", False)
+    in_python = _landing_runs(name, "dop853p", kernel, times)
+    monkeypatch.setattr(DOP853P, "error_reads_end", True)
+    evaluated = _landing_runs(name, "dop853p", kernel, times)
+    a, b = vars(skipped.integrator.stats), vars(evaluated.integrator.stats)
+    np.testing.assert_array_equal(skipped.output_vector(), evaluated.output_vector())
+    np.testing.assert_array_equal(in_python.output_vector(), skipped.output_vector())
+    assert vars(in_python.integrator.stats) == a
+    assert {k: a[k] for k in COUNTERS if k != "naccel"} == \
+        {k: b[k] for k in COUNTERS if k != "naccel"}
+    assert b["naccel"] - a["naccel"] == a["nsteps"] + a["nrejected"] > 0
+    assert skipped.integrator.dense is None      # no dense output to misread
+
+
+@pytest.mark.parametrize("method, dense", [("dop853p", True), ("rk45p", False)])
+def test_a_run_whose_end_evaluation_is_read_evaluates_it(method, dense, monkeypatch):
+    # dense output reads it, and so does rk45p's error estimate (its weight there is not 0)
+    from mbdfmu.integrators.projected_rk import DOP853P
+    def counts():
+        sim = mbdfmu.Simulation(resolve_scene_path("n_four_bar_2"), method=method,
+                                kernel="c", rtol=1e-6)
+        for t in np.linspace(0.1, 3.0, 7):
+            sim.advance(t, dense=dense)
+        assert sim.integrator.dense is not None
+        return vars(sim.integrator.stats).copy(), sim.output_vector()
+    before, out = counts()
+    monkeypatch.setattr(DOP853P, "error_reads_end", True)
+    after, out_after = counts()
+    assert before == after and np.array_equal(out, out_after)

@@ -153,7 +153,7 @@ def prk_attempt(rk, h: float, c0: float, safety: float, min_factor: float,
     local = rk.local_tolerance
     status, err, y_new, f_new, c1 = rk.equations.ckernel.prk_trial_near(
         table[:-1], h, rk.q, rk.qd, rk.f, local * rk.rtol, local * rk.atol,
-        rk._projection_tol(), PROJECTION_MAX_ITER, c0)
+        rk._projection_tol(), PROJECTION_MAX_ITER, c0, not rk.skip_end)
     if status in (ckernel.SINGULAR, ckernel.SPRING, ckernel.PROJECTION):
         return None
     ns = rk.n_stages
@@ -165,7 +165,7 @@ def prk_attempt(rk, h: float, c0: float, safety: float, min_factor: float,
     for j in range(ns):
         y_end += K[j] * rk.B[j]
     y_end = y + h * y_end
-    rk.stats.naccel += ns
+    rk.stats.naccel += ns - 1 if rk.skip_end else ns
     if status == ckernel.NOT_FINITE:
         return False, h * min_factor, None
     if status == ckernel.ERROR_NORM:
@@ -178,7 +178,7 @@ def prk_attempt(rk, h: float, c0: float, safety: float, min_factor: float,
     rk.stats.naccel += 1
     rk.err_step = err
     return True, accepted_step(h, err, rk.err_old, rk.alpha, rk.beta, safety, max_factor), \
-        (q, qd, f_new, c1, DenseStep(t, h, y, y_end, K))
+        (q, qd, f_new, c1, None if rk.skip_end else DenseStep(t, h, y, y_end, K))
 
 
 def decide(rk, h, status, err, y_new, f_new, safety, min_factor, max_factor,
@@ -365,6 +365,7 @@ def prk_run(rk, t_target: float, dense: bool, rejections: int, factors: tuple,
         attempts = max(1, min(attempts, rk.limit.max_steps - used))
     settings = run_settings(rk, factors, energy, attempts)
     settings.update(t_target=t_target, dense=int(dense), rejections=rejections)
+    settings["run"]["skip_end"] = int(rk.skip_end)
     audit = audit_state(rk.audit) if rk.audit is not None else None
     motion = np.concatenate(eq.motion_values(rk.t))
     gaps = singular_zone.gaps(rk.C[:rk.n_stages])
@@ -386,5 +387,6 @@ def prk_run(rk, t_target: float, dense: bool, rejections: int, factors: tuple,
     if p.stepped:
         rk.t = float(p.t)
         rk.q, rk.qd, rk.f = b.y[:n].copy(), b.y[n:].copy(), b.f.copy()
-        rk.dense = DenseStep(p.t_old, p.h_old, b.y_old.copy(), b.y_end.copy(), b.K_old.copy())
+        rk.dense = None if rk.skip_end else DenseStep(p.t_old, p.h_old, b.y_old.copy(),
+                                                      b.y_end.copy(), b.K_old.copy())
     return status, int(p.rejections)

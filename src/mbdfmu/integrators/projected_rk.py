@@ -100,6 +100,17 @@ class ProjectedRK(AdaptiveStepping, Integrator):
     C: np.ndarray
     order: int            # order of the error estimator, for the step controller
     n_stages: int
+    # y' at a trial's unprojected end feeds the error estimate where its weight is not 0,
+    # the dense output and a watch; an advance that needs none skips it (_advance_adaptive)
+    error_reads_end, skip_end = True, False
+
+    def _advance_adaptive(self, t_target, dense):
+        self.skip_end = not (dense or self.error_reads_end or self.watch is not None
+                             or self.equations.sliding)
+        try:
+            super()._advance_adaptive(t_target, dense)
+        finally:
+            self.skip_end = False
 
     def restart(self):
         self.f = self._rhs(self.t, self.q, self.qd)
@@ -215,7 +226,7 @@ class ProjectedRK(AdaptiveStepping, Integrator):
         y = np.concatenate((self.q, self.qd))
         K = rk_stages(self._rhs_y, t, y, h, self.A, self.C, self.f, self.n_stages)
         y_new = y + h * (K[:-1].T @ self.B)
-        K[-1] = self._rhs_y(t + h, y_new)
+        K[-1] = 0.0 if self.skip_end else self._rhs_y(t + h, y_new)
         if not (np.all(np.isfinite(y_new)) and np.all(np.isfinite(K[-1]))):
             return False, h * MIN_FACTOR, None
         t_new = t + h
@@ -233,7 +244,7 @@ class ProjectedRK(AdaptiveStepping, Integrator):
         if rejected is not None:
             return False, rejected, None
         f = self._rhs(t_new, q, qd)
-        dense = dense_output.DenseStep(t, h, y, y_new, K)
+        dense = None if self.skip_end else dense_output.DenseStep(t, h, y, y_new, K)
         self.err_step = err
         return True, accepted_step(h, err, self.err_old, self.alpha, self.beta, SAFETY,
                                    MAX_FACTOR), (q, qd, f, c1, dense)
@@ -345,6 +356,7 @@ class DOP853P(ProjectedRK):
     n_stages, order = tableaux.DOP853_STAGES, 7
     alpha = 1.0 / (order + 1) - 0.2 * PI_BETA       # Hairer's DOP853
     E3, E5 = tableaux.DOP853_E3, tableaux.DOP853_E5
+    error_reads_end = bool(E3[-1] or E5[-1])        # both 0: Hairer's estimate skips it
     interpolant = "dop853"
 
     def _error_norm(self, K, h, scale, tangent=None):

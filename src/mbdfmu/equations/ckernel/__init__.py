@@ -47,7 +47,7 @@ _SIGNATURES = {
     "mbd_mc_trial": [_P, _P, _I, _P, _P, _P, _P, _D, _P, _P, _P, _P, _D, _D, _D, _I, _P, _P,
                      _P, _P],
     "mbd_prk_trial_near": [_P, _I, _P, _P, _P, _P, _D, _P, _P, _P, _P, _D, _D, _D, _I, _P, _P,
-                           _P, _P, _D, _P]}
+                           _P, _P, _D, _P, _I]}
 
 _library_path: str | None = None
 _library = None
@@ -321,17 +321,19 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
                                                          for x in arrays)))
         return _TABLEAUS[key][1]
 
-    def prk_trial_near(self, tableau, h, q, qd, f0, rtol, atol, tol, max_iter, c0):
+    def prk_trial_near(self, tableau, h, q, qd, f0, rtol, atol, tol, max_iter, c0,
+                       end_rhs=True):
         """``prk_trial`` that also returns the singularity indicator at the step's end
         (before the projection) and, near a singular configuration (c0, the indicator at
         the start, or that one below ``singular_zone.NEAR_ZONE``), estimates the error
-        along the constraints (``mbd_prk_trial_near``): (status, err, y_new, f_new, c1)."""
+        along the constraints (``mbd_prk_trial_near``): (status, err, y_new, f_new, c1).
+        ``end_rhs`` False: y' at the unprojected end is not evaluated (0 in its place)."""
         b, n = self.buf, self.n
         b.y[:n], b.y[n:] = q, qd
         b.f[:] = f0
         status = self._prk_trial_near(self.address, *tableau, h, b.p_y, b.p_f, b.p_motions,
                                       b.p_ufs, rtol, atol, tol, max_iter, b.p_y_new, b.p_f_new,
-                                      b.p_err, b.p_K, c0, b.p_err + 8)
+                                      b.p_err, b.p_K, c0, b.p_err + 8, int(end_rhs))
         return status, float(b.err[0]), b.y_new.copy(), b.f_new.copy(), float(b.err[1])
 
     def prk_trial(self, tableau, h, q, qd, f0, rtol, atol, tol, max_iter):

@@ -60,6 +60,8 @@ typedef struct {
     MotionTable mt;                /* the drivers' motions (nmotion 0: none, `motion` holds) */
     const double *fractions;       /* the stages' times in a step, then 1 (c_steps.tableau) */
     SampledSet sd;                 /* drivers whose position the master sets (motions.h) */
+    I skip_end;                    /* 1: mbd_prk_run's trials leave out y' at their
+                                    * unprojected end (prk_trial; ProjectedRK.skip_end) */
 } PrkRun;
 
 /* auto_watch.stiffness, Hairer's h |lambda| of a step of the pair (ns stages, A (ns, ns),
@@ -117,7 +119,7 @@ static int prk_try(const Model *M, PrkRun *r, Scratch *s, const double *y, const
      * error estimate is the plain one unless *c1 < NEAR_ZONE, which hands the step back */
     int st = prk_trial(M, ns, r->A, r->B, r->E, r->E3, hh, y, f, r->motions, r->ufs, r->rtol,
                        r->atol, r->tol, r->max_iter, r->y_new, r->f_new, &err, r->K,
-                       INFINITY, c1, &kept);
+                       INFINITY, c1, &kept, 1);      /* the end's y': its dense output's */
     if (st == ST_SINGULAR || st == ST_SPRING || st == ST_PROJECTION) return -1;
     if (st == ST_NOT_FINITE) { *naccel += ns; *h_next = hh * r->min_factor; return 0; }
     if (*c1 < NEAR_ZONE) return -1;    /* the indicator at the step's end, before projecting */
@@ -419,9 +421,9 @@ static int near_try(const Model *M, PrkRun *r, Scratch *s, const double *y, cons
     double err = 0.0;
     int st = prk_trial(M, ns, r->A, r->B, r->E, r->E3, hh, y, f, r->motions, r->ufs, r->rtol,
                        r->atol, r->tol, r->max_iter, r->y_new, r->f_new, &err, r->K,
-                       r->indicator, c1, NULL);
+                       r->indicator, c1, NULL, !r->skip_end);
     if (st == ST_SINGULAR || st == ST_SPRING || st == ST_PROJECTION) return -1;
-    *naccel += ns;
+    *naccel += r->skip_end ? ns - 1 : ns;
     if (st == ST_NOT_FINITE) { *h_next = hh * r->min_factor; return 0; }
     double *y_end = s->qv + 4 * n2;       /* the step's end before the projection */
     combine(y, hh, r->K, n2, r->B, ns, y_end);

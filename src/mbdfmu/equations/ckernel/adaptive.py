@@ -39,7 +39,7 @@ class PrkRun(ctypes.Structure):
                 ("ev_real", _P), ("ev_g", _P), ("nmotion", _I), ("mrow", _P), ("mkind", _P),
                 ("mcoef", _P), ("offsets", _P), ("fractions", _P), ("ndrv", _I),
                 ("dslot", _I), ("dmot", _P), ("drv", _P), ("reinit_tol", _D),
-                ("reinit_iter", _I)]
+                ("reinit_iter", _I), ("skip_end", _I)]
 
 
 # How ``mbd_prk_run`` stopped (adaptive.h RUN_*).

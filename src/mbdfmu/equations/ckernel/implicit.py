@@ -10,6 +10,7 @@ matrix's solve.
 from __future__ import annotations
 
 import ctypes
+import functools
 import itertools
 
 import numpy as np
@@ -101,14 +102,24 @@ class ImplicitCalls:
 
     def _bind_implicit(self, lib) -> None:
         self._imp = lib          # its functions' types: declare_implicit, at loading
+
+    @functools.cached_property
+    def _imp_arrays(self) -> tuple:
+        """(y, x, rhs, out, their addresses): made at the first implicit call, as most
+        kernels never make one. One allocation, four parts."""
         n, m = self.n, self.m
         sizes = (5 * n + max(m, 1), 4 * n + max(m, 1), n + max(m, 1), n + max(m, 1))
-        block = np.zeros(sum(sizes))        # one allocation, four parts
+        block = np.zeros(sum(sizes))
         starts = tuple(itertools.accumulate(sizes, initial=0))
-        self.imp_y, self.imp_x, self.imp_rhs, self.imp_out = (
-            block[a:b] for a, b in zip(starts[:-1], starts[1:]))
         base = block.ctypes.data
-        self._imp_p = tuple(base + 8 * a for a in starts[:-1])
+        return (*(block[a:b] for a, b in zip(starts[:-1], starts[1:])),
+                tuple(base + 8 * a for a in starts[:-1]))
+
+    imp_y = property(lambda self: self._imp_arrays[0])
+    imp_x = property(lambda self: self._imp_arrays[1])
+    imp_rhs = property(lambda self: self._imp_arrays[2])
+    imp_out = property(lambda self: self._imp_arrays[3])
+    _imp_p = property(lambda self: self._imp_arrays[4])
 
     def implicit_settings(self, method: str, periodic, pattern=None, **values) -> Implicit:
         """An ``Implicit`` for ``method`` (a key of METHODS) with ``values`` by field name;

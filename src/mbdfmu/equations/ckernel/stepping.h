@@ -253,7 +253,7 @@ static int prk_trial(const Model *M, I ns, const double *A, const double *B, con
                      const double *E3, double h, const double *y, const double *f0,
                      const double *motions, const double *ufs, double rtol, double atol,
                      double tol, I max_iter, double *y_new, double *f_new, double *err,
-                     double *K, double c0, double *c1, int *kept) {
+                     double *K, double c0, double *c1, int *kept, int end_rhs) {
     Scratch s = scratch(M, M->work);
     I n = S_(M, n), n2 = 2 * n, m = S_(M, m), nf = S_(M, nf);
     double *ys = s.qv;
@@ -264,10 +264,23 @@ static int prk_trial(const Model *M, I ns, const double *A, const double *B, con
         if (r != ST_OK) return r;
     }
     combine(y, h, K, n2, B, ns, y_new);
-    int r = rhs(M, &s, y_new, motions + ns * 3 * m, ufs + ns * nf, K + ns * n2, s.lam);
-    if (r == ST_SINGULAR || r == ST_SPRING) return r;
-    if (r != ST_OK || !all_finite(y_new, n2) || !all_finite(K + ns * n2, n2)) return ST_NOT_FINITE;
-    int tangent = 0;
+    if (end_rhs) {
+        int r = rhs(M, &s, y_new, motions + ns * 3 * m, ufs + ns * nf, K + ns * n2, s.lam);
+        if (r == ST_SINGULAR || r == ST_SPRING) return r;
+        if (r != ST_OK || !all_finite(y_new, n2) || !all_finite(K + ns * n2, n2))
+            return ST_NOT_FINITE;
+    } else {    /* y' at the unprojected end, which the caller reads nowhere (ProjectedRK
+                 * skip_end: an error estimate whose weights there are 0, no dense output,
+                 * no watch): 0 in its place, and Psi_q's values there for the indicator */
+        if (!all_finite(y_new, n2)) return ST_NOT_FINITE;
+        memset(K + ns * n2, 0, (size_t)n2 * sizeof(double));
+        if (m) {
+            extend(M, y_new, s.qe);
+            terms(M, s.qe, NULL, motions + ns * 3 * m, s.psi, s.raw, NULL, s.cs);
+            merged(M, s.raw, s.data, s.values);
+        }
+    }
+    int r, tangent = 0;
     if (c1) {     /* Psi_q's values at y_new: the evaluation just above left them */
         *c1 = m ? indicator_of(M, &s, s.values) : INFINITY;
         tangent = m && !(fmin(c0, *c1) >= NEAR_ZONE_C);
@@ -289,18 +302,19 @@ int mbd_prk_trial(const Model *M, I ns, const double *A, const double *B, const 
                   const double *motions, const double *ufs, double rtol, double atol,
                   double tol, I max_iter, double *y_new, double *f_new, double *err, double *K) {
     return prk_trial(M, ns, A, B, E, E3, h, y, f0, motions, ufs, rtol, atol, tol, max_iter,
-                     y_new, f_new, err, K, 0.0, NULL, NULL);
+                     y_new, f_new, err, K, 0.0, NULL, NULL, 1);
 }
 
 /* mbd_prk_trial with the indicator at the step's end in *c1 and, near a singular
- * configuration (c0 or *c1 below NEAR_ZONE), the error estimate along the constraints. */
+ * configuration (c0 or *c1 below NEAR_ZONE), the error estimate along the constraints;
+ * end_rhs 0: without y' at the unprojected end (prk_trial). */
 int mbd_prk_trial_near(const Model *M, I ns, const double *A, const double *B, const double *E,
                        const double *E3, double h, const double *y, const double *f0,
                        const double *motions, const double *ufs, double rtol, double atol,
                        double tol, I max_iter, double *y_new, double *f_new, double *err,
-                       double *K, double c0, double *c1) {
+                       double *K, double c0, double *c1, I end_rhs) {
     return prk_trial(M, ns, A, B, E, E3, h, y, f0, motions, ufs, rtol, atol, tol, max_iter,
-                     y_new, f_new, err, K, c0, c1, NULL);
+                     y_new, f_new, err, K, c0, c1, NULL, (int)end_rhs);
 }
 
 /* One trial step of an embedded pair in minimal coordinates (integrators/minimal.py): the
