@@ -55,12 +55,13 @@ class Simulation(SimulationInputs):
                  rtol=None, atol=None, t0: float = 0.0, method_options: dict | None = None,
                  kernel: str | None = None, *, settings: SolverSettings | None = None,
                  output_interval: float | None = None):
-        self.equations = (for_another_run(scene, kernel) if isinstance(scene, Equations)
-                          else Equations(as_scene(scene), kernel=kernel))
-        self.scene = scene = self.equations.scene
-        self.settings = (settings or settings_from_scene(scene)).updated(
+        built = scene if isinstance(scene, Equations) else None
+        self.scene = scene = as_scene(scene) if built is None else built.scene
+        self.settings = (settings or settings_from_scene(scene)).updated(   # before any work
             method=method, step=step, rtol=rtol, atol=atol, options=method_options,
             output_interval=output_interval)
+        self.equations = (Equations(scene, kernel=kernel) if built is None
+                          else for_another_run(built, kernel))
         layout = self.equations.layout
         self.input_names = [v.name for v in inputs(scene)]
         self._output_table = None        # (names, units): built when first asked for
@@ -72,12 +73,11 @@ class Simulation(SimulationInputs):
         self._held = None                # the inputs while all are held (inputs_at)
         estimates = initial_estimates(self.equations)
         q0, qd0 = assemble(self.equations, t0, self.inputs_at(t0), estimates=estimates)
-        # what assembly changed of the scene's initial values, for the user to see
-        self.warnings = assembly_changes(self.equations, estimates, (q0, qd0))
+        self.warnings = assembly_changes(self.equations, estimates, (q0, qd0))  # for the user
         self.events = None                          # stops and friction: their contact mode
         if self.equations.has_events:
-            self.events = EventRunner(scene, self.equations.kernel, t0, q0, qd0, self.inputs_at,
-                                      base=self.equations)
+            self.events = EventRunner(scene, self.equations.kernel, t0, q0, qd0,
+                                      self.inputs_at, base=self.equations)
             q0, qd0 = self.events.q, self.events.qd
         self.integrator = make_integrator(      # auto watches runs without events
             None, self.events.equations if self.events else self.equations, t0, q0, qd0,

@@ -283,8 +283,8 @@ def for_another_run(eq: Equations, kernel: str | None = None) -> Equations:
         raise InputError("scene: a contact mode's equations cannot start a run; give the "
                          "equations of a Simulation (Simulation.equations) or the scene")
     if kernel is not None and kernel != eq.kernel:
-        raise SettingError("kernel", f"kernel: {kernel!r} differs from the {eq.kernel!r} kernel of the "
-                           "equations given; leave it out, or give the scene")
+        raise SettingError("kernel", f"kernel: {kernel!r} differs from the {eq.kernel!r} "
+                           "kernel of the equations given; leave it out, or give the scene")
     copied = copy.copy(eq)
     copied.__dict__.pop("published_places", None)     # an FMU's, of its own kernel
     if eq.ckernel is not None:
