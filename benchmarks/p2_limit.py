@@ -245,7 +245,8 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         flags = CFLAGS if args.generic_kernel else SCENE_CFLAGS    # the kernel's own
         rk4 = reduced_library(Path(tmp), flags)
-        rows = reduced_rows(rk4, args.t_end, exact, args.repeat)
+        reduced = reduced_rows(rk4, args.t_end, exact, args.repeat)
+        rows = list(reduced)
         for method, settings in [*FIXED.items(), *ADAPTIVE.items()]:
             kind = "step" if method in FIXED else "rtol"
             for setting in settings:
@@ -254,7 +255,7 @@ def main(argv=None) -> int:
                 print(rows[-1], flush=True)
         # the machine's speed drifts over a run: the reduction timed again after the sweep,
         # its best of both (load and a slow phase only ever add time)
-        for row, again in zip(rows, reduced_rows(rk4, args.t_end, exact, args.repeat)):
+        for row, again in zip(reduced, reduced_rows(rk4, args.t_end, exact, args.repeat)):
             row["cpu_s"] = min(row["cpu_s"], again["cpu_s"])
     limit = cheapest(rows, "reduced ODE, RK4 in C")
     flag = " --generic-kernel" if args.generic_kernel else ""

@@ -425,8 +425,8 @@ static int near_try(const Model *M, PrkRun *r, Scratch *s, const double *y, cons
     if (st == ST_SINGULAR || st == ST_SPRING || st == ST_PROJECTION) return -1;
     *naccel += r->skip_end ? ns - 1 : ns;
     if (st == ST_NOT_FINITE) { *h_next = hh * r->min_factor; return 0; }
-    double *y_end = s->qv + 4 * n2;       /* the step's end before the projection */
-    combine(y, hh, r->K, n2, r->B, ns, y_end);
+    double *y_end = s->qv + 4 * n2;       /* the step's end before the projection: its */
+    if (!r->skip_end) combine(y, hh, r->K, n2, r->B, ns, y_end);   /* dense output's */
     if (st == ST_ERROR_NORM) {
         *h_next = hh * fmax(r->min_factor, r->safety * pow(err, r->exponent));
         return 0;
@@ -526,9 +526,11 @@ int mbd_prk_run(const Model *M, PrkPy *p) {
         p->t_old = p->t;
         p->h_old = hh;
         p->stepped = 1;
-        memcpy(p->y_old, y, (size_t)n2 * sizeof(double));
-        memcpy(p->y_end, s.qv + 4 * n2, (size_t)n2 * sizeof(double));   /* prk_try's */
-        memcpy(p->K_old, r->K, (size_t)((ns + 1) * n2) * sizeof(double));
+        if (!r->skip_end) {          /* the step's dense output: none kept when skipped */
+            memcpy(p->y_old, y, (size_t)n2 * sizeof(double));
+            memcpy(p->y_end, s.qv + 4 * n2, (size_t)n2 * sizeof(double));   /* near_try's */
+            memcpy(p->K_old, r->K, (size_t)((ns + 1) * n2) * sizeof(double));
+        }
         memcpy(y, r->y_new, (size_t)n2 * sizeof(double));
         memcpy(f, r->f_new, (size_t)n2 * sizeof(double));
         r->indicator = c1;

@@ -75,9 +75,7 @@ static int event_values(const Model *M, const EventWatch *w, const double *motio
             continue;
         }
         if (!data) {             /* Psi_q's data at y, for the joint's reaction */
-            extend(M, y, s->qe);
-            terms(M, s->qe, NULL, cval, s->psi, s->raw, NULL, s->cs);
-            merged(M, s->raw, s->data, s->values);
+            jacobian_at(M, s, y, cval);
             data = 1;
         }
         g[e] = friction_bound(M, si, er, y, lam, s->data) - fabs(effort);

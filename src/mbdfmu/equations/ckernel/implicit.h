@@ -274,9 +274,7 @@ enum { X_DQ, X_QD, X_QDD, X_A, X_LAM };
 static int evaluate(const Model *M, Scratch *s, const double *qn, const double *dq,
                     const double *qd, const double *motion, const double *uf, double *qc) {
     for (I k = 0; k < S_(M, n); k++) qc[k] = qn[k] + dq[k];
-    extend(M, qc, s->qe);
-    terms(M, s->qe, NULL, motion, s->psi, s->raw, NULL, s->cs);
-    merged(M, s->raw, s->data, s->values);
+    jacobian_at(M, s, qc, motion);
     return forces(M, qc, qd, uf, s->F);
 }
 
@@ -459,9 +457,7 @@ static int commit(const Model *M, Implicit *p, Scratch *s, double *y, double *x,
     double *qw = y, *turns = y + Y_TURNS * n;
     for (I k = 0; k < n; k++) q[k] = qw[k] + x[k];
     if (p->method == IMP_GENALPHA && m) {
-        extend(M, q, s->qe);
-        terms(M, s->qe, NULL, motion, s->psi, s->raw, NULL, s->cs);
-        merged(M, s->raw, s->data, s->values);
+        jacobian_at(M, s, q, motion);
         int st = project_velocities(M, s, x + X_QD * n, motion + m);
         if (st != ST_OK) return st;
     }

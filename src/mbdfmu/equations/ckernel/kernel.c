@@ -357,6 +357,14 @@ static void extend(const Model *M, const double *q, double *qe) {
     qe[S_(M, n)] = qe[S_(M, n) + 1] = qe[S_(M, n) + 2] = 0.0;
 }
 
+/* Psi and Psi_q's values (s->psi; s->data, s->values) at q, the rows' motions cval: what a
+ * projection, the singularity indicator or a reaction reads, without q' and gamma. */
+static void jacobian_at(const Model *M, Scratch *s, const double *q, const double *cval) {
+    extend(M, q, s->qe);
+    terms(M, s->qe, NULL, cval, s->psi, s->raw, NULL, s->cs);
+    merged(M, s->raw, s->data, s->values);
+}
+
 /* ---- eq. (14) ------------------------------------------------------------------------------ */
 
 #include "friction.h"
@@ -496,9 +504,7 @@ static int project_positions(const Model *M, Scratch *s, double *q, const double
     I n = S_(M, n), m = S_(M, m);
     double increment = INFINITY;
     for (I it = 0; it <= max_iter; it++) {
-        extend(M, q, s->qe);
-        terms(M, s->qe, NULL, cval, s->psi, s->raw, NULL, s->cs);
-        merged(M, s->raw, s->data, s->values);
+        jacobian_at(M, s, q, cval);
         double err = 0.0;
         for (I r = 0; r < m; r++) {
             if (!isfinite(s->psi[r])) return ST_NOT_FINITE;
@@ -553,9 +559,7 @@ int mbd_project_velocities(const Model *M, const double *q, double *qd, const do
                            const double *cd) {
     Scratch s = scratch(M, M->work);
     if (S_(M, m) == 0) return ST_OK;
-    extend(M, q, s.qe);
-    terms(M, s.qe, NULL, cval, s.psi, s.raw, NULL, s.cs);
-    merged(M, s.raw, s.data, s.values);
+    jacobian_at(M, &s, q, cval);
     return project_velocities(M, &s, qd, cd);
 }
 
@@ -597,9 +601,7 @@ int mbd_singularity_indicator(const Model *M, const double *q, const double *cva
                               double *out) {
     Scratch s = scratch(M, M->work);
     if (S_(M, m) == 0) { *out = INFINITY; return ST_OK; }
-    extend(M, q, s.qe);
-    terms(M, s.qe, NULL, cval, s.psi, s.raw, NULL, s.cs);
-    merged(M, s.raw, s.data, s.values);
+    jacobian_at(M, &s, q, cval);
     *out = indicator_of(M, &s, s.values);
     return ST_OK;
 }

@@ -211,7 +211,7 @@ class SharedModel(NamedTuple):
 
 def shared_model(eq) -> SharedModel:
     """``SharedModel`` of the ``Equations`` eq: laid out once, kept on eq, and shared by its
-    copies (``Equations.copy``), whose structure it is."""
+    copies (``dynamics.for_another_run``), whose structure it is."""
     shared = eq.__dict__.get("_shared_model")
     if shared is None:
         arrays = model_arrays(eq)

@@ -58,9 +58,7 @@ static int outputs_at(const Model *M, Scratch *sp, int fresh, const double *q,
         for (int c = 0; c < 3; c++) out[o++] = qd[3 * b + c];
     }
     if (!fresh) {
-        extend(M, q, s.qe);
-        terms(M, s.qe, NULL, motion, s.psi, s.raw, NULL, s.cs);
-        merged(M, s.raw, s.data, s.values);
+        jacobian_at(M, &s, q, motion);
     }
     double *joints = s.qv;
     if (all || want[W_JOINTS]) {

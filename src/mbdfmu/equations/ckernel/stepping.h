@@ -275,9 +275,7 @@ static int prk_trial(const Model *M, I ns, const double *A, const double *B, con
         if (!all_finite(y_new, n2)) return ST_NOT_FINITE;
         memset(K + ns * n2, 0, (size_t)n2 * sizeof(double));
         if (m) {
-            extend(M, y_new, s.qe);
-            terms(M, s.qe, NULL, motions + ns * 3 * m, s.psi, s.raw, NULL, s.cs);
-            merged(M, s.raw, s.data, s.values);
+            jacobian_at(M, &s, y_new, motions + ns * 3 * m);
         }
     }
     int r, tangent = 0;
