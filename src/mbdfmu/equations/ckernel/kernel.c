@@ -499,12 +499,14 @@ void mbd_constraints(const Model *M, const double *q, const double *qd, const do
 
 /* ---- projections (eqs. 18-19) ------------------------------------------------------------------ */
 
+/* `at_q`: s->psi and s->values hold Psi and Psi_q at q already (a trial's end, whose
+ * evaluation left them): the first iteration reads them instead of evaluating again. */
 static int project_positions(const Model *M, Scratch *s, double *q, const double *cval,
-                             double tol, I max_iter) {
+                             double tol, I max_iter, int at_q) {
     I n = S_(M, n), m = S_(M, m);
     double increment = INFINITY;
     for (I it = 0; it <= max_iter; it++) {
-        jacobian_at(M, s, q, cval);
+        if (it > 0 || !at_q) jacobian_at(M, s, q, cval);
         double err = 0.0;
         for (I r = 0; r < m; r++) {
             if (!isfinite(s->psi[r])) return ST_NOT_FINITE;
@@ -541,18 +543,24 @@ static int project_velocities(const Model *M, Scratch *s, double *qd, const doub
     return ST_OK;
 }
 
-/* Both projections at motion (c, c', c'') = motion[0..2m): q, qd in place. */
-static int project(const Model *M, Scratch *s, double *q, double *qd, const double *motion,
-                   double tol, I max_iter) {
+/* Both projections at motion (c, c', c'') = motion[0..2m): q, qd in place; `at_q` as
+ * project_positions'. */
+static int project_at(const Model *M, Scratch *s, double *q, double *qd, const double *motion,
+                      double tol, I max_iter, int at_q) {
     s->kept = 0;
     if (S_(M, m) == 0) return ST_OK;
-    int st = project_positions(M, s, q, motion, tol, max_iter);
+    int st = project_positions(M, s, q, motion, tol, max_iter, at_q);
     return st != ST_OK ? st : project_velocities(M, s, qd, motion + S_(M, m));
+}
+
+static int project(const Model *M, Scratch *s, double *q, double *qd, const double *motion,
+                   double tol, I max_iter) {
+    return project_at(M, s, q, qd, motion, tol, max_iter, 0);
 }
 
 int mbd_project_positions(const Model *M, double *q, const double *cval, double tol, I max_iter) {
     Scratch s = scratch(M, M->work);
-    return project_positions(M, &s, q, cval, tol, max_iter);
+    return project_positions(M, &s, q, cval, tol, max_iter, 0);
 }
 
 int mbd_project_velocities(const Model *M, const double *q, double *qd, const double *cval,

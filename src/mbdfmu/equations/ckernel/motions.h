@@ -195,6 +195,6 @@ static int drivers_apply(SampledSet *sd, MotionTable *mt, I nvr, const I *set, c
  * constraints at motion (c, c', c'') as kernel.project does it. */
 static int drivers_project(const Model *M, Scratch *s, const SampledSet *sd, double *y,
                            const double *motion) {
-    int st = project_positions(M, s, y, motion, sd->reinit_tol, sd->reinit_iter);
+    int st = project_positions(M, s, y, motion, sd->reinit_tol, sd->reinit_iter, 0);
     return st == ST_OK ? mbd_project_velocities(M, y, y + S_(M, n), motion, motion + S_(M, m)) : st;
 }

@@ -286,7 +286,8 @@ static int prk_trial(const Model *M, I ns, const double *A, const double *B, con
     r = error_norm(M, &s, ns, E, E3, h, y, y_new, K, rtol, atol, tangent, ys + n2, err);
     if (r != ST_OK) return r;
     if (!(*err < 1.0)) return ST_ERROR_NORM;
-    r = project(M, &s, y_new, y_new + n, motions + ns * 3 * m, tol, max_iter);
+    /* Psi and Psi_q at y_new: the end's evaluation (rhs or jacobian_at) left them */
+    r = project_at(M, &s, y_new, y_new + n, motions + ns * 3 * m, tol, max_iter, 1);
     if (r == ST_SINGULAR || r == ST_SPRING) return r;
     if (r != ST_OK) return ST_PROJECTION;
     r = rhs_projected(M, &s, y_new, motions + ns * 3 * m, ufs + ns * nf, f_new, s.lam);
