@@ -26,7 +26,7 @@ from .dense_run import DenseRun, DenseRuns
 from .fixed import FixedSteps
 from .implicit import ImplicitCalls, declare_implicit
 from .model import (SLIDE_COULOMB, SLIDE_DIRECTION, SLIDE_REALS, Model, _I, _P,  # noqa: F401
-                    model_arrays, shared_model)  # (model_arrays: public here)
+                    Carved, model_arrays, shared_model)  # (model_arrays: public here)
 
 # Return codes of kernel.c (ST_*).
 OK, SINGULAR, PROJECTION, NOT_FINITE, SPRING, ENERGY, ERROR_NORM, NEWTON = range(8)
@@ -143,27 +143,21 @@ def available() -> bool:
     return True
 
 
-class Buffers:
+class Buffers(Carved):
     """The persistent arrays of one kernel, and their addresses (``p_<name>``): arguments
     and results are copied in and out, so a call passes addresses known beforehand."""
 
     def __init__(self, n: int, m: int, nf: int, nout: int):
         # inputs at each time a run of steps evaluates (motions: (c, c', c''), ufs: the
         # force inputs), then one row each
-        sizes = dict(motions=MAX_ROWS * 3 * m, ufs=MAX_ROWS * max(nf, 1), q=n, qd=n,
-                     motion=3 * m, uf=max(nf, 1), qdd=n, lam=max(m, 1), y=2 * n, f=2 * n,
-                     y_new=2 * n, f_new=2 * n, K=MAX_STAGES * 2 * n, err=2, audit=13, out=nout)
-        # one block, parts of it by name: one address to ask numpy for
-        self.block = block = np.zeros(sum(sizes.values()))
-        base, start = block.ctypes.data, 0
-        for name, size in sizes.items():
-            setattr(self, name, block[start:start + size])
-            setattr(self, "p_" + name, base + 8 * start)
-            start += size
-        self.motions = self.motions.reshape(MAX_ROWS, 3 * m)
-        self.ufs = self.ufs.reshape(MAX_ROWS, max(nf, 1))
-        self.done = np.zeros(1, dtype=np.int64)
-        self.p_done = self.done.ctypes.data
+        super().__init__((
+            ("motions", (MAX_ROWS, 3 * m)), ("ufs", (MAX_ROWS, max(nf, 1))), ("q", (n,)),
+            ("qd", (n,)), ("motion", (3 * m,)), ("uf", (max(nf, 1),)), ("qdd", (n,)),
+            ("lam", (max(m, 1),)), ("y", (2 * n,)), ("f", (2 * n,)), ("y_new", (2 * n,)),
+            ("f_new", (2 * n,)), ("K", (MAX_STAGES * 2 * n,)), ("err", (2,)), ("audit", (13,)),
+            ("out", (nout,)), ("done", (1,))))
+        start, stop, _ = self._parts["done"]
+        self.done = self.block[start:stop].view(np.int64)   # an int64 flag in a double's place
 
 
 class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
@@ -210,8 +204,11 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
         self._bind_implicit(lib)
 
     def _bind(self, lib) -> None:
-        for name in _SIGNATURES:        # argument types: set when the library was loaded
-            setattr(self, "_" + name[4:], getattr(lib, name))
+        # the entry points as attributes (_accelerations, ...), gathered once per library
+        # (their argument types: set when it was loaded)
+        if not hasattr(lib, "bound"):
+            lib.bound = {"_" + name[4:]: getattr(lib, name) for name in _SIGNATURES}
+        self.__dict__.update(lib.bound)
 
     def forget(self) -> None:
         """Drop the kept evaluation (the next accelerations call computes anew)."""

@@ -12,12 +12,11 @@ the other fast steps: one kind is armed at a time).
 from __future__ import annotations
 
 import ctypes
-import math
 
 import numpy as np
 
 from .fixed import AUDIT_SIZE, DRV_SIZE, sampled_arrays, table_arrays
-from .model import watch_events
+from .model import Carved, watch_events
 
 _P, _I, _D = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
 
@@ -160,38 +159,44 @@ class PrkPy(ctypes.Structure):
                 ("cpu_limit", _D), ("cpu_start", _D), ("undo", _P), ("coming", _D)]
 
 
-class PrkRunBuffers:
+class PrkRunBuffers(Carved):
     """The arrays a ``PrkPy`` points at, for one tableau: y, f (the state, in place), the
     stage inputs, the trial's stages and results, the last accepted step and the audit;
     ``driven``: with drivers, the motion table's arrays and the stages' time fractions."""
 
     def __init__(self, n: int, m: int, nf: int, ns: int):
         n2 = 2 * n
-        shapes = dict(y=(n2,), f=(n2,), y_new=(n2,), f_new=(n2,), y_old=(n2,), y_end=(n2,),
-                      K=(ns + 1, n2), K_old=(ns + 1, n2), motions=(ns + 1, 3 * m),
-                      ufs=(ns + 1, max(nf, 1)), audit=(AUDIT_SIZE,))
-        sizes = [math.prod(shape) for shape in shapes.values()]     # np.prod: 3 µs each
-        self.block = np.zeros(sum(sizes))               # one allocation, parts by name
-        base, start, self.address = self.block.ctypes.data, 0, {}
-        for (name, shape), size in zip(shapes.items(), sizes):
-            setattr(self, name, self.block[start:start + size].reshape(shape))
-            self.address[name] = base + 8 * start
-            start += size
+        super().__init__((("y", (n2,)), ("f", (n2,)), ("y_new", (n2,)), ("f_new", (n2,)),
+                          ("y_old", (n2,)), ("y_end", (n2,)), ("K", (ns + 1, n2)),
+                          ("K_old", (ns + 1, n2)), ("motions", (ns + 1, 3 * m)),
+                          ("ufs", (ns + 1, max(nf, 1))), ("audit", (AUDIT_SIZE,))))
         self.driven: tuple | None = None
+
+
+# The gaps' arrays (singular_zone.gaps) with their count and addresses, by the first
+# array's identity: held here, so that identity stays theirs
+_GAP_POINTERS: dict = {}
+
+
+def gap_pointers(gaps) -> tuple:
+    """(count, address of the middles, of the widths) of ``gaps``."""
+    key = id(gaps[0])
+    if key not in _GAP_POINTERS:
+        arrays = [np.ascontiguousarray(a, dtype=float) for a in gaps]
+        _GAP_POINTERS[key] = (arrays, arrays[0].size, *(a.ctypes.data for a in arrays))
+    return _GAP_POINTERS[key][1:]
 
 
 def point_run(p: PrkPy, b: PrkRunBuffers, tableau, gaps) -> None:
     """Point p at the arrays of b, the pair ``tableau`` (``Kernel.tableau``) and the gaps
-    between its nodes (``singular_zone.gaps``, kept in b)."""
+    between its nodes (``singular_zone.gaps``)."""
     r = p.r
     r.ns, r.A, r.B, r.E, r.E3 = tableau[0], *(x or 0 for x in tableau[1:5])
-    for name in ("y", "f", "K", "y_new", "f_new", "motions", "ufs"):
-        setattr(r, name, b.address[name])
-    r.motion = b.address["motions"]
-    for name in ("y_old", "y_end", "K_old"):
-        setattr(p, name, b.address[name])
-    b.gaps = [np.ascontiguousarray(a, dtype=float) for a in gaps]
-    p.ngaps, p.gap_mid, p.gap_width = b.gaps[0].size, *(a.ctypes.data for a in b.gaps)
+    r.y, r.f, r.K, r.y_new, r.f_new = b.p_y, b.p_f, b.p_K, b.p_y_new, b.p_f_new
+    r.motions = r.motion = b.p_motions
+    r.ufs = b.p_ufs
+    p.y_old, p.y_end, p.K_old = b.p_y_old, b.p_y_end, b.p_K_old
+    p.ngaps, p.gap_mid, p.gap_width = gap_pointers(gaps)
 
 
 def prk_run(kernel, tableau, gaps, settings: dict, y, f, motion, audit, motions=None,
@@ -231,6 +236,6 @@ def prk_run(kernel, tableau, gaps, settings: dict, y, f, motion, audit, motions=
         p.audit = None
     else:
         b.audit[:] = audit
-        p.audit = b.address["audit"]
+        p.audit = b.p_audit
     status = function(kernel.address, ctypes.addressof(p))
     return status, p, b

@@ -125,7 +125,7 @@ class DenseRuns:
             p.audit = None
         else:
             b.audit[:] = audit
-            p.audit = b.audit.ctypes.data
+            p.audit = b.p_audit
         self._watch_events(run, b, events)
         run.horizon = np.nan if horizon is None else horizon
         if motions is None:

@@ -5,6 +5,7 @@ blocks whose addresses the struct holds (``_packed``)."""
 from __future__ import annotations
 
 import ctypes
+import functools
 import math
 from typing import NamedTuple
 
@@ -223,3 +224,41 @@ def shared_model(eq) -> SharedModel:
             6 * eq.nb + arrays["nplan"] + arrays["ndriver"] + 3 * springs + 4,
             arrays["nslide"], arrays["s_real"])
     return shared
+
+
+
+@functools.lru_cache(maxsize=64)
+def _layout(shapes: tuple) -> tuple[int, dict]:
+    """(doubles in all, {name: (start, stop, shape)}) of ``shapes`` ((name, shape), ...)
+    laid end to end."""
+    parts, start = {}, 0
+    for name, shape in shapes:
+        stop = start + math.prod(shape)
+        parts[name] = (start, stop, shape)
+        start = stop
+    return start, parts
+
+
+class Carved:
+    """One zeroed block of doubles (``block``) cut into named parts, ``shapes`` ((name,
+    shape), ...): each part is ``<name>`` (a view of that shape) and its address
+    ``p_<name>``, made when first read. One allocation and one address asked of numpy, the
+    layout worked out once per shapes: a run's buffers are made for every Simulation, and
+    most runs read few of their parts."""
+
+    def __init__(self, shapes: tuple):
+        self._total, self._parts = _layout(shapes)
+        self.block = np.zeros(self._total)
+        self._base = self.block.ctypes.data
+
+    def __getattr__(self, name: str):      # a part not read yet (others: in __dict__)
+        parts = self.__dict__.get("_parts", {})
+        if name in parts:
+            start, stop, shape = parts[name]
+            value = self.block[start:stop].reshape(shape)
+        elif name[:2] == "p_" and name[2:] in parts:
+            value = self._base + 8 * parts[name[2:]][0]
+        else:
+            raise AttributeError(name)
+        self.__dict__[name] = value
+        return value
