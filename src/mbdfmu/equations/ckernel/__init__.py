@@ -13,6 +13,7 @@ to the numpy kernel (tests/test_ckernel.py).
 from __future__ import annotations
 
 import ctypes
+import functools
 import hashlib
 import itertools
 import os
@@ -148,16 +149,19 @@ class Buffers(Carved):
     and results are copied in and out, so a call passes addresses known beforehand."""
 
     def __init__(self, n: int, m: int, nf: int, nout: int):
-        # inputs at each time a run of steps evaluates (motions: (c, c', c''), ufs: the
-        # force inputs), then one row each
-        super().__init__((
-            ("motions", (MAX_ROWS, 3 * m)), ("ufs", (MAX_ROWS, max(nf, 1))), ("q", (n,)),
+        super().__init__(_buffer_shapes(n, m, nf, nout))
+        self.done = self.done.view(np.int64)     # an int64 flag in a double's place
+
+
+@functools.lru_cache(maxsize=16)
+def _buffer_shapes(n: int, m: int, nf: int, nout: int) -> tuple:
+    # inputs at each time a run of steps evaluates (motions: (c, c', c''), ufs: the force
+    # inputs), then one row each
+    return (("motions", (MAX_ROWS, 3 * m)), ("ufs", (MAX_ROWS, max(nf, 1))), ("q", (n,)),
             ("qd", (n,)), ("motion", (3 * m,)), ("uf", (max(nf, 1),)), ("qdd", (n,)),
             ("lam", (max(m, 1),)), ("y", (2 * n,)), ("f", (2 * n,)), ("y_new", (2 * n,)),
             ("f_new", (2 * n,)), ("K", (MAX_STAGES * 2 * n,)), ("err", (2,)), ("audit", (13,)),
-            ("out", (nout,)), ("done", (1,))))
-        start, stop, _ = self._parts["done"]
-        self.done = self.block[start:stop].view(np.int64)   # an int64 flag in a double's place
+            ("out", (nout,)), ("done", (1,)))
 
 
 class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):

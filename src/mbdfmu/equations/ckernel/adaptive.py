@@ -12,6 +12,7 @@ the other fast steps: one kind is armed at a time).
 from __future__ import annotations
 
 import ctypes
+import functools
 
 import numpy as np
 
@@ -165,12 +166,16 @@ class PrkRunBuffers(Carved):
     ``driven``: with drivers, the motion table's arrays and the stages' time fractions."""
 
     def __init__(self, n: int, m: int, nf: int, ns: int):
-        n2 = 2 * n
-        super().__init__((("y", (n2,)), ("f", (n2,)), ("y_new", (n2,)), ("f_new", (n2,)),
-                          ("y_old", (n2,)), ("y_end", (n2,)), ("K", (ns + 1, n2)),
-                          ("K_old", (ns + 1, n2)), ("motions", (ns + 1, 3 * m)),
-                          ("ufs", (ns + 1, max(nf, 1))), ("audit", (AUDIT_SIZE,))))
+        super().__init__(_run_shapes(n, m, nf, ns))
         self.driven: tuple | None = None
+
+
+@functools.lru_cache(maxsize=16)
+def _run_shapes(n: int, m: int, nf: int, ns: int) -> tuple:
+    n2 = 2 * n
+    return (("y", (n2,)), ("f", (n2,)), ("y_new", (n2,)), ("f_new", (n2,)), ("y_old", (n2,)),
+            ("y_end", (n2,)), ("K", (ns + 1, n2)), ("K_old", (ns + 1, n2)),
+            ("motions", (ns + 1, 3 * m)), ("ufs", (ns + 1, max(nf, 1))), ("audit", (AUDIT_SIZE,)))
 
 
 # The gaps' arrays (singular_zone.gaps) with their count and addresses, by the first

@@ -227,38 +227,35 @@ def shared_model(eq) -> SharedModel:
 
 
 
+
 @functools.lru_cache(maxsize=64)
-def _layout(shapes: tuple) -> tuple[int, dict]:
-    """(doubles in all, {name: (start, stop, shape)}) of ``shapes`` ((name, shape), ...)
-    laid end to end."""
-    parts, start = {}, 0
+def _layout(shapes: tuple) -> tuple:
+    """For ``shapes`` ((name, shape), ...) laid end to end: (doubles in all, the flat parts
+    (name, start, stop), the others (name, start, stop, shape), the addresses' names and
+    offsets in bytes (p_<name>, offset))."""
+    flat, shaped, offsets, start = [], [], [], 0
     for name, shape in shapes:
         stop = start + math.prod(shape)
-        parts[name] = (start, stop, shape)
+        if len(shape) == 1:
+            flat.append((name, start, stop))
+        else:
+            shaped.append((name, start, stop, shape))
+        offsets.append(("p_" + name, 8 * start))
         start = stop
-    return start, parts
+    return start, tuple(flat), tuple(shaped), tuple(offsets)
 
 
 class Carved:
     """One zeroed block of doubles (``block``) cut into named parts, ``shapes`` ((name,
     shape), ...): each part is ``<name>`` (a view of that shape) and its address
-    ``p_<name>``, made when first read. One allocation and one address asked of numpy, the
-    layout worked out once per shapes: a run's buffers are made for every Simulation, and
-    most runs read few of their parts."""
+    ``p_<name>``. One allocation and one address asked of numpy, the layout worked out
+    once per shapes: a run's buffers are made for every Simulation."""
 
     def __init__(self, shapes: tuple):
-        self._total, self._parts = _layout(shapes)
-        self.block = np.zeros(self._total)
-        self._base = self.block.ctypes.data
-
-    def __getattr__(self, name: str):      # a part not read yet (others: in __dict__)
-        parts = self.__dict__.get("_parts", {})
-        if name in parts:
-            start, stop, shape = parts[name]
-            value = self.block[start:stop].reshape(shape)
-        elif name[:2] == "p_" and name[2:] in parts:
-            value = self._base + 8 * parts[name[2:]][0]
-        else:
-            raise AttributeError(name)
-        self.__dict__[name] = value
-        return value
+        total, flat, shaped, offsets = _layout(shapes)
+        self.block = block = np.zeros(total)
+        base = block.ctypes.data
+        fields = {name: block[a:b] for name, a, b in flat}
+        fields.update((name, block[a:b].reshape(shape)) for name, a, b, shape in shaped)
+        fields.update((name, base + offset) for name, offset in offsets)
+        self.__dict__.update(fields)
