@@ -211,3 +211,26 @@ def test_a_run_whose_end_evaluation_is_read_evaluates_it(method, dense, monkeypa
     monkeypatch.setattr(DOP853P, "error_reads_end", True)
     after, out_after = counts()
     assert before == after and np.array_equal(out, out_after)
+
+
+@pytest.mark.parametrize("name", ["n_four_bar_2", "andrews", "pendulum_torque", "gear_pair"])
+def test_the_initial_step_in_c_is_pythons_to_the_last_bit(name, monkeypatch):
+    """ProjectedRK._initial_step in C (one evaluation and numpy's pairwise sums) gives the
+    Python formula's double and counts its evaluation, over tolerances that move the step
+    by decades, for both pairs."""
+    scene = mbdfmu.load_scene(name)
+    taken = []
+
+    def in_c(rk):
+        taken.append(initial_step(rk))
+        return taken[-1]
+    initial_step = c_steps.initial_step
+    for method in ("dop853p", "rk45p"):
+        for rtol in (1e-3, 1e-6, 1e-10):
+            monkeypatch.setattr(c_steps, "initial_step", in_c)
+            c = mbdfmu.Simulation(scene, method=method, kernel="c", rtol=rtol).integrator
+            monkeypatch.setattr(c_steps, "initial_step", lambda rk: None)
+            python = mbdfmu.Simulation(scene, method=method, kernel="c", rtol=rtol).integrator
+            assert taken[-1] is not None            # the C path was taken
+            assert c.h == python.h and 0.0 < c.h < math.inf
+            assert c.stats.naccel == python.stats.naccel

@@ -137,7 +137,12 @@ class ProjectedRK(AdaptiveStepping, Integrator):
         return self.local_tolerance * (self.atol + self.rtol * np.maximum(np.abs(y), np.abs(y_new)))
 
     def _initial_step(self) -> float:
-        """Hairer, Norsett and Wanner's starting step (Solving ODEs I, II.4)."""
+        """Hairer, Norsett and Wanner's starting step (Solving ODEs I, II.4); in the C kernel
+        where the inputs hold (``c_steps.initial_step``: the same double)."""
+        h = c_steps.initial_step(self)
+        if h is not None:
+            self.stats.naccel += 1
+            return h
         y = np.concatenate((self.q, self.qd))
         scale = self._scale(y, y)
         d0 = _rms(y / scale)

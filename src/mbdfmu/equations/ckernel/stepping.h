@@ -14,6 +14,66 @@ static int rhs(const Model *M, Scratch *s, const double *y, const double *motion
     return accelerations(M, s, y, y + n, motion, motion + 2 * m, uf, f + n, lam);
 }
 
+/* numpy's add.reduce of x (k contiguous doubles) to the last bit: its pairwise sum, eight
+ * partial sums up to 128 terms, two halves (a multiple of 8 first) beyond. */
+static double numpy_sum(const double *x, I k) {
+    if (k < 8) {
+        double r = 0.0;
+        for (I i = 0; i < k; i++) r += x[i];
+        return r;
+    }
+    if (k > 128) {
+        I half = k / 2;
+        half -= half % 8;
+        return numpy_sum(x, half) + numpy_sum(x + half, k - half);
+    }
+    double r[8];
+    I i;
+    for (int j = 0; j < 8; j++) r[j] = x[j];
+    for (i = 8; i < k - k % 8; i += 8)
+        for (int j = 0; j < 8; j++) r[j] += x[i + j];
+    double sum = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+    for (; i < k; i++) sum += x[i];
+    return sum;
+}
+
+/* projected_rk._rms of x / scale (k doubles; w: k scratch). */
+static double rms_scaled(const double *x, const double *scale, I k, double *w) {
+    for (I i = 0; i < k; i++) {
+        double v = x[i] / scale[i];
+        w[i] = v * v;
+    }
+    return sqrt(numpy_sum(w, k) / (double)k);
+}
+
+/* ProjectedRK._initial_step (Hairer, Norsett and Wanner, Solving ODEs I, II.4) from y (2n)
+ * with y' = f, the inputs held at (motion, uf): the same doubles, its one evaluation
+ * (at y + h0 f) in C. *h the step; an evaluation's ST_* otherwise (the numpy path's case).
+ * local: the step control's factor on rtol and atol (ProjectedRK.local_tolerance). */
+int mbd_initial_step(const Model *M, const double *y, const double *f, const double *motion,
+                     const double *uf, double local, double rtol, double atol, double max_step,
+                     I order, double *h) {
+    Scratch s = scratch(M, M->work);
+    I n2 = 2 * S_(M, n);
+    double *scale = s.qv, *w = scale + n2, *y1 = w + n2, *f1 = y1 + n2;
+    for (I k = 0; k < n2; k++) scale[k] = local * (atol + rtol * fabs(y[k]));
+    double d0 = rms_scaled(y, scale, n2, w), d1 = rms_scaled(f, scale, n2, w);
+    double h0 = d0 < 1e-5 || d1 < 1e-5 ? 1e-6 : 0.01 * d0 / d1;
+    if (max_step < h0) h0 = max_step;               /* Python's min: h0 unless max_step < h0 */
+    for (I k = 0; k < n2; k++) y1[k] = y[k] + h0 * f[k];
+    int st = rhs(M, &s, y1, motion, uf, f1, s.lam);
+    if (st != ST_OK) return st;
+    for (I k = 0; k < n2; k++) y1[k] = f1[k] - f[k];
+    double d2 = rms_scaled(y1, scale, n2, w) / h0, top = d2 > d1 ? d2 : d1;
+    double h1 = d1 <= 1e-15 && d2 <= 1e-15 ? (h0 * 1e-3 > 1e-6 ? h0 * 1e-3 : 1e-6)
+                                           : pow(0.01 / top, 1.0 / (double)(order + 1));
+    double best = 100.0 * h0;
+    if (h1 < best) best = h1;
+    if (max_step < best) best = max_step;
+    *h = best;
+    return ST_OK;
+}
+
 /* rhs at the state project() just left (same q: S's factor kept from the velocity
  * projection, not computed again). */
 static int rhs_projected(const Model *M, Scratch *s, const double *y, const double *motion,
