@@ -11,7 +11,7 @@ import pytest
 
 import mbdfmu
 from mbdfmu.bench.closed_forms import n_four_bar_B0
-from mbdfmu.integrators import c_steps
+from mbdfmu.integrators import c_steps, starting_step
 from mbdfmu.integrators.work import WorkLimit
 from mbdfmu.model.reader import resolve_scene_path, scene_from_dict
 
@@ -222,14 +222,14 @@ def test_the_initial_step_in_c_is_pythons_to_the_last_bit(name, monkeypatch):
     taken = []
 
     def in_c(rk):
-        taken.append(initial_step(rk))
+        taken.append(initial_step_in_c(rk))
         return taken[-1]
-    initial_step = c_steps.initial_step
+    initial_step_in_c = starting_step.initial_step_in_c
     for method in ("dop853p", "rk45p"):
         for rtol in (1e-3, 1e-6, 1e-10):
-            monkeypatch.setattr(c_steps, "initial_step", in_c)
+            monkeypatch.setattr(starting_step, "initial_step_in_c", in_c)
             c = mbdfmu.Simulation(scene, method=method, kernel="c", rtol=rtol).integrator
-            monkeypatch.setattr(c_steps, "initial_step", lambda rk: None)
+            monkeypatch.setattr(starting_step, "initial_step_in_c", lambda rk: None)
             python = mbdfmu.Simulation(scene, method=method, kernel="c", rtol=rtol).integrator
             assert taken[-1] is not None            # the C path was taken
             assert c.h == python.h and 0.0 < c.h < math.inf

@@ -316,21 +316,6 @@ def held_forces(rk) -> np.ndarray | None:
     return first.forces if first is rk.inputs(rk.t + 1.0) else None
 
 
-def initial_step(rk) -> float | None:
-    """``ProjectedRK._initial_step`` in the C kernel (``Kernel.initial_step``: the same
-    double, its evaluation counted by the caller) where the inputs hold over the first step:
-    no drivers, the force inputs held; else None (Python's)."""
-    eq = rk.equations
-    if eq.ckernel is None or eq.scene.drivers or eq.layout.drivers:
-        return None
-    forces = held_forces(rk) if eq.ckernel.nf else None
-    if eq.ckernel.nf and forces is None:
-        return None
-    return eq.ckernel.initial_step(np.concatenate((rk.q, rk.qd)), rk.f, eq.motion_values(rk.t),
-                                   forces, (rk.local_tolerance, rk.rtol, rk.atol), rk.max_step,
-                                   rk.order)
-
-
 def prk_runs(rk) -> bool:
     """Whether ``prk_run`` can take rk's coming steps (the caller checks that rk steps as
     ``ProjectedRK`` does): an embedded pair on a scene whose force inputs, if any, hold

@@ -34,7 +34,7 @@ import numpy as np
 from ..equations.projection import PROJECTION_MAX_ITER, project_positions, project_velocities
 from ..equations.sparsity import schur_solve
 from ..errors import SolverError
-from . import c_steps, dense_output, singular_zone
+from . import c_steps, dense_output, singular_zone, starting_step
 from .adaptive import ERR_OLD_MIN, AdaptiveStepping, accepted_step, rejected_step
 from .base import Integrator, OutputPoint
 from . import tableaux
@@ -137,23 +137,7 @@ class ProjectedRK(AdaptiveStepping, Integrator):
         return self.local_tolerance * (self.atol + self.rtol * np.maximum(np.abs(y), np.abs(y_new)))
 
     def _initial_step(self) -> float:
-        """Hairer, Norsett and Wanner's starting step (Solving ODEs I, II.4); in the C kernel
-        where the inputs hold (``c_steps.initial_step``: the same double)."""
-        h = c_steps.initial_step(self)
-        if h is not None:
-            self.stats.naccel += 1
-            return h
-        y = np.concatenate((self.q, self.qd))
-        scale = self._scale(y, y)
-        d0 = _rms(y / scale)
-        d1 = _rms(self.f / scale)
-        h0 = 1e-6 if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
-        h0 = min(h0, self.max_step)
-        f1 = self._rhs_y(self.t + h0, y + h0 * self.f)
-        d2 = _rms((f1 - self.f) / scale) / h0
-        h1 = (max(1e-6, h0 * 1e-3) if d1 <= 1e-15 and d2 <= 1e-15
-              else (0.01 / max(d1, d2)) ** (1.0 / (self.order + 1)))
-        return min(100 * h0, h1, self.max_step)
+        return starting_step.initial_step(self)
 
     def _error_norm(self, K, h, scale, tangent=None):
         raise NotImplementedError
@@ -393,8 +377,3 @@ class DOP853P(ProjectedRK):
     def _interpolated(self, step, x):
         return dense_output.dop853_value(step, x)
 
-
-def _rms(v: np.ndarray) -> float:
-    """np.sqrt(np.mean(v ** 2)) to the last bit (the same sum and division), without
-    np.mean's dispatch."""
-    return math.sqrt(np.add.reduce(v * v) / v.size)
