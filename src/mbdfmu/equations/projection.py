@@ -150,8 +150,12 @@ def assembly_changes(system: Equations, given: tuple[np.ndarray, np.ndarray],
     defaults are not reported."""
     q0, qd0 = given
     q, qd = assembled
-    moved = np.abs(q - q0) > ASSEMBLY_TOL * system.length_scale
-    sped = np.abs(qd - qd0) > VELOCITY_CHANGE_TOL * np.maximum(
+    dq, dqd = np.abs(q - q0), np.abs(qd - qd0)
+    tol = ASSEMBLY_TOL * system.length_scale
+    if dq.max(initial=0.0) <= tol and dqd.max(initial=0.0) <= VELOCITY_CHANGE_TOL:
+        return []       # nothing beyond its limit (a velocity's is at least this): the usual case
+    moved = dq > tol
+    sped = dqd > VELOCITY_CHANGE_TOL * np.maximum(
         1.0, np.maximum(np.abs(qd0), np.abs(qd)))
     lines = []
     for i in np.flatnonzero(moved | sped).tolist():     # the values beyond their limit

@@ -152,17 +152,32 @@ class Buffers(Carved):
     def __init__(self, n: int, m: int, nf: int, nout: int):
         super().__init__(_buffer_shapes(n, m, nf, nout))
         self.done = self.done.view(np.int64)     # an int64 flag in a double's place
+        self._row_shapes = (MAX_ROWS, 3 * m), (MAX_ROWS, max(nf, 1))
+
+    @functools.cached_property
+    def _rows(self) -> tuple:
+        """(motions, ufs, their addresses): the inputs at each time a run of steps or a trial
+        evaluates ((c, c', c'') and the force inputs, one row each), MAX_ROWS rows, nine
+        tenths of the buffers: made at the first such call, as a run of the embedded pairs
+        has its own (``PrkRunBuffers``) and most kernels never make one."""
+        (rows, width), (_, nf) = self._row_shapes
+        block = np.zeros(rows * (width + nf))
+        base = block.ctypes.data
+        return (block[:rows * width].reshape(rows, width), block[rows * width:].reshape(rows, nf),
+                base, base + 8 * rows * width)
+
+    motions = property(lambda self: self._rows[0])
+    ufs = property(lambda self: self._rows[1])
+    p_motions = property(lambda self: self._rows[2])
+    p_ufs = property(lambda self: self._rows[3])
 
 
 @functools.lru_cache(maxsize=16)
 def _buffer_shapes(n: int, m: int, nf: int, nout: int) -> tuple:
-    # inputs at each time a run of steps evaluates (motions: (c, c', c''), ufs: the force
-    # inputs), then one row each
-    return (("motions", (MAX_ROWS, 3 * m)), ("ufs", (MAX_ROWS, max(nf, 1))), ("q", (n,)),
-            ("qd", (n,)), ("motion", (3 * m,)), ("uf", (max(nf, 1),)), ("qdd", (n,)),
-            ("lam", (max(m, 1),)), ("y", (2 * n,)), ("f", (2 * n,)), ("y_new", (2 * n,)),
-            ("f_new", (2 * n,)), ("K", (MAX_STAGES * 2 * n,)), ("err", (2,)), ("audit", (13,)),
-            ("out", (nout,)), ("done", (1,)))
+    return (("q", (n,)), ("qd", (n,)), ("motion", (3 * m,)), ("uf", (max(nf, 1),)),
+            ("qdd", (n,)), ("lam", (max(m, 1),)), ("y", (2 * n,)), ("f", (2 * n,)),
+            ("y_new", (2 * n,)), ("f_new", (2 * n,)), ("K", (MAX_STAGES * 2 * n,)), ("err", (2,)),
+            ("audit", (13,)), ("out", (nout,)), ("done", (1,)))
 
 
 class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
