@@ -214,23 +214,30 @@ def test_a_run_whose_end_evaluation_is_read_evaluates_it(method, dense, monkeypa
 
 
 @pytest.mark.parametrize("name", ["n_four_bar_2", "andrews", "pendulum_torque", "gear_pair"])
-def test_the_initial_step_in_c_is_pythons_to_the_last_bit(name, monkeypatch):
-    """ProjectedRK._initial_step in C (one evaluation and numpy's pairwise sums) gives the
-    Python formula's double and counts its evaluation, over tolerances that move the step
-    by decades, for both pairs."""
+def test_a_start_in_c_is_pythons_to_the_last_bit(name, monkeypatch):
+    """A pair's start in C (y' and the singularity indicator in one call, then the starting
+    step: one evaluation and numpy's pairwise sums) gives the Python path's doubles and
+    counts its evaluations, over tolerances that move the step by decades, both pairs."""
     scene = mbdfmu.load_scene(name)
     taken = []
 
-    def in_c(rk):
-        taken.append(initial_step_in_c(rk))
-        return taken[-1]
-    initial_step_in_c = starting_step.initial_step_in_c
+    def in_c(function):
+        def call(rk):
+            taken.append(function(rk))
+            return taken[-1]
+        return call
+    start_in_c, initial_step_in_c = starting_step.start_in_c, starting_step.initial_step_in_c
     for method in ("dop853p", "rk45p"):
         for rtol in (1e-3, 1e-6, 1e-10):
-            monkeypatch.setattr(starting_step, "initial_step_in_c", in_c)
+            monkeypatch.setattr(starting_step, "start_in_c", in_c(start_in_c))
+            monkeypatch.setattr(starting_step, "initial_step_in_c", in_c(initial_step_in_c))
             c = mbdfmu.Simulation(scene, method=method, kernel="c", rtol=rtol).integrator
+            assert len(taken) == 2 and None not in taken      # both C paths were taken
+            taken.clear()
+            monkeypatch.setattr(starting_step, "start_in_c", lambda rk: None)
             monkeypatch.setattr(starting_step, "initial_step_in_c", lambda rk: None)
             python = mbdfmu.Simulation(scene, method=method, kernel="c", rtol=rtol).integrator
-            assert taken[-1] is not None            # the C path was taken
             assert c.h == python.h and 0.0 < c.h < math.inf
+            assert np.array_equal(c.f, python.f)
+            assert c.zone.indicator == python.zone.indicator
             assert c.stats.naccel == python.stats.naccel

@@ -113,11 +113,15 @@ class ProjectedRK(AdaptiveStepping, Integrator):
             self.skip_end = False
 
     def restart(self):
-        self.f = self._rhs(self.t, self.q, self.qd)
+        started = starting_step.start_in_c(self) if type(self)._rhs is ProjectedRK._rhs else None
+        if started is None:
+            started = (self._rhs(self.t, self.q, self.qd),
+                       singular_zone.indicator(self, self.t, self.q))
+        self.f = started[0]
         self.energy_rejected = None  # energy error of the last step rejected for it
         self.dense = None            # the last step, for outputs inside it
         self.zone = singular_zone.SingularZone()
-        self.zone.indicator = singular_zone.indicator(self, self.t, self.q)
+        self.zone.indicator = started[1]
         if self.h is None:
             self.h = self._initial_step()
             self.err_old = ERR_OLD_MIN

@@ -1,6 +1,8 @@
-"""The embedded pairs' starting step (Hairer, Norsett and Wanner, Solving ODEs I, II.4):
-``initial_step(rk)``, in the C kernel where the inputs hold over the first step (the same
-double: its sums in numpy's order, ``Kernel.initial_step``), else in numpy."""
+"""How the embedded pairs start: y' and the singularity indicator at the start
+(``start_in_c``: one C call where there is a C kernel), and the starting step (Hairer,
+Norsett and Wanner, Solving ODEs I, II.4): ``initial_step(rk)``, in the C kernel where the
+inputs hold over the first step (the same double: its sums in numpy's order,
+``Kernel.initial_step``), else in numpy."""
 
 from __future__ import annotations
 
@@ -8,6 +10,7 @@ import math
 
 import numpy as np
 
+from ..equations.dynamics import Equations
 from .c_steps import held_forces
 
 
@@ -29,6 +32,21 @@ def initial_step(rk) -> float:
     h1 = (max(1e-6, h0 * 1e-3) if d1 <= 1e-15 and d2 <= 1e-15
           else (0.01 / max(d1, d2)) ** (1.0 / (rk.order + 1)))
     return min(100 * h0, h1, rk.max_step)
+
+
+def start_in_c(rk) -> tuple[np.ndarray, float] | None:
+    """(y', the singularity indicator) at rk's state in one C call, its evaluation counted:
+    what ``_rhs`` and ``singular_zone.indicator`` give, where the equations' accelerations
+    are eq. (14)'s own (not a contact mode's); else None."""
+    eq = rk.equations
+    if eq.ckernel is None or type(eq).accelerations is not Equations.accelerations:
+        return None
+    u = rk.inputs(rk.t)
+    done = eq.ckernel.start(rk.q, rk.qd, eq.motion_values(rk.t, u), u.forces)
+    if done is None:
+        return None
+    rk.stats.naccel += 1
+    return np.concatenate((rk.qd, done[0])), done[1]
 
 
 def initial_step_in_c(rk) -> float | None:

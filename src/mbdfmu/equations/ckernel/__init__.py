@@ -42,7 +42,7 @@ _SIGNATURES = {
     "mbd_accelerations": [_P] * 8, "mbd_outputs": [_P] * 8, "mbd_state_outputs": [_P] * 8,
     "mbd_project_positions": [_P, _P, _P, _D, _I], "mbd_project_velocities": [_P] * 5,
     "mbd_singularity_indicator": [_P] * 4, "mbd_dense_state": [_P, _P, _D, _P],
-    "mbd_initial_step": [_P] * 5 + [_D] * 4 + [_I, _P],
+    "mbd_initial_step": [_P] * 5 + [_D] * 4 + [_I, _P], "mbd_start": [_P] * 8,
     "mbd_rk4p_steps": [_P, _P, _P, _D, _I, _P, _I, _P, _I, _D, _I, _P, _D, _D, _P],
     "mbd_prk_trial": [_P, _I, _P, _P, _P, _P, _D, _P, _P, _P, _P, _D, _D, _D, _I, _P, _P, _P,
                       _P],
@@ -296,19 +296,6 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
                                      c.ctypes.data if m else None, psi.ctypes.data,
                                      data.ctypes.data, gamma.ctypes.data)
         return psi[:m], data[:self._size], None if qd is None else gamma[:m]
-
-    def initial_step(self, y, f, motion, uf, tolerances: tuple, max_step: float,
-                     order: int) -> float | None:
-        """``ProjectedRK._initial_step`` from y with y' = f, the inputs (motion: (c, c', c'');
-        uf) held: its step (the same double), or None for the numpy path's case.
-        ``tolerances``: (local factor, rtol, atol)."""
-        b = self.buf
-        b.y[:], b.f[:] = y, f
-        self._load(b.q, b.qd, motion, uf)
-        if self._initial_step(self.address, b.p_y, b.p_f, b.p_motion, b.p_uf, *tolerances,
-                              max_step, order, b.p_err) != OK:
-            return None
-        return float(b.err[0])
 
     def singularity_indicator(self, q, motion) -> float:
         """``singular.singularity_indicator`` of Psi_q at q (motion: (c, c', c''))."""

@@ -16,6 +16,7 @@ import functools
 
 import numpy as np
 
+from .dense import ST_OK
 from .fixed import AUDIT_SIZE, DRV_SIZE, sampled_arrays, table_arrays
 from .model import Carved, watch_events
 
@@ -52,6 +53,30 @@ class PrkSteps:
     """The embedded pairs' fast steps of ``Kernel`` (see the module docstring)."""
 
     prk: PrkRun | None = None
+
+    def start(self, q, qd, motion, uf):
+        """(q'', the singularity indicator at q): ``accelerations`` and
+        ``singularity_indicator`` in one call (a run's start), or None for the numpy path's
+        case."""
+        b = self.buf
+        self._load(q, qd, motion, uf)
+        if self._start(self.address, b.p_q, b.p_qd, b.p_motion, b.p_uf, b.p_qdd, b.p_lam,
+                       b.p_err) != ST_OK:
+            return None
+        return b.qdd.copy(), float(b.err[0])
+
+    def initial_step(self, y, f, motion, uf, tolerances: tuple, max_step: float,
+                     order: int) -> float | None:
+        """``ProjectedRK._initial_step`` from y with y' = f, the inputs (motion: (c, c', c'');
+        uf) held: its step (the same double), or None for the numpy path's case.
+        ``tolerances``: (local factor, rtol, atol)."""
+        b = self.buf
+        b.y[:], b.f[:] = y, f
+        self._load(b.q, b.qd, motion, uf)
+        if self._initial_step(self.address, b.p_y, b.p_f, b.p_motion, b.p_uf, *tolerances,
+                              max_step, order, b.p_err) != ST_OK:
+            return None
+        return float(b.err[0])
 
     def arm_prk_steps(self, run: dict, tableau, inputs, pub_dst, pub_src,
                       events=None, motions=None) -> tuple:

@@ -614,6 +614,15 @@ int mbd_singularity_indicator(const Model *M, const double *q, const double *cva
     return ST_OK;
 }
 
+/* A run's start at (q, q'), motion: (c, c', c''): q'' and lam of eq. (14) as
+ * mbd_accelerations, then the singularity indicator at q as mbd_singularity_indicator
+ * (ProjectedRK.restart's two evaluations in one call). */
+int mbd_start(const Model *M, const double *q, const double *qd, const double *motion,
+              const double *uf, double *qdd, double *lam, double *indicator) {
+    int st = mbd_accelerations(M, q, qd, motion, motion + 2 * S_(M, m), uf, qdd, lam);
+    return st != ST_OK ? st : mbd_singularity_indicator(M, q, motion, indicator);
+}
+
 /* The dense minimum-norm solve (pivoted_min_norm) of S x = b on its own, S (m x m,
  * 0 < m < BANDED_MIN_ROWS) copied: the tests hold it to LAPACK's pseudo-inverse on
  * matrices of chosen rank and conditioning. 0 for a size out of range or a failed solve. */
