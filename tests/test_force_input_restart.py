@@ -109,10 +109,10 @@ def test_the_wrappers_restart_after_a_force_set_is_pythons_whole_evaluation():
     assert (a.q.tobytes(), a.qd.tobytes(), a.f.tobytes()) == \
         (b.q.tobytes(), b.qd.tobytes(), b.f.tobytes())
     assert a.zone.indicator == b.zone.indicator
-    # the same steps; Python's advances land on t + h with nothing to read at a trial's
-    # unprojected end (ProjectedRK.skip_end), the wrapper's steps evaluate it there
-    attempts = a.stats.nsteps + a.stats.nrejected - first["nsteps"] - first["nrejected"]
-    assert {**vars(a.stats), "naccel": a.stats.naccel - attempts} == vars(b.stats)
+    # the same steps and evaluations: neither reads y' at a trial's unprojected end
+    # (ProjectedRK.skip_end; the wrapper's, c_steps.fast_prk_run)
+    assert vars(a.stats) == vars(b.stats)
+    assert a.stats.nsteps + a.stats.nrejected > first["nsteps"] + first["nrejected"]
     numpy_indicator = singular.singularity_indicator(b.constraints(b.t, b.q, sparse=True)[1])
     assert a.zone.indicator == pytest.approx(numpy_indicator, rel=1e-12)
 

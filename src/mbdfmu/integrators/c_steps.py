@@ -275,8 +275,11 @@ def fast_prk_run(rk, limit, time_tol: float, factors: tuple,
     max_work = wrapper_attempts(limit)
     if max_work is None:
         return None
+    # the wrapper's steps keep no dense output: y' at a trial's unprojected end serves only
+    # an error estimate that weighs it (rk45p's) and auto's stiffness check
+    skip_end = not (rk.error_reads_end or stiff_limit)
     return pair_settings(rk, factors, max_work) | dict(
-        t_now=rk.t, time_tol=time_tol, stiff_limit=stiff_limit or 0.0,
+        t_now=rk.t, time_tol=time_tol, stiff_limit=stiff_limit or 0.0, skip_end=int(skip_end),
         y=np.concatenate((rk.q, rk.qd)), f=rk.f)
 
 

@@ -60,8 +60,10 @@ typedef struct {
     MotionTable mt;                /* the drivers' motions (nmotion 0: none, `motion` holds) */
     const double *fractions;       /* the stages' times in a step, then 1 (c_steps.tableau) */
     SampledSet sd;                 /* drivers whose position the master sets (motions.h) */
-    I skip_end;                    /* 1: mbd_prk_run's trials leave out y' at their
-                                    * unprojected end (prk_trial; ProjectedRK.skip_end) */
+    I skip_end;                    /* 1: the trials leave out y' at their unprojected end
+                                    * (prk_trial), which nothing reads: mbd_prk_run's
+                                    * (ProjectedRK.skip_end) and the wrapper's steps
+                                    * (c_steps.fast_prk_run) */
 } PrkRun;
 
 /* auto_watch.stiffness, Hairer's h |lambda| of a step of the pair (ns stages, A (ns, ns),
@@ -112,18 +114,20 @@ static double accepted_step(const PrkRun *r, double hh, double err, double err_o
 static int prk_try(const Model *M, PrkRun *r, Scratch *s, const double *y, const double *f,
                    double hh, double err_old, double *h_next, double *c1, double *err_out,
                    I *naccel, I *nproj) {
-    I ns = r->ns;
+    I ns = r->ns, evals = r->skip_end ? ns - 1 : ns;
     double err = 0.0;
     int kept = 0;
     /* the indicator at the start is at least NEAR_ZONE (checked before), so the trial's
-     * error estimate is the plain one unless *c1 < NEAR_ZONE, which hands the step back */
+     * error estimate is the plain one unless *c1 < NEAR_ZONE, which hands the step back;
+     * y' at the unprojected end only where something reads it (skip_end: c_steps.
+     * fast_prk_run; these steps keep no dense output) */
     int st = prk_trial(M, ns, r->A, r->B, r->E, r->E3, hh, y, f, r->motions, r->ufs, r->rtol,
                        r->atol, r->tol, r->max_iter, r->y_new, r->f_new, &err, r->K,
-                       INFINITY, c1, &kept, 1);      /* the end's y': its dense output's */
+                       INFINITY, c1, &kept, !r->skip_end);
     if (st == ST_SINGULAR || st == ST_SPRING || st == ST_PROJECTION) return -1;
-    if (st == ST_NOT_FINITE) { *naccel += ns; *h_next = hh * r->min_factor; return 0; }
+    if (st == ST_NOT_FINITE) { *naccel += evals; *h_next = hh * r->min_factor; return 0; }
     if (*c1 < NEAR_ZONE) return -1;    /* the indicator at the step's end, before projecting */
-    *naccel += ns;
+    *naccel += evals;
     if (st == ST_ERROR_NORM) {
         *h_next = hh * fmax(r->min_factor, r->safety * pow(err, r->exponent));
         return 0;
