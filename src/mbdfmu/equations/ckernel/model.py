@@ -226,8 +226,6 @@ def shared_model(eq) -> SharedModel:
     return shared
 
 
-
-
 @functools.lru_cache(maxsize=64)
 def _layout(shapes: tuple) -> tuple:
     """For ``shapes`` ((name, shape), ...) laid end to end: (doubles in all, the flat parts
