@@ -235,9 +235,14 @@ class Kernel(DenseReads, DenseRuns, FixedSteps, PrkSteps, ImplicitCalls):
         self.memo[0] = 0.0
 
     def _load(self, q, qd, motion, uf) -> None:
-        b, m = self.buf, self.m
+        b = self.buf
         b.q[:] = q
         b.qd[:] = qd
+        self._load_inputs(motion, uf)
+
+    def _load_inputs(self, motion, uf) -> None:
+        """The rows' motions (c, c', c'') and the force inputs (None: as they are)."""
+        b, m = self.buf, self.m
         b.motion[:m], b.motion[m:2 * m], b.motion[2 * m:] = motion
         if uf is not None:
             b.uf[:self.nf] = uf

@@ -67,12 +67,12 @@ class PrkSteps:
 
     def initial_step(self, y, f, motion, uf, tolerances: tuple, max_step: float,
                      order: int) -> float | None:
-        """``ProjectedRK._initial_step`` from y with y' = f, the inputs (motion: (c, c', c'');
+        """``starting_step.initial_step`` from y with y' = f, the inputs (motion: (c, c', c'');
         uf) held: its step (the same double), or None for the numpy path's case.
         ``tolerances``: (local factor, rtol, atol)."""
         b = self.buf
         b.y[:], b.f[:] = y, f
-        self._load(b.q, b.qd, motion, uf)
+        self._load_inputs(motion, uf)
         if self._initial_step(self.address, b.p_y, b.p_f, b.p_motion, b.p_uf, *tolerances,
                               max_step, order, b.p_err) != ST_OK:
             return None

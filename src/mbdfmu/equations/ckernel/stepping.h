@@ -37,7 +37,7 @@ static double numpy_sum(const double *x, I k) {
     return sum;
 }
 
-/* projected_rk._rms of x / scale (k doubles; w: k scratch). */
+/* starting_step._rms of x / scale (k doubles; w: k scratch). */
 static double rms_scaled(const double *x, const double *scale, I k, double *w) {
     for (I i = 0; i < k; i++) {
         double v = x[i] / scale[i];
@@ -46,7 +46,7 @@ static double rms_scaled(const double *x, const double *scale, I k, double *w) {
     return sqrt(numpy_sum(w, k) / (double)k);
 }
 
-/* ProjectedRK._initial_step (Hairer, Norsett and Wanner, Solving ODEs I, II.4) from y (2n)
+/* starting_step.initial_step (Hairer, Norsett and Wanner, Solving ODEs I, II.4) from y (2n)
  * with y' = f, the inputs held at (motion, uf): the same doubles, its one evaluation
  * (at y + h0 f) in C. *h the step; an evaluation's ST_* otherwise (the numpy path's case).
  * local: the step control's factor on rtol and atol (ProjectedRK.local_tolerance). */
